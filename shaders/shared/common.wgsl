@@ -1,0 +1,64 @@
+// Shared by every particle stage: grid parameters, SPH kernels, minimum-image wrapping.
+// Mirrored in f64 by src/sim/reference/kernels.rs (same names).
+
+const PI: f32 = 3.14159265358979;
+
+// Uniform grid over the domain; x and z may be periodic (minimum image), y is walled.
+struct GridParams {
+    domain_min: vec3<f32>,
+    n_particles: u32,
+    domain_size: vec3<f32>,
+    n_boundary: u32,
+    cell_size: vec3<f32>,
+    num_cells: u32,
+    dims: vec3<u32>,
+    // bit 0: x periodic, bit 2: z periodic
+    periodic: u32,
+}
+
+// Poly6 kernel W(r, h), used for densities and interpolation.
+fn poly6(r2: f32, h: f32) -> f32 {
+    let h2 = h * h;
+    if (r2 >= h2) { return 0.0; }
+    let d = h2 - r2;
+    return 315.0 / (64.0 * PI * pow(h, 9.0)) * d * d * d;
+}
+
+// Gradient of the spiky kernel with respect to x_i, for x_ij = x_i - x_j with |x_ij| = r.
+fn spiky_grad(xij: vec3<f32>, r: f32, h: f32) -> vec3<f32> {
+    if (r >= h || r <= 1e-9 * h) { return vec3<f32>(0.0); }
+    let d = h - r;
+    return (-45.0 / (PI * pow(h, 6.0)) * d * d / r) * xij;
+}
+
+// Symmetric kernels for particles of different radii (paper eq. 19).
+fn poly6_sym(r2: f32, hi: f32, hj: f32) -> f32 {
+    return 0.5 * (poly6(r2, hi) + poly6(r2, hj));
+}
+fn spiky_grad_sym(xij: vec3<f32>, r: f32, hi: f32, hj: f32) -> vec3<f32> {
+    return 0.5 * (spiky_grad(xij, r, hi) + spiky_grad(xij, r, hj));
+}
+
+// Minimum-image displacement across periodic faces.
+fn min_image(d: vec3<f32>, g: GridParams) -> vec3<f32> {
+    var r = d;
+    if ((g.periodic & 1u) != 0u) { r.x = r.x - g.domain_size.x * round(r.x / g.domain_size.x); }
+    if ((g.periodic & 4u) != 0u) { r.z = r.z - g.domain_size.z * round(r.z / g.domain_size.z); }
+    return r;
+}
+
+// Integer cell of a position (clamped into the grid).
+fn cell_coord(p: vec3<f32>, g: GridParams) -> vec3<i32> {
+    let c = vec3<i32>(floor((p - g.domain_min) / g.cell_size));
+    return clamp(c, vec3<i32>(0), vec3<i32>(g.dims) - vec3<i32>(1));
+}
+
+// Linear index of cell c + offset, wrapping periodic axes; -1 when outside a walled axis.
+fn neighbor_cell(c: vec3<i32>, offset: vec3<i32>, g: GridParams) -> i32 {
+    var n = c + offset;
+    let d = vec3<i32>(g.dims);
+    if ((g.periodic & 1u) != 0u) { n.x = (n.x + d.x) % d.x; } else if (n.x < 0 || n.x >= d.x) { return -1; }
+    if (n.y < 0 || n.y >= d.y) { return -1; }
+    if ((g.periodic & 4u) != 0u) { n.z = (n.z + d.z) % d.z; } else if (n.z < 0 || n.z >= d.z) { return -1; }
+    return (n.z * d.y + n.y) * d.x + n.x;
+}

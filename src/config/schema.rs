@@ -1,0 +1,442 @@
+//! The shot config schema. Every field is documented in docs/CONFIG.md (unit, default, range).
+//! Units: metres, seconds, kelvin; water contents (vapor, cloud) in kg of water per kg of air.
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShotConfig {
+    /// Shot name: prefix of every output file.
+    pub shot: String,
+    /// Seed of every random choice (initial velocities, heating noise).
+    #[serde(default = "d_seed")]
+    pub seed: u64,
+    pub output: OutputConfig,
+    pub domain: DomainConfig,
+    #[serde(default)]
+    pub solver: SolverConfig,
+    #[serde(default)]
+    pub physics: PhysicsConfig,
+    #[serde(default)]
+    pub adaptive: AdaptiveConfig,
+    #[serde(default)]
+    pub gpu: GpuConfig,
+    #[serde(default)]
+    pub export: ExportConfig,
+    #[serde(default)]
+    pub checkpoint: CheckpointConfig,
+}
+fn d_seed() -> u64 {
+    1
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputConfig {
+    /// Run directory when `--out` is not given.
+    #[serde(default = "d_out_dir")]
+    pub dir: String,
+    pub frames: FrameRange,
+    /// Frames per second of the sequence (metadata for renderers).
+    #[serde(default = "d_fps")]
+    pub fps: f64,
+    /// Simulated seconds per frame.
+    #[serde(default = "d_frame_seconds")]
+    pub frame_seconds: f64,
+    /// Simulation substeps per frame.
+    #[serde(default = "d_substeps")]
+    pub substeps: u32,
+    /// Digits of the frame number in file names.
+    #[serde(default = "d_padding")]
+    pub frame_padding: u32,
+    #[serde(default)]
+    pub preview: PreviewConfig,
+}
+fn d_out_dir() -> String {
+    "out".into()
+}
+fn d_fps() -> f64 {
+    24.0
+}
+fn d_frame_seconds() -> f64 {
+    4.0
+}
+fn d_substeps() -> u32 {
+    2
+}
+fn d_padding() -> u32 {
+    4
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FrameRange {
+    pub start: u32,
+    pub end: u32,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PreviewConfig {
+    #[serde(default)]
+    pub enabled: bool,
+    #[serde(default = "d_preview_res")]
+    pub resolution: [u32; 2],
+    /// Also write a linear RGBA EXR next to each PNG.
+    #[serde(default)]
+    pub exr: bool,
+    /// Unit vector towards the sun (normalised on load).
+    #[serde(default = "d_sun_dir")]
+    pub sun_direction: [f64; 3],
+    #[serde(default = "d_sun_color")]
+    pub sun_color: [f64; 3],
+    #[serde(default = "d_sun_intensity")]
+    pub sun_intensity: f64,
+    /// Extinction per unit of density per metre.
+    #[serde(default = "d_density_scale")]
+    pub density_scale: f64,
+    /// Camera; `None` = auto-framed from the side.
+    #[serde(default)]
+    pub camera: Option<CameraConfig>,
+}
+fn d_preview_res() -> [u32; 2] {
+    [640, 360]
+}
+fn d_sun_dir() -> [f64; 3] {
+    [0.5, 0.6, 0.3]
+}
+fn d_sun_color() -> [f64; 3] {
+    [1.0, 0.97, 0.9]
+}
+fn d_sun_intensity() -> f64 {
+    3.0
+}
+fn d_density_scale() -> f64 {
+    1.0
+}
+impl Default for PreviewConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            resolution: d_preview_res(),
+            exr: false,
+            sun_direction: d_sun_dir(),
+            sun_color: d_sun_color(),
+            sun_intensity: d_sun_intensity(),
+            density_scale: d_density_scale(),
+            camera: None,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraConfig {
+    pub position: [f64; 3],
+    pub look_at: [f64; 3],
+    /// Vertical field of view, degrees.
+    #[serde(default = "d_fov")]
+    pub fov_deg: f64,
+}
+fn d_fov() -> f64 {
+    45.0
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DomainConfig {
+    /// Box size [x, y, z] in metres; y is up. The box spans [0, size].
+    pub size: [f64; 3],
+    /// Initial particle spacing d (metres).
+    pub spacing: f64,
+    /// Kernel radius as a multiple of the spacing: h0 = kernel_ratio * spacing.
+    #[serde(default = "d_kernel_ratio")]
+    pub kernel_ratio: f64,
+    /// Periodic axes; the rest are walls. y (up) is always walled.
+    #[serde(default = "d_periodic")]
+    pub periodic: Vec<Axis>,
+}
+fn d_kernel_ratio() -> f64 {
+    2.0
+}
+fn d_periodic() -> Vec<Axis> {
+    vec![Axis::X, Axis::Z]
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Axis {
+    X,
+    Z,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SolverConfig {
+    /// PBF density iterations per substep.
+    pub iterations: u32,
+    /// Rest density rho0 (kg/m^3).
+    pub rest_density: f64,
+    /// Constraint force mixing epsilon (eq. 4 relaxation), in the units of |grad C|^2.
+    pub relaxation: f64,
+    /// Artificial pressure s_corr: k, n and delta q (fraction of h).
+    pub scorr_k: f64,
+    pub scorr_n: u32,
+    pub scorr_dq: f64,
+    /// XSPH viscosity c.
+    pub xsph: f64,
+    /// Vorticity confinement epsilon.
+    pub vorticity: f64,
+    /// Constant gravity (m/s^2, downward); 0 = none (paper example 1).
+    pub gravity: f64,
+    /// Speeds are clamped to this (m/s) as a safety net.
+    pub max_speed: f64,
+}
+impl Default for SolverConfig {
+    fn default() -> Self {
+        Self {
+            iterations: 4,
+            rest_density: 1.0,
+            relaxation: 1.0e-6,
+            scorr_k: 1.0e-4,
+            scorr_n: 4,
+            scorr_dq: 0.2,
+            xsph: 0.01,
+            vorticity: 0.0,
+            gravity: 0.0,
+            max_speed: 30.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PhysicsConfig {
+    /// Environment temperature at the floor (K), T0(y) linear in y.
+    pub ground_temperature: f64,
+    /// Environment lapse rate (K per metre, positive = cooler aloft).
+    pub environment_lapse_rate: f64,
+    /// Dry adiabatic lapse rate Gamma_d (K per metre), eq. 7.
+    pub adiabatic_lapse_rate: f64,
+    /// Ground heating Se (K/s), eq. 5, applied below `heat_height`, modulated by noise.
+    pub heat_source: f64,
+    pub heat_height: f64,
+    /// Feature size of the heating noise over the ground (m) and its change rate (1/s).
+    pub heat_noise_scale: f64,
+    pub heat_noise_speed: f64,
+    /// Buoyancy k_b (m/s^2) and cloud weight k_g (m/s^2 per kg/kg), eq. 6.
+    pub buoyancy: f64,
+    pub cloud_weight: f64,
+    /// Phase transition rate alpha (1/s), eq. 9.
+    pub phase_rate: f64,
+    /// Saturation gamma = A exp(B / (T + C)), eq. 10.
+    pub saturation_a: f64,
+    pub saturation_b: f64,
+    pub saturation_c: f64,
+    /// Latent heat Q (K per kg/kg), eq. 11.
+    pub latent_heat: f64,
+    /// Initial vapor as a fraction of saturation (kv, section 5).
+    pub initial_vapor: f64,
+    /// Maximum initial speed (m/s), random directions.
+    pub initial_speed: f64,
+    pub smoothing: SmoothingConfig,
+}
+impl Default for PhysicsConfig {
+    fn default() -> Self {
+        Self {
+            ground_temperature: 295.0,
+            environment_lapse_rate: 0.0065,
+            adiabatic_lapse_rate: 0.0098,
+            heat_source: 0.05,
+            heat_height: 100.0,
+            heat_noise_scale: 400.0,
+            heat_noise_speed: 0.002,
+            buoyancy: 9.81,
+            cloud_weight: 9.81,
+            phase_rate: 0.05,
+            saturation_a: 1.79e5,
+            saturation_b: -4302.6,
+            saturation_c: -29.65,
+            latent_heat: 2500.0,
+            initial_vapor: 0.5,
+            initial_speed: 0.5,
+            smoothing: SmoothingConfig::default(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SmoothingConfig {
+    pub enabled: bool,
+    /// kappa of eq. 17b.
+    pub kappa: f64,
+    /// epsilon of eq. 13 (m^2).
+    pub epsilon: f64,
+    /// Smoothing iterations per substep.
+    pub iterations: u32,
+}
+impl Default for SmoothingConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            kappa: 0.1,
+            epsilon: 1.0e-2,
+            iterations: 1,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AdaptiveConfig {
+    pub enabled: bool,
+    pub max_level: u32,
+    /// Shape energy E = kp (1 - exp(-kc w)), eq. 20.
+    pub kp: f64,
+    pub kc: f64,
+    /// Split when E > split_threshold (alpha), merge when E < merge_threshold (beta).
+    pub split_threshold: f64,
+    pub merge_threshold: f64,
+    /// Particle capacity as a multiple of the initial count.
+    pub capacity_factor: f64,
+    /// No split/merge product may come closer than this fraction of its kernel radius to others.
+    pub min_distance: f64,
+}
+impl Default for AdaptiveConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            max_level: 3,
+            kp: 1.0,
+            kc: 1000.0,
+            split_threshold: 0.5,
+            merge_threshold: 0.1,
+            capacity_factor: 2.0,
+            min_distance: 0.3,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GpuConfig {
+    /// `auto` or a case-insensitive substring of the adapter name.
+    pub adapter: String,
+    pub backend: Backend,
+}
+impl Default for GpuConfig {
+    fn default() -> Self {
+        Self {
+            adapter: "auto".into(),
+            backend: Backend::Auto,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    Auto,
+    Vulkan,
+    Gl,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ExportConfig {
+    /// Voxel edge (m). One transform for the whole shot.
+    pub voxel_size: f64,
+    /// Values below this stay inactive (background 0).
+    pub threshold: f64,
+    pub grids: GridNames,
+    pub vdb: VdbConfig,
+    pub exr: ExrConfig,
+}
+impl Default for ExportConfig {
+    fn default() -> Self {
+        Self {
+            voxel_size: 20.0,
+            threshold: 1.0e-6,
+            grids: GridNames::default(),
+            vdb: VdbConfig::default(),
+            exr: ExrConfig::default(),
+        }
+    }
+}
+
+/// Grid names in the VDB; an empty name leaves that grid out.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GridNames {
+    pub density: String,
+    pub temperature: String,
+    pub vapor: String,
+    pub velocity: String,
+    /// Extra names for the same grids (e.g. `heat: temperature` for Blender).
+    pub aliases: std::collections::BTreeMap<String, String>,
+}
+impl Default for GridNames {
+    fn default() -> Self {
+        Self {
+            density: "density".into(),
+            temperature: "temperature".into(),
+            vapor: "vapor".into(),
+            velocity: "vel".into(),
+            aliases: Default::default(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VdbConfig {
+    pub enabled: bool,
+    pub compression: Compression,
+    pub half: bool,
+}
+impl Default for VdbConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            compression: Compression::Blosc,
+            half: false,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Compression {
+    None,
+    Zip,
+    Blosc,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ExrConfig {
+    pub enabled: bool,
+    pub half: bool,
+}
+impl Default for ExrConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            half: false,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CheckpointConfig {
+    /// Checkpoint every N frames (0 = only at the end and on interrupt).
+    pub every: u32,
+    /// Keep the newest K checkpoints.
+    pub keep: u32,
+}
+impl Default for CheckpointConfig {
+    fn default() -> Self {
+        Self { every: 10, keep: 3 }
+    }
+}

@@ -1,0 +1,123 @@
+//! wgpu context (headless adapter choice, features, limits), buffer helpers and shader loading.
+pub mod buffers;
+pub mod shaders;
+
+use crate::config::{Backend, GpuConfig};
+use crate::error::{Error, Result};
+
+/// What a machine without a usable adapter should do about it.
+pub const NO_ADAPTER_REMEDY: &str = "install the Vulkan driver of your GPU (NVIDIA/AMD/Intel); \
+on a machine without a GPU, `apt-get install mesa-vulkan-drivers libvulkan1` gives a CPU Vulkan \
+device (lavapipe), or try `gpu.backend: gl`";
+
+/// An open device and queue with what the adapter can do.
+pub struct Context {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub adapter_info: wgpu::AdapterInfo,
+    /// Timestamp queries are available: per-phase GPU timings come from them.
+    pub timestamps: bool,
+}
+
+impl Context {
+    /// Opens the adapter the config asks for: `auto` prefers a discrete GPU, then any other;
+    /// a name substring picks the first adapter whose name contains it (case-insensitive).
+    pub fn new(cfg: &GpuConfig) -> Result<Self> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        let backends = match cfg.backend {
+            Backend::Auto => {
+                wgpu::Backends::from_env().unwrap_or(wgpu::Backends::VULKAN | wgpu::Backends::GL)
+            }
+            Backend::Vulkan => wgpu::Backends::VULKAN,
+            Backend::Gl => wgpu::Backends::GL,
+        };
+        desc.backends = backends;
+        let instance = wgpu::Instance::new(desc);
+        let adapters = pollster::block_on(instance.enumerate_adapters(backends));
+        let adapter = pick_adapter(adapters, &cfg.adapter)?;
+        let info = adapter.get_info();
+        log::info!(
+            "GPU adapter: {} ({:?}, {:?})",
+            info.name,
+            info.device_type,
+            info.backend
+        );
+        let wanted = wgpu::Features::TIMESTAMP_QUERY;
+        let features = adapter.features() & wanted;
+        let limits = adapter.limits();
+        let mut required_limits = wgpu::Limits::downlevel_defaults();
+        // Particle arrays are large storage buffers; ask for what the adapter has.
+        required_limits.max_storage_buffer_binding_size = limits.max_storage_buffer_binding_size;
+        required_limits.max_buffer_size = limits.max_buffer_size;
+        required_limits.max_storage_buffers_per_shader_stage =
+            limits.max_storage_buffers_per_shader_stage.min(16);
+        required_limits.max_compute_workgroups_per_dimension =
+            limits.max_compute_workgroups_per_dimension;
+        required_limits.max_compute_invocations_per_workgroup =
+            limits.max_compute_invocations_per_workgroup.min(256);
+        required_limits.max_compute_workgroup_size_x = limits.max_compute_workgroup_size_x.min(256);
+        required_limits.max_compute_workgroup_storage_size =
+            limits.max_compute_workgroup_storage_size.min(32768);
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("nimbus"),
+            required_features: features,
+            required_limits,
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| Error::NoGpu(format!("adapter {} refused a device: {e}", info.name)))?;
+        Ok(Self {
+            device,
+            queue,
+            timestamps: features.contains(wgpu::Features::TIMESTAMP_QUERY),
+            adapter_info: info,
+        })
+    }
+
+    /// Adapter name as written into manifests and checkpoints.
+    pub fn adapter_name(&self) -> String {
+        format!(
+            "{} ({:?})",
+            self.adapter_info.name, self.adapter_info.backend
+        )
+    }
+}
+
+fn pick_adapter(adapters: Vec<wgpu::Adapter>, wanted: &str) -> Result<wgpu::Adapter> {
+    let names: Vec<String> = adapters.iter().map(|a| a.get_info().name).collect();
+    let usable = |a: &wgpu::Adapter| {
+        a.get_downlevel_capabilities()
+            .flags
+            .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS)
+    };
+    let mut candidates: Vec<wgpu::Adapter> = adapters.into_iter().filter(usable).collect();
+    if wanted != "auto" {
+        let w = wanted.to_lowercase();
+        candidates.retain(|a| a.get_info().name.to_lowercase().contains(&w));
+        if candidates.is_empty() {
+            return Err(Error::NoGpu(format!(
+                "no GPU adapter matches gpu.adapter '{wanted}' (found: {}); {NO_ADAPTER_REMEDY}",
+                if names.is_empty() {
+                    "none".to_string()
+                } else {
+                    names.join(", ")
+                }
+            )));
+        }
+    }
+    // Prefer real GPUs over CPU/virtual ones; ties keep enumeration order (deterministic).
+    let rank = |a: &wgpu::Adapter| match a.get_info().device_type {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Cpu => 3,
+        wgpu::DeviceType::Other => 4,
+    };
+    candidates.sort_by_key(rank);
+    candidates.into_iter().next().ok_or_else(|| {
+        Error::NoGpu(format!(
+            "no GPU adapter with compute shaders found; {NO_ADAPTER_REMEDY}"
+        ))
+    })
+}

@@ -1,0 +1,2 @@
+//! Files: atomic writes, frame naming, VDB and EXR writers, checkpoint format.
+pub mod atomic;

@@ -1,0 +1,15 @@
+//! nimbus: particle clouds (Position Based Fluids + cloud thermodynamics, adaptive particles)
+//! simulated on the GPU with wgpu, splatted on the CPU, written as OpenVDB / OpenEXR sequences.
+pub mod config;
+pub mod error;
+pub mod gpu;
+pub mod io;
+pub mod pipeline;
+pub mod preview;
+pub mod sim;
+pub mod splat;
+
+pub use error::{Error, Result};
+
+/// Version written into manifests, checkpoints and VDB metadata.
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");

@@ -1,0 +1,32 @@
+//! Particle state and the simulation step, one module per physical step, each driving its shaders.
+//!
+//! Contract between the GPU stages (see docs/ARCHITECTURE.md):
+//! - particle arrays are SoA storage buffers of length `capacity`, the first `count` live;
+//!   after each neighbour-grid build they are permuted into cell order;
+//! - `pos`: xyz position (w unused), `vel`: xyz velocity (w unused),
+//!   `thermo`: (temperature K, vapor, cloud, shape energy), `info`: (id, level);
+//! - level l gives h = h0 * 2^(-l/3) and m = m0 * 2^(-l);
+//! - boundary particles (floor and ceiling walls) live in their own static arrays.
+pub mod reference;
+
+/// Host copy of all per-particle state: what checkpoints store and what the splat reads.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ParticleState {
+    pub pos: Vec<[f32; 4]>,
+    pub vel: Vec<[f32; 4]>,
+    /// (temperature, vapor, cloud, shape energy)
+    pub thermo: Vec<[f32; 4]>,
+    /// (id, level)
+    pub info: Vec<[u32; 2]>,
+    /// SPH density of the last solve (kg/m^3), used by the splat's m/rho weights.
+    pub density: Vec<f32>,
+}
+
+impl ParticleState {
+    pub fn len(&self) -> usize {
+        self.pos.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.pos.is_empty()
+    }
+}

@@ -1,0 +1,2 @@
+//! f64 CPU mirrors of the GPU stages, same names as the shaders; used by tests.
+pub mod kernels;
