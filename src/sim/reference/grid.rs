@@ -1,0 +1,47 @@
+//! CPU mirror of the neighbour-grid build: a stable sort of particles by cell, and the cell table.
+use crate::sim::grid_params::GridParams;
+
+/// Returns `(order, cell_start)`: `order[k]` is the original index of the k-th particle in cell
+/// order (stable: equal cells keep their original order), and the particles of cell c are
+/// `order[cell_start[c]..cell_start[c + 1]]` (`cell_start` has `num_cells + 1` entries).
+pub fn build_cell_table(grid: &GridParams, pos: &[[f64; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let cells: Vec<u32> = pos.iter().map(|p| grid.cell_index(*p)).collect();
+    let mut order: Vec<u32> = (0..pos.len() as u32).collect();
+    order.sort_by_key(|&i| cells[i as usize]);
+    let mut cell_start = vec![0u32; grid.num_cells as usize + 1];
+    for &c in &cells {
+        cell_start[c as usize + 1] += 1;
+    }
+    for c in 0..grid.num_cells as usize {
+        cell_start[c + 1] += cell_start[c];
+    }
+    (order, cell_start)
+}
+
+/// Calls `f(j, x_ij)` for every particle j (index into the cell-ordered arrays) within the 27
+/// neighbouring cells of `p`, with the minimum-image displacement `x_ij = p - x_j`.
+pub fn for_each_neighbor(
+    grid: &GridParams,
+    cell_start: &[u32],
+    sorted_pos: &[[f64; 3]],
+    p: [f64; 3],
+    mut f: impl FnMut(usize, [f64; 3]),
+) {
+    let size = grid.domain_size.map(|v| v as f64);
+    let periodic = [grid.periodic_x(), grid.periodic_z()];
+    let c = grid.cell_coord(p);
+    for dz in -1..=1 {
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                let Some(n) = grid.neighbor_cell(c, [dx, dy, dz]) else {
+                    continue;
+                };
+                for j in cell_start[n as usize]..cell_start[n as usize + 1] {
+                    let q = sorted_pos[j as usize];
+                    let d = [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
+                    f(j as usize, super::kernels::min_image(d, size, periodic));
+                }
+            }
+        }
+    }
+}
