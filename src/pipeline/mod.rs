@@ -1,1 +1,3 @@
-//! pipeline
+//! The frame loop Simulate (GPU) -> Splat (CPU) -> Write, checkpoint policy, progress, records.
+pub mod progress;
+pub mod records;

@@ -1,0 +1,219 @@
+//! Run records: `manifest.json` (the farm's hand-off) and `stats.jsonl` (one line per frame).
+//! Both are rewritten whole and atomically after every frame, so a reader (or a resume after a
+//! crash) never sees half a record.
+use crate::error::{Error, Result};
+use crate::io::atomic::write_atomic;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+pub const MANIFEST: &str = "manifest.json";
+pub const STATS: &str = "stats.jsonl";
+
+/// One output file of a frame, path relative to the run directory.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FileRecord {
+    pub path: String,
+    pub bytes: u64,
+    pub sha256: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FrameRecord {
+    pub frame: u32,
+    pub files: Vec<FileRecord>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub tool: String,
+    pub version: String,
+    pub shot: String,
+    /// The resolved config (after `--set` overrides and defaults).
+    pub config: serde_json::Value,
+    /// Hash of the whole resolved config, and of its simulation-affecting keys only.
+    pub config_hash: String,
+    pub sim_hash: String,
+    pub adapter: String,
+    pub frame_start: u32,
+    pub frame_end: u32,
+    pub fps: f64,
+    /// World transform of every grid of the shot (voxel centres on integer index points).
+    pub voxel_size: f64,
+    pub grid_origin: [f64; 3],
+    /// The command line that resumes this run.
+    pub resume_command: String,
+    pub frames: Vec<FrameRecord>,
+    /// True once every frame of the range is written.
+    pub complete: bool,
+}
+
+impl Manifest {
+    pub fn load(run_dir: &Path) -> Result<Self> {
+        let path = run_dir.join(MANIFEST);
+        let text = std::fs::read_to_string(&path).map_err(|e| Error::InvalidInput(format!("{}: {e}", path.display())))?;
+        serde_json::from_str(&text)
+            .map_err(|e| Error::InvalidInput(format!("{}: not a nimbus manifest: {e}", path.display())))
+    }
+
+    pub fn save(&self, run_dir: &Path) -> Result<()> {
+        let mut text = serde_json::to_string_pretty(self).map_err(|e| Error::Runtime(e.to_string()))?;
+        text.push('\n');
+        write_atomic(&run_dir.join(MANIFEST), text.as_bytes())
+    }
+
+    /// Records a frame's files, replacing an earlier record of the same frame; frames stay sorted.
+    pub fn record_frame(&mut self, rec: FrameRecord) {
+        self.frames.retain(|f| f.frame != rec.frame);
+        let at = self.frames.partition_point(|f| f.frame < rec.frame);
+        self.frames.insert(at, rec);
+    }
+
+    pub fn frame(&self, frame: u32) -> Option<&FrameRecord> {
+        self.frames.iter().find(|f| f.frame == frame)
+    }
+}
+
+/// One line of stats.jsonl.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FrameStats {
+    pub frame: u32,
+    pub sim_time: f64,
+    pub particles: u64,
+    /// Milliseconds per phase (GPU timestamps where the adapter has them).
+    pub phase_ms: BTreeMap<String, f64>,
+    /// Physical diagnostics (density error, water, cloud mass, ...).
+    pub diagnostics: BTreeMap<String, f64>,
+}
+
+/// stats.jsonl held in memory and rewritten atomically.
+#[derive(Debug, Default)]
+pub struct StatsLog {
+    lines: Vec<FrameStats>,
+}
+
+impl StatsLog {
+    /// Loads the lines of frames before `before_frame` (a resume drops what comes after).
+    pub fn load_until(run_dir: &Path, before_frame: u32) -> Result<Self> {
+        let path = run_dir.join(STATS);
+        let text = match std::fs::read_to_string(&path) {
+            Ok(t) => t,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Self::default()),
+            Err(e) => return Err(Error::io(path, e)),
+        };
+        let mut lines = Vec::new();
+        for (n, line) in text.lines().enumerate() {
+            let s: FrameStats = serde_json::from_str(line)
+                .map_err(|e| Error::InvalidInput(format!("{}:{}: {e}", path.display(), n + 1)))?;
+            if s.frame < before_frame {
+                lines.push(s);
+            }
+        }
+        Ok(Self { lines })
+    }
+
+    pub fn push(&mut self, s: FrameStats) {
+        self.lines.retain(|l| l.frame != s.frame);
+        self.lines.push(s);
+    }
+
+    pub fn save(&self, run_dir: &Path) -> Result<()> {
+        let mut text = String::new();
+        for l in &self.lines {
+            text += &serde_json::to_string(l).map_err(|e| Error::Runtime(e.to_string()))?;
+            text.push('\n');
+        }
+        write_atomic(&run_dir.join(STATS), text.as_bytes())
+    }
+
+    pub fn lines(&self) -> &[FrameStats] {
+        &self.lines
+    }
+}
+
+/// Size and SHA-256 of a file written under `run_dir`.
+pub fn file_record(run_dir: &Path, path: &Path) -> Result<FileRecord> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    Ok(FileRecord {
+        path: relative(run_dir, path),
+        bytes: bytes.len() as u64,
+        sha256: sha256_hex(&bytes),
+    })
+}
+
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    let d = Sha256::digest(bytes);
+    d.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// True when every file of the record exists with the recorded size and checksum.
+pub fn frame_intact(run_dir: &Path, rec: &FrameRecord) -> bool {
+    rec.files.iter().all(|f| {
+        let p: PathBuf = run_dir.join(&f.path);
+        std::fs::read(&p)
+            .map(|b| b.len() as u64 == f.bytes && sha256_hex(&b) == f.sha256)
+            .unwrap_or(false)
+    })
+}
+
+fn relative(run_dir: &Path, path: &Path) -> String {
+    path.strip_prefix(run_dir)
+        .unwrap_or(path)
+        .to_string_lossy()
+        .replace('\\', "/")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_stay_sorted_and_unique() {
+        let mut m = Manifest {
+            tool: "nimbus".into(),
+            version: "0".into(),
+            shot: "s".into(),
+            config: serde_json::Value::Null,
+            config_hash: String::new(),
+            sim_hash: String::new(),
+            adapter: String::new(),
+            frame_start: 1,
+            frame_end: 3,
+            fps: 24.0,
+            voxel_size: 1.0,
+            grid_origin: [0.0; 3],
+            resume_command: String::new(),
+            frames: vec![],
+            complete: false,
+        };
+        for f in [3, 1, 2, 1] {
+            m.record_frame(FrameRecord { frame: f, files: vec![] });
+        }
+        assert_eq!(m.frames.iter().map(|f| f.frame).collect::<Vec<_>>(), [1, 2, 3]);
+    }
+
+    #[test]
+    fn stats_resume_drops_later_frames() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut log = StatsLog::default();
+        for f in 1..=5 {
+            log.push(FrameStats { frame: f, sim_time: f as f64, particles: 10, phase_ms: Default::default(), diagnostics: Default::default() });
+        }
+        log.save(dir.path()).unwrap();
+        let back = StatsLog::load_until(dir.path(), 4).unwrap();
+        assert_eq!(back.lines().iter().map(|l| l.frame).collect::<Vec<_>>(), [1, 2, 3]);
+    }
+
+    #[test]
+    fn intact_detects_a_changed_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.vdb");
+        std::fs::write(&p, b"abc").unwrap();
+        let rec = FrameRecord { frame: 1, files: vec![file_record(dir.path(), &p).unwrap()] };
+        assert_eq!(rec.files[0].path, "a.vdb");
+        assert!(frame_intact(dir.path(), &rec));
+        std::fs::write(&p, b"abd").unwrap();
+        assert!(!frame_intact(dir.path(), &rec));
+    }
+}
