@@ -2,6 +2,7 @@
 //! simulated on the GPU with wgpu, splatted on the CPU, written as OpenVDB / OpenEXR sequences.
 pub mod config;
 pub mod error;
+pub mod fault;
 pub mod gpu;
 pub mod io;
 pub mod pipeline;

@@ -30,6 +30,7 @@ pub fn write_atomic_with(
         fill(&mut f)?;
         f.sync_all()?;
         drop(f);
+        crate::fault::before_rename(path);
         fs::rename(&tmp, path)?;
         if let Some(dir) = path.parent() {
             // Persist the rename itself; not every filesystem allows opening a directory.

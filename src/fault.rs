@@ -1,0 +1,51 @@
+//! Fault injection for the crash tests: `NIMBUS_FAULT=rename:PATTERN:N` aborts the process (as
+//! a SIGKILL would) just before the N-th atomic rename of a file whose path contains PATTERN,
+//! i.e. with the temporary file fully written; `NIMBUS_FAULT=frame:N` aborts in the middle of
+//! simulating frame N. Unset (always, outside tests) it costs one relaxed load.
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::OnceLock;
+
+enum Fault {
+    Rename { pattern: String, nth: u32 },
+    Frame(u32),
+}
+
+fn fault() -> Option<&'static Fault> {
+    static F: OnceLock<Option<Fault>> = OnceLock::new();
+    F.get_or_init(|| {
+        let v = std::env::var("NIMBUS_FAULT").ok()?;
+        let parts: Vec<&str> = v.split(':').collect();
+        match parts.as_slice() {
+            ["rename", pat, n] => Some(Fault::Rename {
+                pattern: pat.to_string(),
+                nth: n.parse().ok()?,
+            }),
+            ["frame", n] => Some(Fault::Frame(n.parse().ok()?)),
+            _ => None,
+        }
+    })
+    .as_ref()
+}
+
+/// Called by `io::atomic` before renaming a finished temporary file onto `path`.
+pub fn before_rename(path: &std::path::Path) {
+    static COUNT: AtomicU32 = AtomicU32::new(0);
+    if let Some(Fault::Rename { pattern, nth }) = fault() {
+        if path.to_string_lossy().contains(pattern.as_str())
+            && COUNT.fetch_add(1, Ordering::SeqCst) + 1 == *nth
+        {
+            eprintln!("NIMBUS_FAULT: aborting before renaming {}", path.display());
+            std::process::abort();
+        }
+    }
+}
+
+/// Called by the frame loop between the substeps of a frame.
+pub fn during_frame(frame: u32) {
+    if let Some(Fault::Frame(n)) = fault() {
+        if *n == frame {
+            eprintln!("NIMBUS_FAULT: aborting while simulating frame {frame}");
+            std::process::abort();
+        }
+    }
+}
