@@ -40,14 +40,17 @@ fn validate(configs: &[PathBuf], set: &[String]) -> i32 {
     for path in configs {
         match nimbus::config::load(path, set) {
             Ok(cfg) => println!(
-                "{}: ok (shot '{}', frames {}..={})",
+                "{}: ok (shot '{}', frames {}..={}, {} particles, sim hash {})",
                 path.display(),
                 cfg.shot,
                 cfg.output.frames.start,
-                cfg.output.frames.end
+                cfg.output.frames.end,
+                nimbus::config::lattice_count(&cfg.domain),
+                &nimbus::config::sim_hash(&cfg)[..12]
             ),
             Err(e) => {
-                eprintln!("error: {e}");
+                // Already `FILE:LINE:COL: KEY: message`, one line, editor-clickable.
+                eprintln!("{e}");
                 code = code.max(e.exit_code());
             }
         }

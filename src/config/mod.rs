@@ -1,16 +1,420 @@
 //! Shot configs: schema, loading with precise errors, `--set` overrides, validation, hashing.
+//!
+//! Every failure is one line: `FILE:LINE:COL: KEY.PATH: what was expected (got what)`. Keys set
+//! by `--set` read `FILE: --set KEY.PATH: ...`; keys left at their default read `FILE: KEY.PATH: ...`.
+mod de;
+mod hash;
+mod node;
 mod schema;
+mod validate;
+
+pub use hash::{full_hash, sim_hash, sim_key_diff, NON_SIM_KEYS};
 pub use schema::*;
+pub use validate::{lattice_count, MAX_CAPACITY, MAX_PARTICLES, MAX_VOXELS_PER_AXIS};
 
 use crate::error::{Error, Result};
+use node::{Key, Node, Pos, Val};
+use std::collections::HashMap;
 use std::path::Path;
 
-/// Loads a shot config, applies `--set key.path=value` overrides, validates it.
+/// Reads, parses, overrides (`--set key.path=value`, in order), deserializes and validates.
 pub fn load(path: &Path, overrides: &[String]) -> Result<ShotConfig> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| Error::Config(format!("{}: {e}", path.display())))?;
-    if !overrides.is_empty() {
-        return Err(Error::Config("--set is not supported yet".into()));
-    }
-    serde_saphyr::from_str(&text).map_err(|e| Error::Config(format!("{}: {e}", path.display())))
+    let name = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|e| {
+        let why = match e.kind() {
+            std::io::ErrorKind::NotFound => "no such file".to_string(),
+            std::io::ErrorKind::PermissionDenied => "permission denied".to_string(),
+            std::io::ErrorKind::IsADirectory => "is a directory, not a config file".to_string(),
+            _ => e.to_string(),
+        };
+        Error::Config(format!("{name}: cannot read config: {why}"))
+    })?;
+    let text = decode(&name, &bytes)?;
+    load_str(&text, &name, overrides)
 }
+
+/// Like [`load`] for text already in memory; `origin` names it in errors.
+pub fn load_str(text: &str, origin: &str, overrides: &[String]) -> Result<ShotConfig> {
+    let ctx = Ctx {
+        file: origin,
+        sets: overrides,
+    };
+    if text.contains('\0') {
+        return Err(ctx.bare("binary data (NUL bytes), not a YAML text file"));
+    }
+    let mut root = match node::parse(text) {
+        Ok(n) => n,
+        Err(e) => {
+            let near = match e.pos {
+                Pos::At { line, .. } => key_near(text, line),
+                _ => None,
+            };
+            let msg = format!("invalid YAML: {}", yaml_words(&e.msg));
+            return Err(match near {
+                Some(k) => ctx.at(&k, e.pos, &msg),
+                None => ctx.at_no_key(e.pos, &msg),
+            });
+        }
+    };
+    match &root.val {
+        Val::Map(_) => {}
+        Val::Null => {
+            return Err(ctx.bare(
+                "the file is empty; a shot needs at least the keys shot, output and domain (see docs/CONFIG.md)",
+            ))
+        }
+        other => {
+            return Err(ctx.at(
+                "",
+                root.pos,
+                &format!("expected a mapping of keys (shot:, output:, domain:, ...), got {}", other.describe()),
+            ))
+        }
+    }
+    for (i, set) in overrides.iter().enumerate() {
+        apply_override(&mut root, i, set).map_err(|(key, msg)| ctx.at(&key, Pos::Set(i), &msg))?;
+    }
+    let mut cfg: ShotConfig = de::from_node(&root).map_err(|e| match e.at {
+        Some((path, pos)) => ctx.at(&path, pos, &e.msg),
+        None => ctx.bare(&e.msg),
+    })?;
+    if let Some(issue) = validate::issues(&cfg).into_iter().next() {
+        let mut positions = HashMap::new();
+        collect_positions(&root, "", &mut positions);
+        let key = issue
+            .keys
+            .iter()
+            .find(|k| positions.contains_key(k.as_str()))
+            .unwrap_or(&issue.keys[0]);
+        let pos = positions.get(key.as_str()).copied().unwrap_or(Pos::Unknown);
+        return Err(ctx.at(key, pos, &issue.msg));
+    }
+    normalise(&mut cfg);
+    Ok(cfg)
+}
+
+/// Range and consistency checks; the error names the key path (no file position: see [`load`]).
+pub fn validate(cfg: &ShotConfig) -> Result<()> {
+    match validate::issues(cfg).into_iter().next() {
+        None => Ok(()),
+        Some(i) => Err(Error::Config(format!("{}: {}", i.keys[0], i.msg))),
+    }
+}
+
+/// Values that are stored normalised (documented in docs/CONFIG.md).
+fn normalise(cfg: &mut ShotConfig) {
+    let d = &mut cfg.output.preview.sun_direction;
+    let len = d.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if len > 0.0 && len.is_finite() {
+        d.iter_mut().for_each(|x| *x /= len);
+    }
+}
+
+struct Ctx<'a> {
+    file: &'a str,
+    sets: &'a [String],
+}
+
+impl Ctx<'_> {
+    fn bare(&self, msg: &str) -> Error {
+        Error::Config(format!("{}: {}", self.file, msg))
+    }
+
+    fn at_no_key(&self, pos: Pos, msg: &str) -> Error {
+        match pos {
+            Pos::At { line, col } => Error::Config(format!("{}:{line}:{col}: {msg}", self.file)),
+            _ => self.bare(msg),
+        }
+    }
+
+    fn at(&self, key: &str, pos: Pos, msg: &str) -> Error {
+        let key = if key.is_empty() { "(top level)" } else { key };
+        let f = self.file;
+        Error::Config(match pos {
+            Pos::At { line, col } => format!("{f}:{line}:{col}: {key}: {msg}"),
+            Pos::Set(i) => {
+                let set_key = self
+                    .sets
+                    .get(i)
+                    .map(|s| s.split_once('=').map_or(s.as_str(), |(k, _)| k).trim())
+                    .unwrap_or("?");
+                if set_key == key {
+                    format!("{f}: --set {key}: {msg}")
+                } else {
+                    format!("{f}: --set {set_key}: {key}: {msg}")
+                }
+            }
+            Pos::Unknown => format!("{f}: {key}: {msg}"),
+        })
+    }
+}
+
+/// UTF-8 with an optional BOM; anything else is named with its line:col.
+fn decode(name: &str, bytes: &[u8]) -> Result<String> {
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    if bytes.iter().all(|b| b.is_ascii_whitespace()) {
+        return Err(Error::Config(format!(
+            "{name}: the file is empty; a shot needs at least the keys shot, output and domain (see docs/CONFIG.md)"
+        )));
+    }
+    match std::str::from_utf8(bytes) {
+        Ok(s) => {
+            if let Some(off) = s.find('\0') {
+                let (line, col) = line_col(&bytes[..off]);
+                return Err(Error::Config(format!(
+                    "{name}:{line}:{col}: binary data (a NUL byte at offset {off}), not a YAML text file"
+                )));
+            }
+            Ok(s.to_string())
+        }
+        Err(e) => {
+            let off = e.valid_up_to();
+            let (line, col) = line_col(&bytes[..off]);
+            Err(Error::Config(format!(
+                "{name}:{line}:{col}: not UTF-8 text (byte 0x{:02x} at offset {off}); binary file, or save it as UTF-8",
+                bytes[off]
+            )))
+        }
+    }
+}
+
+fn line_col(before: &[u8]) -> (usize, usize) {
+    let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
+    let start = before.iter().rposition(|&b| b == b'\n').map_or(0, |p| p + 1);
+    let col = String::from_utf8_lossy(&before[start..]).chars().count() + 1;
+    (line, col)
+}
+
+/// Clarifies the parser's wording for the mistakes people actually make.
+fn yaml_words(msg: &str) -> String {
+    let lower = msg.to_lowercase();
+    if lower.contains("tab") {
+        format!("{msg} (indent with spaces; YAML forbids tabs)")
+    } else {
+        msg.to_string()
+    }
+}
+
+/// Best guess of the key a syntax error sits in: the block-style keys enclosing `line`.
+fn key_near(text: &str, line: u64) -> Option<String> {
+    let mut stack: Vec<(usize, String)> = Vec::new();
+    let mut found = None;
+    for (i, raw) in text.lines().enumerate() {
+        if i as u64 >= line {
+            break;
+        }
+        let content = raw.trim_start_matches([' ', '-']);
+        let indent = raw.len() - content.len();
+        let Some((k, _)) = content.split_once(':') else {
+            continue;
+        };
+        let k = k.trim();
+        if k.is_empty()
+            || k.starts_with('#')
+            || !k
+                .chars()
+                .all(|c| c.is_alphanumeric() || c == '_' || c == '-')
+        {
+            continue;
+        }
+        while stack.last().is_some_and(|(ind, _)| *ind >= indent) {
+            stack.pop();
+        }
+        stack.push((indent, k.to_string()));
+        found = Some(
+            stack
+                .iter()
+                .map(|(_, k)| k.as_str())
+                .collect::<Vec<_>>()
+                .join("."),
+        );
+    }
+    found
+}
+
+/// Dotted path of every key (key position) and list element (value position).
+fn collect_positions(n: &Node, path: &str, out: &mut HashMap<String, Pos>) {
+    match &n.val {
+        Val::Map(entries) => {
+            for (k, v) in entries {
+                let p = join(path, &k.name);
+                out.insert(p.clone(), k.pos);
+                collect_positions(v, &p, out);
+            }
+        }
+        Val::Seq(items) => {
+            for (i, v) in items.iter().enumerate() {
+                let p = format!("{path}[{i}]");
+                out.insert(p.clone(), v.pos);
+                collect_positions(v, &p, out);
+            }
+        }
+        _ => {}
+    }
+}
+
+fn join(path: &str, key: &str) -> String {
+    if path.is_empty() {
+        key.to_string()
+    } else {
+        format!("{path}.{key}")
+    }
+}
+
+#[derive(Debug, PartialEq)]
+enum Seg {
+    Key(String),
+    Index(usize),
+}
+
+/// `a.b[2].c` or `a.b.2.c` -> segments. Errors are (key, message).
+fn parse_key(key: &str) -> std::result::Result<Vec<Seg>, String> {
+    let mut segs = Vec::new();
+    for part in key.split('.') {
+        let (name, mut rest) = match part.find('[') {
+            Some(i) => (&part[..i], &part[i..]),
+            None => (part, ""),
+        };
+        if name.is_empty() && (rest.is_empty() || segs.is_empty()) {
+            return Err("empty key segment; write KEY.PATH=VALUE, e.g. output.frames.end=10".into());
+        }
+        if !name.is_empty() {
+            if name.chars().all(|c| c.is_ascii_digit()) && !segs.is_empty() {
+                segs.push(Seg::Index(name.parse().map_err(|_| format!("bad index {name:?}"))?));
+            } else {
+                segs.push(Seg::Key(name.to_string()));
+            }
+        }
+        while !rest.is_empty() {
+            let close = rest.find(']').ok_or("unclosed '[' in key path")?;
+            let idx = &rest[1..close];
+            segs.push(Seg::Index(
+                idx.parse()
+                    .map_err(|_| format!("expected a list index in [..], got {idx:?}"))?,
+            ));
+            rest = &rest[close + 1..];
+            if !rest.is_empty() && !rest.starts_with('[') {
+                return Err(format!("unexpected {rest:?} after ']' in key path"));
+            }
+        }
+    }
+    Ok(segs)
+}
+
+fn seg_path(segs: &[Seg]) -> String {
+    let mut s = String::new();
+    for seg in segs {
+        match seg {
+            Seg::Key(k) => {
+                if !s.is_empty() {
+                    s.push('.');
+                }
+                s.push_str(k);
+            }
+            Seg::Index(i) => s.push_str(&format!("[{i}]")),
+        }
+    }
+    s
+}
+
+/// Applies the i-th `--set`. Errors are (key path to report, message).
+fn apply_override(root: &mut Node, i: usize, set: &str) -> std::result::Result<(), (String, String)> {
+    let Some((key, value)) = set.split_once('=') else {
+        return Err((
+            set.to_string(),
+            format!("expected KEY.PATH=VALUE (e.g. --set output.frames.end=10), got {set:?}"),
+        ));
+    };
+    let key = key.trim();
+    let segs = parse_key(key).map_err(|m| (key.to_string(), m))?;
+    let mut value = if value.trim().is_empty() {
+        Node {
+            val: Val::Null,
+            pos: Pos::Set(i),
+        }
+    } else {
+        node::parse(value).map_err(|e| {
+            (
+                key.to_string(),
+                format!("cannot read the value {:?} as YAML: {}", node::clip(value), e.msg),
+            )
+        })?
+    };
+    node::rebase_set(&mut value, i);
+    set_at(root, &segs, 0, value, i)
+}
+
+fn set_at(
+    cur: &mut Node,
+    segs: &[Seg],
+    depth: usize,
+    value: Node,
+    i: usize,
+) -> std::result::Result<(), (String, String)> {
+    let last = depth + 1 == segs.len();
+    let here = seg_path(&segs[..depth]);
+    if cur.val == Val::Null && depth > 0 {
+        // `solver:` with no value is an empty mapping we may add to.
+        cur.val = match segs[depth] {
+            Seg::Key(_) => Val::Map(Vec::new()),
+            Seg::Index(_) => Val::Seq(Vec::new()),
+        };
+    }
+    match (&segs[depth], &mut cur.val) {
+        (Seg::Key(name), Val::Map(entries)) => {
+            let slot = match entries.iter().rposition(|(k, _)| &k.name == name) {
+                Some(j) => j,
+                None => {
+                    entries.push((
+                        Key {
+                            name: name.clone(),
+                            pos: Pos::Set(i),
+                        },
+                        Node {
+                            val: Val::Null,
+                            pos: Pos::Set(i),
+                        },
+                    ));
+                    entries.len() - 1
+                }
+            };
+            if last {
+                // The value now comes from --set, so errors about this key point there.
+                entries[slot].0.pos = Pos::Set(i);
+                entries[slot].1 = value;
+                Ok(())
+            } else {
+                set_at(&mut entries[slot].1, segs, depth + 1, value, i)
+            }
+        }
+        (Seg::Index(j), Val::Seq(items)) => {
+            let len = items.len();
+            let Some(item) = items.get_mut(*j) else {
+                return Err((
+                    seg_path(&segs[..=depth]),
+                    format!("index {j} is past the end of {here}, which has {len} values"),
+                ));
+            };
+            if last {
+                *item = value;
+                Ok(())
+            } else {
+                set_at(item, segs, depth + 1, value, i)
+            }
+        }
+        (seg, other) => {
+            let want = match seg {
+                Seg::Key(_) => "a mapping",
+                Seg::Index(_) => "a list",
+            };
+            let what = if here.is_empty() { "the top level".to_string() } else { here.clone() };
+            Err((
+                seg_path(&segs[..=depth]),
+                format!("cannot set it: {what} is {}, not {want}", other.describe()),
+            ))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

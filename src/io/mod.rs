@@ -1,2 +1,3 @@
 //! Files: atomic writes, frame naming, VDB and EXR writers, checkpoint format.
 pub mod atomic;
+pub mod checkpoint;

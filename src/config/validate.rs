@@ -1,0 +1,600 @@
+//! Range and consistency checks on a typed config. Each problem names the key to fix; `load`
+//! adds the file position of that key. Comparisons are written so that NaN fails them.
+use super::schema::*;
+
+/// Initial particle count above which a shot is refused (GPU memory and run time).
+pub const MAX_PARTICLES: f64 = 50.0e6;
+/// Allocated capacity (initial count x adaptive.capacity_factor) above which a shot is refused.
+pub const MAX_CAPACITY: f64 = 100.0e6;
+/// Voxels per axis of the export grid above which a shot is refused.
+pub const MAX_VOXELS_PER_AXIS: f64 = 65536.0;
+
+/// One problem: the keys it concerns (the first one present in the file is reported) and what
+/// is wrong.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Issue {
+    pub keys: Vec<String>,
+    pub msg: String,
+}
+
+struct Checks {
+    issues: Vec<Issue>,
+}
+
+fn num(x: f64) -> String {
+    super::node::fmt_float(x)
+}
+
+impl Checks {
+    fn fail(&mut self, keys: &[&str], msg: String) {
+        self.issues.push(Issue {
+            keys: keys.iter().map(|k| k.to_string()).collect(),
+            msg,
+        });
+    }
+    fn finite(&mut self, key: &str, x: f64) -> bool {
+        if x.is_finite() {
+            true
+        } else {
+            self.fail(&[key], format!("expected a finite number, got {}", num(x)));
+            false
+        }
+    }
+    /// x > 0
+    fn positive(&mut self, key: &str, x: f64) {
+        if self.finite(key, x) && x <= 0.0 {
+            self.fail(&[key], format!("expected a number > 0, got {}", num(x)));
+        }
+    }
+    /// x >= 0
+    fn non_negative(&mut self, key: &str, x: f64) {
+        if self.finite(key, x) && x < 0.0 {
+            self.fail(&[key], format!("expected a number >= 0, got {}", num(x)));
+        }
+    }
+    /// lo <= x <= hi
+    fn within(&mut self, key: &str, x: f64, lo: f64, hi: f64) {
+        if self.finite(key, x) && !(lo..=hi).contains(&x) {
+            self.fail(
+                &[key],
+                format!(
+                    "expected a number from {} to {}, got {}",
+                    num(lo),
+                    num(hi),
+                    num(x)
+                ),
+            );
+        }
+    }
+    fn uint_within(&mut self, key: &str, x: u32, lo: u32, hi: u32) {
+        if !(lo..=hi).contains(&x) {
+            self.fail(
+                &[key],
+                format!("expected an integer from {lo} to {hi}, got {x}"),
+            );
+        }
+    }
+}
+
+/// Digits needed to print `n` in decimal.
+fn digits(n: u32) -> u32 {
+    n.checked_ilog10().unwrap_or(0) + 1
+}
+
+/// Initial lattice particle count: floor(size/spacing) per axis (what `sim` seeds).
+pub fn lattice_count(d: &DomainConfig) -> f64 {
+    d.size
+        .iter()
+        .map(|s| (s / d.spacing).floor().max(0.0))
+        .product()
+}
+
+pub(crate) fn issues(c: &ShotConfig) -> Vec<Issue> {
+    let mut k = Checks { issues: Vec::new() };
+    check_names(&mut k, c);
+    check_output(&mut k, &c.output);
+    check_domain(&mut k, c);
+    check_solver(&mut k, &c.solver, c);
+    check_physics(&mut k, &c.physics, c);
+    check_adaptive(&mut k, &c.adaptive, c);
+    check_export(&mut k, &c.export, &c.domain);
+    if c.gpu.adapter.trim().is_empty() {
+        k.fail(
+            &["gpu.adapter"],
+            "expected \"auto\" or part of an adapter name, got an empty string".into(),
+        );
+    }
+    if c.checkpoint.keep == 0 {
+        k.fail(
+            &["checkpoint.keep"],
+            "expected at least 1 (the newest checkpoint is always kept), got 0".into(),
+        );
+    }
+    k.issues
+}
+
+fn check_names(k: &mut Checks, c: &ShotConfig) {
+    let s = &c.shot;
+    if s.trim().is_empty() {
+        k.fail(&["shot"], "expected a shot name, got an empty string".into());
+    } else if s == "." || s == ".." || s.chars().any(|ch| "/\\:*?\"<>|".contains(ch) || ch.is_control()) {
+        k.fail(
+            &["shot"],
+            format!(
+                "the shot name prefixes every output file: use letters, digits, '-', '_' or '.', got {:?}",
+                super::node::clip(s)
+            ),
+        );
+    }
+    if c.output.dir.trim().is_empty() {
+        k.fail(&["output.dir"], "expected a directory, got an empty string".into());
+    }
+}
+
+fn check_output(k: &mut Checks, o: &OutputConfig) {
+    if o.frames.end < o.frames.start {
+        k.fail(
+            &["output.frames.end", "output.frames.start"],
+            format!(
+                "end frame {} is before start frame {}",
+                o.frames.end, o.frames.start
+            ),
+        );
+    }
+    k.within("output.fps", o.fps, 1.0e-3, 1000.0);
+    k.positive("output.frame_seconds", o.frame_seconds);
+    k.uint_within("output.substeps", o.substeps, 1, 1000);
+    k.uint_within("output.frame_padding", o.frame_padding, 1, 10);
+    if (1..=10).contains(&o.frame_padding) && digits(o.frames.end) > o.frame_padding {
+        k.fail(
+            &["output.frame_padding", "output.frames.end"],
+            format!(
+                "{} digits cannot hold end frame {} (needs {}); file names would not sort",
+                o.frame_padding,
+                o.frames.end,
+                digits(o.frames.end)
+            ),
+        );
+    }
+    let p = &o.preview;
+    for (i, r) in p.resolution.iter().enumerate() {
+        k.uint_within(&format!("output.preview.resolution[{i}]"), *r, 1, 16384);
+    }
+    let len2: f64 = p.sun_direction.iter().map(|x| x * x).sum();
+    if p.sun_direction.iter().all(|x| x.is_finite()) && !(len2 > 1e-24) {
+        k.fail(
+            &["output.preview.sun_direction"],
+            "expected a non-zero direction, got [0, 0, 0]".into(),
+        );
+    }
+    for i in 0..3 {
+        k.finite(&format!("output.preview.sun_direction[{i}]"), p.sun_direction[i]);
+        k.non_negative(&format!("output.preview.sun_color[{i}]"), p.sun_color[i]);
+    }
+    k.non_negative("output.preview.sun_intensity", p.sun_intensity);
+    k.positive("output.preview.density_scale", p.density_scale);
+    if let Some(cam) = &p.camera {
+        for i in 0..3 {
+            k.finite(&format!("output.preview.camera.position[{i}]"), cam.position[i]);
+            k.finite(&format!("output.preview.camera.look_at[{i}]"), cam.look_at[i]);
+        }
+        if cam.position == cam.look_at {
+            k.fail(
+                &["output.preview.camera.look_at"],
+                "the camera looks at its own position; move look_at away from position".into(),
+            );
+        }
+        if k.finite("output.preview.camera.fov_deg", cam.fov_deg)
+            && !(cam.fov_deg > 0.0 && cam.fov_deg < 180.0)
+        {
+            k.fail(
+                &["output.preview.camera.fov_deg"],
+                format!(
+                    "expected an angle between 0 and 180 degrees (exclusive), got {}",
+                    num(cam.fov_deg)
+                ),
+            );
+        }
+    }
+}
+
+const AXES: [&str; 3] = ["x", "y", "z"];
+
+fn check_domain(k: &mut Checks, c: &ShotConfig) {
+    let d = &c.domain;
+    let before = k.issues.len();
+    for i in 0..3 {
+        k.positive(&format!("domain.size[{i}]"), d.size[i]);
+    }
+    k.positive("domain.spacing", d.spacing);
+    if k.finite("domain.kernel_ratio", d.kernel_ratio) && !(d.kernel_ratio > 1.0 && d.kernel_ratio <= 5.0) {
+        k.fail(
+            &["domain.kernel_ratio"],
+            format!(
+                "expected a number > 1 and <= 5 (h0 must reach past the nearest neighbours), got {}",
+                num(d.kernel_ratio)
+            ),
+        );
+    }
+    for (i, a) in d.periodic.iter().enumerate() {
+        if d.periodic[..i].contains(a) {
+            k.fail(
+                &[format!("domain.periodic[{i}]").as_str()],
+                format!("axis {} is listed twice", axis_name(*a)),
+            );
+        }
+    }
+    if k.issues.len() > before {
+        return; // the derived checks below need sane inputs
+    }
+    let h0 = d.spacing * d.kernel_ratio;
+    for i in 0..3 {
+        if h0 > d.size[i] {
+            k.fail(
+                &["domain.spacing", "domain.kernel_ratio"],
+                format!(
+                    "kernel radius h0 = spacing * kernel_ratio = {} m is larger than the domain along {} ({} m)",
+                    num(h0),
+                    AXES[i],
+                    num(d.size[i])
+                ),
+            );
+            return;
+        }
+    }
+    for a in &d.periodic {
+        let i = match a {
+            Axis::X => 0,
+            Axis::Z => 2,
+        };
+        let cells = d.size[i] / h0;
+        if cells < 3.0 {
+            k.fail(
+                &["domain.periodic", "domain.size"],
+                format!(
+                    "periodic axis {} needs at least 3 kernel-radius cells (size/h0 >= 3), got {:.2} (size {} m, h0 {} m)",
+                    AXES[i],
+                    cells,
+                    num(d.size[i]),
+                    num(h0)
+                ),
+            );
+        }
+    }
+    let n = lattice_count(d);
+    if n > MAX_PARTICLES {
+        k.fail(
+            &["domain.spacing", "domain.size"],
+            format!(
+                "{:.1} million particles (size/spacing per axis) exceeds the limit of {:.0} million; increase the spacing",
+                n / 1e6,
+                MAX_PARTICLES / 1e6
+            ),
+        );
+    }
+}
+
+fn axis_name(a: Axis) -> &'static str {
+    match a {
+        Axis::X => "x",
+        Axis::Z => "z",
+    }
+}
+
+fn check_solver(k: &mut Checks, s: &SolverConfig, c: &ShotConfig) {
+    k.uint_within("solver.iterations", s.iterations, 1, 100);
+    k.positive("solver.rest_density", s.rest_density);
+    k.positive("solver.relaxation", s.relaxation);
+    k.non_negative("solver.scorr_k", s.scorr_k);
+    k.uint_within("solver.scorr_n", s.scorr_n, 1, 16);
+    if k.finite("solver.scorr_dq", s.scorr_dq) && !(s.scorr_dq > 0.0 && s.scorr_dq < 1.0) {
+        k.fail(
+            &["solver.scorr_dq"],
+            format!(
+                "expected a fraction of h strictly between 0 and 1, got {}",
+                num(s.scorr_dq)
+            ),
+        );
+    }
+    k.within("solver.xsph", s.xsph, 0.0, 1.0);
+    k.non_negative("solver.vorticity", s.vorticity);
+    k.non_negative("solver.gravity", s.gravity);
+    k.positive("solver.max_speed", s.max_speed);
+    if s.max_speed.is_finite() && c.physics.initial_speed > s.max_speed {
+        k.fail(
+            &["physics.initial_speed", "solver.max_speed"],
+            format!(
+                "initial speed {} m/s is above solver.max_speed {} m/s",
+                num(c.physics.initial_speed),
+                num(s.max_speed)
+            ),
+        );
+    }
+}
+
+fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
+    k.positive("physics.ground_temperature", p.ground_temperature);
+    k.finite("physics.environment_lapse_rate", p.environment_lapse_rate);
+    k.non_negative("physics.adiabatic_lapse_rate", p.adiabatic_lapse_rate);
+    k.non_negative("physics.heat_source", p.heat_source);
+    k.non_negative("physics.heat_height", p.heat_height);
+    k.positive("physics.heat_noise_scale", p.heat_noise_scale);
+    k.non_negative("physics.heat_noise_speed", p.heat_noise_speed);
+    k.non_negative("physics.buoyancy", p.buoyancy);
+    k.non_negative("physics.cloud_weight", p.cloud_weight);
+    k.non_negative("physics.phase_rate", p.phase_rate);
+    k.positive("physics.saturation_a", p.saturation_a);
+    k.finite("physics.saturation_b", p.saturation_b);
+    k.finite("physics.saturation_c", p.saturation_c);
+    k.non_negative("physics.latent_heat", p.latent_heat);
+    k.within("physics.initial_vapor", p.initial_vapor, 0.0, 2.0);
+    k.non_negative("physics.initial_speed", p.initial_speed);
+    let sm = &p.smoothing;
+    if k.finite("physics.smoothing.kappa", sm.kappa) && !(sm.kappa > 0.0 && sm.kappa <= 1.0) {
+        k.fail(
+            &["physics.smoothing.kappa"],
+            format!("expected a number in (0, 1], got {}", num(sm.kappa)),
+        );
+    }
+    k.positive("physics.smoothing.epsilon", sm.epsilon);
+    k.uint_within("physics.smoothing.iterations", sm.iterations, 1, 100);
+
+    // The environment must stay above absolute zero and above -C (eq. 10 divides by T + C).
+    let height = c.domain.size[1];
+    let top = p.ground_temperature - p.environment_lapse_rate * height;
+    let coldest = p.ground_temperature.min(top);
+    if coldest.is_finite() && height.is_finite() && height > 0.0 {
+        if coldest <= 0.0 {
+            k.fail(
+                &["physics.environment_lapse_rate", "physics.ground_temperature"],
+                format!(
+                    "the environment reaches {} K at the top of the domain ({} m); it must stay above 0 K",
+                    num(coldest),
+                    num(height)
+                ),
+            );
+        } else if p.saturation_c.is_finite() && coldest + p.saturation_c <= 0.0 {
+            k.fail(
+                &["physics.saturation_c"],
+                format!(
+                    "T + C must stay > 0 in eq. 10, but the coldest environment temperature is {} K and C = {}",
+                    num(coldest),
+                    num(p.saturation_c)
+                ),
+            );
+        }
+    }
+    // eq. 9 is integrated explicitly: alpha * dt > 1 overshoots saturation.
+    if c.output.substeps > 0 && c.output.frame_seconds > 0.0 {
+        let dt = c.output.frame_seconds / c.output.substeps as f64;
+        if p.phase_rate.is_finite() && p.phase_rate * dt > 1.0 {
+            k.fail(
+                &["physics.phase_rate", "output.substeps"],
+                format!(
+                    "phase_rate * substep dt = {} * {} s = {} > 1 makes eq. 9 overshoot; raise output.substeps or lower physics.phase_rate",
+                    num(p.phase_rate),
+                    num(dt),
+                    num(p.phase_rate * dt)
+                ),
+            );
+        }
+    }
+}
+
+fn check_adaptive(k: &mut Checks, a: &AdaptiveConfig, c: &ShotConfig) {
+    k.uint_within("adaptive.max_level", a.max_level, 0, 9);
+    k.positive("adaptive.kp", a.kp);
+    k.positive("adaptive.kc", a.kc);
+    k.non_negative("adaptive.merge_threshold", a.merge_threshold);
+    k.non_negative("adaptive.split_threshold", a.split_threshold);
+    if a.merge_threshold.is_finite()
+        && a.split_threshold.is_finite()
+        && a.merge_threshold >= a.split_threshold
+    {
+        k.fail(
+            &["adaptive.merge_threshold", "adaptive.split_threshold"],
+            format!(
+                "merge_threshold ({}) must be below split_threshold ({}), or particles would split and merge back forever",
+                num(a.merge_threshold),
+                num(a.split_threshold)
+            ),
+        );
+    }
+    if a.enabled && a.kp.is_finite() && a.split_threshold >= a.kp {
+        k.fail(
+            &["adaptive.split_threshold", "adaptive.kp"],
+            format!(
+                "split_threshold ({}) is at or above kp ({}); E = kp(1 - exp(-kc w)) stays below kp (eq. 20), so nothing would split",
+                num(a.split_threshold),
+                num(a.kp)
+            ),
+        );
+    }
+    if k.finite("adaptive.capacity_factor", a.capacity_factor) && !(a.capacity_factor >= 1.0) {
+        k.fail(
+            &["adaptive.capacity_factor"],
+            format!(
+                "expected a number >= 1 (capacity must hold the initial particles), got {}",
+                num(a.capacity_factor)
+            ),
+        );
+    }
+    if k.finite("adaptive.min_distance", a.min_distance)
+        && !(a.min_distance >= 0.0 && a.min_distance < 1.0)
+    {
+        k.fail(
+            &["adaptive.min_distance"],
+            format!(
+                "expected a fraction of the kernel radius in [0, 1), got {}",
+                num(a.min_distance)
+            ),
+        );
+    }
+    if a.enabled && a.capacity_factor.is_finite() {
+        let cap = lattice_count(&c.domain) * a.capacity_factor;
+        if cap > MAX_CAPACITY && lattice_count(&c.domain) <= MAX_PARTICLES {
+            k.fail(
+                &["adaptive.capacity_factor"],
+                format!(
+                    "capacity of {:.1} million particles exceeds the limit of {:.0} million",
+                    cap / 1e6,
+                    MAX_CAPACITY / 1e6
+                ),
+            );
+        }
+    }
+}
+
+fn check_export(k: &mut Checks, e: &ExportConfig, d: &DomainConfig) {
+    k.positive("export.voxel_size", e.voxel_size);
+    k.non_negative("export.threshold", e.threshold);
+    if e.voxel_size.is_finite() && e.voxel_size > 0.0 {
+        for i in 0..3 {
+            let n = d.size[i] / e.voxel_size;
+            if n > MAX_VOXELS_PER_AXIS {
+                k.fail(
+                    &["export.voxel_size"],
+                    format!(
+                        "{:.0} voxels along {} exceeds {}; increase the voxel size",
+                        n,
+                        AXES[i],
+                        MAX_VOXELS_PER_AXIS
+                    ),
+                );
+                break;
+            }
+        }
+    }
+    let g = &e.grids;
+    let named = [
+        ("export.grids.density", &g.density),
+        ("export.grids.temperature", &g.temperature),
+        ("export.grids.vapor", &g.vapor),
+        ("export.grids.velocity", &g.velocity),
+    ];
+    for (i, (key, name)) in named.iter().enumerate() {
+        if name.is_empty() {
+            continue;
+        }
+        if name.trim() != name.as_str() || name.chars().any(char::is_control) {
+            k.fail(
+                &[*key],
+                format!("grid names may not start or end with spaces, got {name:?}"),
+            );
+        }
+        if let Some((other, _)) = named[..i].iter().find(|(_, n)| n == name) {
+            k.fail(
+                &[*key],
+                format!("grid name {name:?} is also used by {other}"),
+            );
+        }
+    }
+    if e.vdb.enabled && named.iter().all(|(_, n)| n.is_empty()) {
+        k.fail(
+            &["export.grids"],
+            "every grid name is empty, so the VDB files would hold no grid; name one or set export.vdb.enabled: false".into(),
+        );
+    }
+    for (alias, target) in &g.aliases {
+        let key = format!("export.grids.aliases.{alias}");
+        if alias.trim().is_empty() {
+            k.fail(&["export.grids.aliases"], "an alias name is empty".into());
+        } else if named.iter().any(|(_, n)| *n == alias) {
+            k.fail(
+                &[key.as_str()],
+                format!("alias {alias:?} clashes with a grid of that name"),
+            );
+        } else if target.is_empty() || !named.iter().any(|(_, n)| *n == target) {
+            let valid: Vec<&str> = named
+                .iter()
+                .filter(|(_, n)| !n.is_empty())
+                .map(|(_, n)| n.as_str())
+                .collect();
+            k.fail(
+                &[key.as_str()],
+                format!(
+                    "alias target {target:?} is not a grid name (grids: {})",
+                    valid.join(", ")
+                ),
+            );
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn base() -> ShotConfig {
+        super::super::load_str(
+            "shot: t\noutput: {frames: {start: 1, end: 10}}\ndomain: {size: [100, 50, 100], spacing: 5}\n",
+            "t.yaml",
+            &[],
+        )
+        .unwrap()
+    }
+
+    fn first_key(c: &ShotConfig) -> Option<String> {
+        issues(c).first().map(|i| i.keys[0].clone())
+    }
+
+    #[test]
+    fn base_is_valid() {
+        assert_eq!(issues(&base()), vec![]);
+    }
+
+    #[test]
+    fn each_rule_names_its_key() {
+        type Edit = fn(&mut ShotConfig);
+        let cases: Vec<(Edit, &str)> = vec![
+            (|c| c.output.frames.end = 0, "output.frames.end"),
+            (|c| c.output.substeps = 0, "output.substeps"),
+            (|c| c.domain.spacing = 0.0, "domain.spacing"),
+            (|c| c.domain.spacing = -1.0, "domain.spacing"),
+            (|c| c.domain.spacing = f64::NAN, "domain.spacing"),
+            (|c| c.domain.kernel_ratio = 30.0, "domain.kernel_ratio"),
+            (|c| c.domain.size = [100.0, 8.0, 100.0], "domain.spacing"),
+            (|c| c.domain.size = [25.0, 50.0, 100.0], "domain.periodic"),
+            (|c| c.domain.periodic = vec![Axis::X, Axis::X], "domain.periodic[1]"),
+            (|c| c.domain.spacing = 0.01, "domain.spacing"),
+            (|c| c.export.voxel_size = 0.0, "export.voxel_size"),
+            (|c| c.physics.smoothing.kappa = 0.0, "physics.smoothing.kappa"),
+            (|c| c.physics.smoothing.kappa = 1.5, "physics.smoothing.kappa"),
+            (|c| c.adaptive.merge_threshold = 0.5, "adaptive.merge_threshold"),
+            (|c| c.adaptive.capacity_factor = 0.5, "adaptive.capacity_factor"),
+            (|c| c.output.frames.end = 100_000, "output.frame_padding"),
+            (|c| c.gpu.adapter = " ".into(), "gpu.adapter"),
+            (|c| c.shot = "a/b".into(), "shot"),
+            (|c| c.solver.iterations = 0, "solver.iterations"),
+            (|c| c.physics.phase_rate = 10.0, "physics.phase_rate"),
+            (|c| c.physics.saturation_c = -400.0, "physics.saturation_c"),
+            (|c| c.physics.environment_lapse_rate = 10.0, "physics.environment_lapse_rate"),
+            (|c| c.physics.initial_speed = 100.0, "physics.initial_speed"),
+            (|c| c.output.preview.sun_direction = [0.0; 3], "output.preview.sun_direction"),
+            (|c| c.export.grids.aliases.insert("heat".into(), "temp".into()).map_or((), drop), "export.grids.aliases.heat"),
+            (|c| c.export.grids.vapor = "density".into(), "export.grids.vapor"),
+            (|c| c.checkpoint.keep = 0, "checkpoint.keep"),
+            (|c| { c.adaptive.enabled = true; c.adaptive.split_threshold = 2.0; }, "adaptive.split_threshold"),
+        ];
+        for (edit, key) in cases {
+            let mut c = base();
+            edit(&mut c);
+            assert_eq!(first_key(&c).as_deref(), Some(key), "{c:?}");
+        }
+    }
+
+    #[test]
+    fn lattice_count_is_floor_per_axis() {
+        let d = base().domain;
+        assert_eq!(lattice_count(&d), 20.0 * 10.0 * 20.0);
+    }
+
+    #[test]
+    fn digits_counts() {
+        assert_eq!(digits(0), 1);
+        assert_eq!(digits(9), 1);
+        assert_eq!(digits(10), 2);
+        assert_eq!(digits(9999), 4);
+        assert_eq!(digits(u32::MAX), 10);
+    }
+}

@@ -1,0 +1,853 @@
+//! Checkpoint files: the whole simulation state of one frame, versioned and checksummed, so a run
+//! killed at any point resumes bit for bit.
+//!
+//! # File name
+//! `ckpt_<frame>.nck` with the frame zero-padded to 6 digits (`ckpt_000120.nck`), one per
+//! checkpointed frame, in the run's checkpoint directory. Files are written through
+//! [`crate::io::atomic`] (temporary `*.nimbus-tmp` beside it, fsync, rename, directory fsync),
+//! so a checkpoint file is either complete or absent; the checksums catch everything else
+//! (a disk that lies, a copy cut short, a file edited by hand).
+//!
+//! # Layout (format version 1; all integers little-endian)
+//! ```text
+//! offset      size  field
+//! 0           8     magic "NIMBUSCK"
+//! 8           4     format version (u32) = 1
+//! 12          4     H: length of the header body (u32, at most 64 KiB)
+//! 16          H     header body:
+//!                     u64  file length in bytes, trailer included (detects truncation)
+//!                     str  tool version (nimbus CARGO_PKG_VERSION that wrote it)
+//!                     str  sim config hash (hex, `config` module's hash of the
+//!                          simulation-affecting keys)
+//!                     u32  frame (last completed frame)
+//!                     u64  step (substeps done since frame 0; with the seed this is the RNG
+//!                          state: particle init and heating noise are stateless hashes)
+//!                     f64  simulation time in seconds (IEEE bits)
+//!                     u64  seed
+//!                     u64  particle count (live particles, = length of every array section)
+//!                     u64  capacity (GPU buffer length the run allocated)
+//!                     str  adapter name (as `gpu::Context::adapter_name`)
+//!                     u32  next id (next particle id the split stage hands out)
+//!                     u32  number of sections
+//!                   (str = u16 byte length + UTF-8 bytes)
+//! 16+H        4     crc32 of bytes [0, 16+H)
+//! then, per section:
+//!             2     name length n (u16, 1..=255)
+//!             n     name (UTF-8)
+//!             8     data length L (u64)
+//!             L     data
+//!             4     crc32 of the section's name length, name, data length and data
+//! end-32      32    SHA-256 of every byte before it
+//! ```
+//! Sections, in this order: `pos`, `vel`, `thermo` (`count` x `[f32;4]`, 16 B each), `info`
+//! (`count` x `[u32;2]`, 8 B), `density` (`count` x `f32`, 4 B), then the named extra sections in
+//! name order (opaque bytes owned by the stage that wrote them). Particle arrays are the raw
+//! little-endian words of `sim::ParticleState`, so every float, NaN payloads included, comes back
+//! bit for bit. A checkpoint holds 60 bytes per particle plus a few hundred bytes.
+//!
+//! # Reading
+//! [`read_checkpoint`] checks, in this order, and stops at the first problem with one reason:
+//! empty file, magic, format version, header length and header crc, file length against the
+//! header (truncation / trailing bytes), the whole-file SHA-256 (a mismatch names the corrupt
+//! section when its crc32 also fails), then the section table (names, lengths, the required
+//! sections and their sizes). No length read from the file is trusted before it is bounded by the
+//! file size, so a corrupt file can neither panic the reader nor make it allocate more than the
+//! file holds.
+use crate::error::{Error, Result};
+use crate::io::atomic::{self, TMP_SUFFIX};
+use crate::sim::ParticleState;
+use sha2::{Digest, Sha256};
+use std::borrow::Cow;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::fs;
+use std::io::{BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+/// First 8 bytes of every checkpoint.
+pub const MAGIC: &[u8; 8] = b"NIMBUSCK";
+/// Layout version this build writes and reads.
+pub const FORMAT_VERSION: u32 = 1;
+/// File name extension.
+pub const EXTENSION: &str = "nck";
+/// Names of the particle-array sections, in file order; extra sections may not use them.
+pub const STATE_SECTIONS: [&str; 5] = ["pos", "vel", "thermo", "info", "density"];
+
+const PRELUDE: usize = 16;
+const MAX_HEADER_LEN: usize = 64 * 1024;
+const TRAILER: usize = 32;
+const MAX_NAME_LEN: usize = 255;
+
+/// Everything but the particle arrays and the extra sections.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CheckpointHeader {
+    /// Version of nimbus that wrote the file (`crate::VERSION`).
+    pub tool_version: String,
+    /// Hex hash of the simulation-affecting config keys.
+    pub sim_hash: String,
+    /// Last completed frame.
+    pub frame: u32,
+    /// Substeps done since frame 0.
+    pub step: u64,
+    /// Simulation time in seconds.
+    pub time: f64,
+    pub seed: u64,
+    /// Live particles; must equal the length of every array of the state.
+    pub particle_count: u64,
+    /// Particle buffer capacity of the run.
+    pub capacity: u64,
+    /// GPU adapter the state was computed on (bit-exact resume needs the same one).
+    pub adapter: String,
+    /// Next particle id to hand out.
+    pub next_id: u32,
+}
+
+/// One checkpoint: header, particle state, and extra named sections (name -> bytes).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Checkpoint {
+    pub header: CheckpointHeader,
+    pub state: ParticleState,
+    pub extra: BTreeMap<String, Vec<u8>>,
+}
+
+/// `ckpt_<frame zero-padded to 6>.nck`.
+pub fn file_name(frame: u32) -> String {
+    format!("ckpt_{frame:06}.{EXTENSION}")
+}
+
+/// The frame a checkpoint file name stands for, `None` for any other name.
+pub fn frame_of_name(name: &str) -> Option<u32> {
+    let digits = name
+        .strip_prefix("ckpt_")?
+        .strip_suffix(EXTENSION)?
+        .strip_suffix('.')?;
+    if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    digits.parse().ok()
+}
+
+/// Whether a file starting with these bytes is a checkpoint (for `nimbus inspect` dispatch).
+pub fn is_checkpoint(bytes_prefix: &[u8]) -> bool {
+    bytes_prefix.starts_with(MAGIC)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Writing
+
+/// Writes `ck` as `dir/ckpt_<frame>.nck` atomically (temporary file, fsync, rename, directory
+/// fsync) and returns its path. `dir` is created if missing. A write error (disk full, ...) is
+/// `Error::Io` naming the checkpoint path and the reason; the previous checkpoints are untouched
+/// and no temporary file is left. An inconsistent `ck` (array lengths, reserved or invalid extra
+/// section names) is `Error::Runtime`: it is a bug of the caller, not of the disk.
+pub fn write_checkpoint(dir: &Path, ck: &Checkpoint) -> Result<PathBuf> {
+    write_impl(dir, ck, None)
+}
+
+/// [`write_checkpoint`], then removes the checkpoints of later frames (left by an abandoned
+/// timeline: the run resumed from before them, so they no longer match what it computes) and
+/// prunes to the newest `keep` (at least 1). The one just written is the newest, so it is kept.
+pub fn write_and_prune(dir: &Path, ck: &Checkpoint, keep: usize) -> Result<PathBuf> {
+    let path = write_checkpoint(dir, ck)?;
+    for (frame, p) in list_checkpoints(dir)? {
+        if frame > ck.header.frame {
+            fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+        }
+    }
+    prune(dir, keep)?;
+    Ok(path)
+}
+
+/// Test hook: like [`write_checkpoint`], but the temporary file fails with "no space left on
+/// device" once `fail_after` bytes have gone into it (a disk filling up at any point).
+#[doc(hidden)]
+pub fn write_checkpoint_failing_after(
+    dir: &Path,
+    ck: &Checkpoint,
+    fail_after: u64,
+) -> Result<PathBuf> {
+    write_impl(dir, ck, Some(fail_after))
+}
+
+/// Keeps the newest `keep` checkpoints of `dir` by frame (at least one) and deletes the others;
+/// returns the deleted paths. Other files are not touched.
+pub fn prune(dir: &Path, keep: usize) -> Result<Vec<PathBuf>> {
+    let list = list_checkpoints(dir)?;
+    let n_del = list.len().saturating_sub(keep.max(1));
+    let mut deleted = Vec::with_capacity(n_del);
+    for (_, p) in list.into_iter().take(n_del) {
+        fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+        deleted.push(p);
+    }
+    Ok(deleted)
+}
+
+/// Checkpoint files of `dir` (by name), oldest frame first; a missing `dir` has none.
+pub fn list_checkpoints(dir: &Path) -> Result<Vec<(u32, PathBuf)>> {
+    let rd = match fs::read_dir(dir) {
+        Ok(rd) => rd,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(Error::io(dir, e)),
+    };
+    let mut out = Vec::new();
+    for entry in rd {
+        let entry = entry.map_err(|e| Error::io(dir, e))?;
+        let name = entry.file_name();
+        let Some(frame) = name.to_str().and_then(frame_of_name) else {
+            continue;
+        };
+        if entry.file_type().map(|t| t.is_file()).unwrap_or(false) {
+            out.push((frame, entry.path()));
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+fn write_impl(dir: &Path, ck: &Checkpoint, fail_after: Option<u64>) -> Result<PathBuf> {
+    let sections = sections_of(ck)?;
+    let header = encode_header(&ck.header, &sections)?;
+    fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let path = dir.join(file_name(ck.header.frame));
+    atomic::write_atomic_with(&path, |f| {
+        let buf = BufWriter::with_capacity(1 << 20, f);
+        let mut w = HashingWriter {
+            inner: FaultWriter {
+                inner: buf,
+                left: fail_after,
+            },
+            sha: Sha256::new(),
+        };
+        w.write_all(&header)?;
+        for (name, data) in &sections {
+            let name_len = (name.len() as u16).to_le_bytes();
+            let data_len = (data.len() as u64).to_le_bytes();
+            let mut crc = crc32fast::Hasher::new();
+            crc.update(&name_len);
+            crc.update(name.as_bytes());
+            crc.update(&data_len);
+            crc.update(data);
+            w.write_all(&name_len)?;
+            w.write_all(name.as_bytes())?;
+            w.write_all(&data_len)?;
+            w.write_all(data)?;
+            w.write_all(&crc.finalize().to_le_bytes())?;
+        }
+        let digest = w.sha.finalize();
+        w.inner.write_all(digest.as_slice())?;
+        w.inner.inner.flush()
+    })?;
+    Ok(path)
+}
+
+/// The sections of `ck` in file order, after checking that they are consistent.
+fn sections_of(ck: &Checkpoint) -> Result<Vec<(&str, Cow<'_, [u8]>)>> {
+    let s = &ck.state;
+    let n = s.pos.len();
+    let lens = [
+        s.pos.len(),
+        s.vel.len(),
+        s.thermo.len(),
+        s.info.len(),
+        s.density.len(),
+    ];
+    if lens.iter().any(|&l| l != n) || ck.header.particle_count != n as u64 {
+        return Err(Error::Runtime(format!(
+            "checkpoint: inconsistent particle state: header count {}, array lengths \
+             pos/vel/thermo/info/density {lens:?}",
+            ck.header.particle_count
+        )));
+    }
+    if ck.header.particle_count > ck.header.capacity {
+        return Err(Error::Runtime(format!(
+            "checkpoint: particle count {} exceeds capacity {}",
+            ck.header.particle_count, ck.header.capacity
+        )));
+    }
+    let mut out: Vec<(&str, Cow<[u8]>)> = vec![
+        ("pos", le_bytes(&s.pos)),
+        ("vel", le_bytes(&s.vel)),
+        ("thermo", le_bytes(&s.thermo)),
+        ("info", le_bytes(&s.info)),
+        ("density", le_bytes(&s.density)),
+    ];
+    for (name, data) in &ck.extra {
+        if name.is_empty() || name.len() > MAX_NAME_LEN || STATE_SECTIONS.contains(&name.as_str()) {
+            return Err(Error::Runtime(format!(
+                "checkpoint: invalid extra section name {name:?} (1 to {MAX_NAME_LEN} bytes, \
+                 not one of {STATE_SECTIONS:?})"
+            )));
+        }
+        out.push((name.as_str(), Cow::Borrowed(data.as_slice())));
+    }
+    Ok(out)
+}
+
+fn encode_header(h: &CheckpointHeader, sections: &[(&str, Cow<[u8]>)]) -> Result<Vec<u8>> {
+    let mut body = Vec::with_capacity(256);
+    body.extend_from_slice(&0u64.to_le_bytes()); // file length, patched below
+    put_str(&mut body, "tool version", &h.tool_version)?;
+    put_str(&mut body, "sim hash", &h.sim_hash)?;
+    body.extend_from_slice(&h.frame.to_le_bytes());
+    body.extend_from_slice(&h.step.to_le_bytes());
+    body.extend_from_slice(&h.time.to_bits().to_le_bytes());
+    body.extend_from_slice(&h.seed.to_le_bytes());
+    body.extend_from_slice(&h.particle_count.to_le_bytes());
+    body.extend_from_slice(&h.capacity.to_le_bytes());
+    put_str(&mut body, "adapter", &h.adapter)?;
+    body.extend_from_slice(&h.next_id.to_le_bytes());
+    body.extend_from_slice(&(sections.len() as u32).to_le_bytes());
+    if body.len() > MAX_HEADER_LEN {
+        return Err(Error::Runtime("checkpoint: header too long".into()));
+    }
+    let header_total = PRELUDE + body.len() + 4;
+    let file_len = header_total as u64
+        + sections
+            .iter()
+            .map(|(n, d)| 2 + n.len() as u64 + 8 + d.len() as u64 + 4)
+            .sum::<u64>()
+        + TRAILER as u64;
+    body[..8].copy_from_slice(&file_len.to_le_bytes());
+
+    let mut out = Vec::with_capacity(header_total);
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&(body.len() as u32).to_le_bytes());
+    out.extend_from_slice(&body);
+    let crc = crc32fast::hash(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
+    Ok(out)
+}
+
+fn put_str(out: &mut Vec<u8>, what: &str, s: &str) -> Result<()> {
+    if s.len() > u16::MAX as usize {
+        return Err(Error::Runtime(format!("checkpoint: {what} too long")));
+    }
+    out.extend_from_slice(&(s.len() as u16).to_le_bytes());
+    out.extend_from_slice(s.as_bytes());
+    Ok(())
+}
+
+/// Little-endian bytes of an array made of 4-byte words (f32 / u32 and arrays of them).
+fn le_bytes<T: bytemuck::Pod>(v: &[T]) -> Cow<'_, [u8]> {
+    if cfg!(target_endian = "little") {
+        Cow::Borrowed(bytemuck::cast_slice(v))
+    } else {
+        let words: &[u32] = bytemuck::cast_slice(v);
+        Cow::Owned(words.iter().flat_map(|w| w.to_le_bytes()).collect())
+    }
+}
+
+/// Inverse of `le_bytes`; `bytes.len()` must be a multiple of `size_of::<T>()`.
+fn from_le_bytes<T: bytemuck::Pod>(bytes: &[u8]) -> Vec<T> {
+    let mut v = vec![T::zeroed(); bytes.len() / std::mem::size_of::<T>()];
+    bytemuck::cast_slice_mut::<T, u8>(&mut v).copy_from_slice(bytes);
+    for w in bytemuck::cast_slice_mut::<T, u32>(&mut v) {
+        *w = u32::from_le(*w);
+    }
+    v
+}
+
+struct HashingWriter<W> {
+    inner: W,
+    sha: Sha256,
+}
+
+impl<W: Write> Write for HashingWriter<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.sha.update(&buf[..n]);
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// Passes writes through until `left` bytes are used up, then fails like a full disk.
+struct FaultWriter<W> {
+    inner: W,
+    left: Option<u64>,
+}
+
+impl<W: Write> Write for FaultWriter<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let Some(left) = self.left else {
+            return self.inner.write(buf);
+        };
+        if left == 0 && !buf.is_empty() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::StorageFull,
+                "No space left on device (injected fault)",
+            ));
+        }
+        let take = buf.len().min(left.min(usize::MAX as u64) as usize);
+        let n = self.inner.write(&buf[..take])?;
+        self.left = Some(left - n as u64);
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reading
+
+/// Reads and fully validates a checkpoint. Any defect is `Error::InvalidInput` with
+/// `"<path>: <one reason>"`; an unreadable file is `Error::Io`.
+pub fn read_checkpoint(path: &Path) -> Result<Checkpoint> {
+    let bytes = fs::read(path).map_err(|e| Error::io(path, e))?;
+    decode(&bytes).map_err(|reason| invalid(path, &reason))
+}
+
+/// Reads and checks only the header (magic, version, header crc), not the sections.
+pub fn read_header(path: &Path) -> Result<CheckpointHeader> {
+    let f = fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut prefix = Vec::new();
+    f.take((PRELUDE + MAX_HEADER_LEN + 4) as u64)
+        .read_to_end(&mut prefix)
+        .map_err(|e| Error::io(path, e))?;
+    decode_header(&prefix)
+        .map(|(h, _)| h.header)
+        .map_err(|reason| invalid(path, &reason))
+}
+
+/// Validates a whole checkpoint held in memory; `Err` is the one-line reason.
+pub fn decode(bytes: &[u8]) -> std::result::Result<Checkpoint, String> {
+    let (h, header_end) = decode_header(bytes)?;
+    let file_len = h.file_len;
+    if (bytes.len() as u64) < file_len {
+        return Err(format!(
+            "truncated: {} of {} bytes present",
+            bytes.len(),
+            file_len
+        ));
+    }
+    if bytes.len() as u64 > file_len {
+        return Err(format!(
+            "{} unexpected bytes after the end of the checkpoint ({file_len} bytes)",
+            bytes.len() as u64 - file_len
+        ));
+    }
+    let min_len = (header_end + TRAILER) as u64;
+    if file_len < min_len {
+        return Err(format!(
+            "corrupt header: file length {file_len} is shorter than its header"
+        ));
+    }
+    let body_end = bytes.len() - TRAILER;
+    let sha = Sha256::digest(&bytes[..body_end]);
+    let sha_ok = sha.as_slice() == &bytes[body_end..];
+
+    // Walk the section table (bounded by the file); the first crc failure names the culprit.
+    let mut sections: Vec<(String, &[u8])> = Vec::with_capacity(h.section_count as usize);
+    let mut cur = Cursor {
+        bytes: &bytes[..body_end],
+        pos: header_end,
+    };
+    let walked = (|| -> std::result::Result<(), String> {
+        for i in 0..h.section_count {
+            let start = cur.pos;
+            let name_len = cur.u16().ok_or_else(|| table_end(i, h.section_count))? as usize;
+            let name = cur
+                .take(name_len)
+                .ok_or_else(|| table_end(i, h.section_count))?;
+            let data_len = cur.u64().ok_or_else(|| table_end(i, h.section_count))?;
+            let data = usize::try_from(data_len)
+                .ok()
+                .and_then(|l| cur.take(l))
+                .ok_or_else(|| {
+                    format!(
+                        "section {} claims {data_len} bytes, more than the file holds",
+                        i + 1
+                    )
+                })?;
+            let stored_crc = cur.u32().ok_or_else(|| table_end(i, h.section_count))?;
+            let crc = crc32fast::hash(&cur.bytes[start..cur.pos - 4]);
+            let name = String::from_utf8_lossy(name).into_owned();
+            if crc != stored_crc {
+                return Err(format!(
+                    "section '{name}' checksum mismatch (corrupt data in bytes {start}..{})",
+                    cur.pos
+                ));
+            }
+            sections.push((name, data));
+        }
+        if cur.pos != body_end {
+            return Err(format!(
+                "{} bytes between the last section and the file checksum",
+                body_end - cur.pos
+            ));
+        }
+        Ok(())
+    })();
+    match (walked, sha_ok) {
+        (Err(reason), _) => return Err(reason),
+        (Ok(()), false) => {
+            return Err("file checksum (SHA-256) mismatch: corrupt data".to_string());
+        }
+        (Ok(()), true) => {}
+    }
+
+    let n = usize::try_from(h.header.particle_count)
+        .map_err(|_| "corrupt header: particle count too large".to_string())?;
+    let mut state_data: [Option<&[u8]>; 5] = [None; 5];
+    let mut extra = BTreeMap::new();
+    for (name, data) in sections {
+        if name.is_empty() || name.len() > MAX_NAME_LEN {
+            return Err(format!("invalid section name {name:?}"));
+        }
+        if let Some(k) = STATE_SECTIONS.iter().position(|s| *s == name) {
+            if state_data[k].replace(data).is_some() {
+                return Err(format!("duplicate section '{name}'"));
+            }
+        } else if extra.insert(name.clone(), data.to_vec()).is_some() {
+            return Err(format!("duplicate section '{name}'"));
+        }
+    }
+    let strides = [16usize, 16, 16, 8, 4];
+    let mut arrays: [&[u8]; 5] = [&[]; 5];
+    for k in 0..5 {
+        let data =
+            state_data[k].ok_or_else(|| format!("missing section '{}'", STATE_SECTIONS[k]))?;
+        if n.checked_mul(strides[k]) != Some(data.len()) {
+            return Err(format!(
+                "section '{}' has {} bytes, expected {} x {} for {n} particles",
+                STATE_SECTIONS[k],
+                data.len(),
+                n,
+                strides[k]
+            ));
+        }
+        arrays[k] = data;
+    }
+    let state = ParticleState {
+        pos: from_le_bytes(arrays[0]),
+        vel: from_le_bytes(arrays[1]),
+        thermo: from_le_bytes(arrays[2]),
+        info: from_le_bytes(arrays[3]),
+        density: from_le_bytes(arrays[4]),
+    };
+    Ok(Checkpoint {
+        header: h.header,
+        state,
+        extra,
+    })
+}
+
+fn table_end(i: u32, count: u32) -> String {
+    format!(
+        "section table ends early: section {} of {count} runs past the file checksum",
+        i + 1
+    )
+}
+
+fn invalid(path: &Path, reason: &str) -> Error {
+    Error::InvalidInput(format!("{}: {reason}", path.display()))
+}
+
+struct DecodedHeader {
+    header: CheckpointHeader,
+    file_len: u64,
+    section_count: u32,
+}
+
+/// Checks magic, version, header length and crc; returns the header and where sections start.
+fn decode_header(bytes: &[u8]) -> std::result::Result<(DecodedHeader, usize), String> {
+    if bytes.is_empty() {
+        return Err("empty file (0 bytes)".into());
+    }
+    let m = bytes.len().min(MAGIC.len());
+    if bytes[..m] != MAGIC[..m] {
+        return Err(format!(
+            "not a nimbus checkpoint: starts with \"{}\", not \"NIMBUSCK\"",
+            bytes[..m].escape_ascii()
+        ));
+    }
+    if bytes.len() < PRELUDE {
+        return Err(format!(
+            "truncated: {} bytes, shorter than the {PRELUDE}-byte prelude",
+            bytes.len()
+        ));
+    }
+    let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap_or_default());
+    if version != FORMAT_VERSION {
+        return Err(format!(
+            "unsupported checkpoint format version {version} (this build reads version \
+             {FORMAT_VERSION})"
+        ));
+    }
+    let hlen = u32::from_le_bytes(bytes[12..16].try_into().unwrap_or_default()) as usize;
+    if hlen > MAX_HEADER_LEN {
+        return Err(format!(
+            "corrupt header: header length {hlen} is implausible"
+        ));
+    }
+    let header_end = PRELUDE + hlen + 4;
+    if bytes.len() < header_end {
+        return Err(format!(
+            "truncated inside the header: {} bytes, the header needs {header_end}",
+            bytes.len()
+        ));
+    }
+    let stored = u32::from_le_bytes(
+        bytes[header_end - 4..header_end]
+            .try_into()
+            .unwrap_or_default(),
+    );
+    if crc32fast::hash(&bytes[..header_end - 4]) != stored {
+        return Err("header checksum mismatch: corrupt header".into());
+    }
+    let mut c = Cursor {
+        bytes: &bytes[..header_end - 4],
+        pos: PRELUDE,
+    };
+    let bad = || "corrupt header: fields do not fit its length".to_string();
+    let file_len = c.u64().ok_or_else(bad)?;
+    let tool_version = c.str().ok_or_else(bad)??;
+    let sim_hash = c.str().ok_or_else(bad)??;
+    let frame = c.u32().ok_or_else(bad)?;
+    let step = c.u64().ok_or_else(bad)?;
+    let time = f64::from_bits(c.u64().ok_or_else(bad)?);
+    let seed = c.u64().ok_or_else(bad)?;
+    let particle_count = c.u64().ok_or_else(bad)?;
+    let capacity = c.u64().ok_or_else(bad)?;
+    let adapter = c.str().ok_or_else(bad)??;
+    let next_id = c.u32().ok_or_else(bad)?;
+    let section_count = c.u32().ok_or_else(bad)?;
+    if c.pos != c.bytes.len() {
+        return Err("corrupt header: unexpected bytes at its end".into());
+    }
+    if particle_count > capacity {
+        return Err(format!(
+            "corrupt header: particle count {particle_count} exceeds capacity {capacity}"
+        ));
+    }
+    Ok((
+        DecodedHeader {
+            header: CheckpointHeader {
+                tool_version,
+                sim_hash,
+                frame,
+                step,
+                time,
+                seed,
+                particle_count,
+                capacity,
+                adapter,
+                next_id,
+            },
+            file_len,
+            section_count,
+        },
+        header_end,
+    ))
+}
+
+/// Bounds-checked little-endian reader: every read returns `None` past the end.
+struct Cursor<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Cursor<'a> {
+    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
+        let end = self.pos.checked_add(n)?;
+        let s = self.bytes.get(self.pos..end)?;
+        self.pos = end;
+        Some(s)
+    }
+    fn u16(&mut self) -> Option<u16> {
+        Some(u16::from_le_bytes(self.take(2)?.try_into().ok()?))
+    }
+    fn u32(&mut self) -> Option<u32> {
+        Some(u32::from_le_bytes(self.take(4)?.try_into().ok()?))
+    }
+    fn u64(&mut self) -> Option<u64> {
+        Some(u64::from_le_bytes(self.take(8)?.try_into().ok()?))
+    }
+    /// `None` past the end, `Some(Err)` for invalid UTF-8.
+    fn str(&mut self) -> Option<std::result::Result<String, String>> {
+        let n = self.u16()? as usize;
+        let b = self.take(n)?;
+        Some(
+            String::from_utf8(b.to_vec())
+                .map_err(|_| "corrupt header: a text field is not UTF-8".to_string()),
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Resume
+
+/// Why a checkpoint file was passed over by [`scan_resumable`].
+#[derive(Debug, Clone, PartialEq)]
+pub enum SkipReason {
+    /// Unreadable, corrupt, truncated, foreign, or misnamed: the reason in one line.
+    Invalid(String),
+    /// A valid checkpoint of a different simulation config (the caller lists the differing keys).
+    ConfigMismatch { found: String, expected: String },
+}
+
+/// A checkpoint file passed over, and why.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Skipped {
+    pub path: PathBuf,
+    pub reason: SkipReason,
+}
+
+impl std::fmt::Display for Skipped {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.reason {
+            SkipReason::Invalid(r) => write!(f, "skipping {}: {r}", self.path.display()),
+            SkipReason::ConfigMismatch { found, expected } => write!(
+                f,
+                "skipping {}: simulation config changed (checkpoint sim hash {found}, \
+                 config sim hash {expected})",
+                self.path.display()
+            ),
+        }
+    }
+}
+
+/// Result of looking for a checkpoint to resume from.
+#[derive(Debug)]
+pub struct ResumeScan {
+    /// The newest checkpoint that validates and matches the config, if any.
+    pub found: Option<(PathBuf, Checkpoint)>,
+    /// Newer checkpoint files passed over, newest first.
+    pub skipped: Vec<Skipped>,
+}
+
+impl ResumeScan {
+    /// Whether some checkpoint was passed over only because the simulation config changed.
+    pub fn config_changed(&self) -> bool {
+        self.skipped
+            .iter()
+            .any(|s| matches!(s.reason, SkipReason::ConfigMismatch { .. }))
+    }
+}
+
+/// Tries the checkpoints of `dir` newest frame first and stops at the first one that validates,
+/// whose header frame matches its file name and whose sim hash is `expected_sim_hash`. Files that
+/// fail are listed with their reason; a config mismatch is a `SkipReason::ConfigMismatch` and the
+/// search goes on to older files. Temporary files and other names are ignored. Only a directory
+/// that exists but cannot be listed is an error.
+pub fn scan_resumable(dir: &Path, expected_sim_hash: &str) -> Result<ResumeScan> {
+    let mut list = list_checkpoints(dir)?;
+    list.reverse();
+    let mut skipped = Vec::new();
+    for (frame, path) in list {
+        let reason = match read_checkpoint(&path) {
+            Err(Error::InvalidInput(msg)) => {
+                // `msg` is "<path>: <reason>"; keep the reason only.
+                let prefix = format!("{}: ", path.display());
+                SkipReason::Invalid(msg.strip_prefix(&prefix).unwrap_or(&msg).to_string())
+            }
+            Err(Error::Io { source, .. }) => SkipReason::Invalid(format!("cannot read: {source}")),
+            Err(e) => SkipReason::Invalid(e.to_string()),
+            Ok(ck) if ck.header.frame != frame => SkipReason::Invalid(format!(
+                "file name says frame {frame} but the checkpoint holds frame {}",
+                ck.header.frame
+            )),
+            Ok(ck) if ck.header.sim_hash != expected_sim_hash => SkipReason::ConfigMismatch {
+                found: ck.header.sim_hash.clone(),
+                expected: expected_sim_hash.to_string(),
+            },
+            Ok(ck) => {
+                return Ok(ResumeScan {
+                    found: Some((path, ck)),
+                    skipped,
+                })
+            }
+        };
+        skipped.push(Skipped { path, reason });
+    }
+    Ok(ResumeScan {
+        found: None,
+        skipped,
+    })
+}
+
+/// [`scan_resumable`] with the skipped files as printable lines.
+pub fn find_resumable(
+    dir: &Path,
+    expected_sim_hash: &str,
+) -> Result<(Option<(PathBuf, Checkpoint)>, Vec<String>)> {
+    let scan = scan_resumable(dir, expected_sim_hash)?;
+    let lines = scan.skipped.iter().map(|s| s.to_string()).collect();
+    Ok((scan.found, lines))
+}
+
+/// Deletes leftover `*.nimbus-tmp` files anywhere under `run_dir` (symlinks are not followed)
+/// and returns their paths. A missing `run_dir` has none.
+pub fn remove_temp_files(run_dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut removed = Vec::new();
+    let mut stack = vec![run_dir.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        let rd = match fs::read_dir(&dir) {
+            Ok(rd) => rd,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+            Err(e) => return Err(Error::io(&dir, e)),
+        };
+        let mut entries = Vec::new();
+        for entry in rd {
+            entries.push(entry.map_err(|e| Error::io(&dir, e))?);
+        }
+        entries.sort_by_key(|e| e.file_name());
+        for entry in entries {
+            let ft = entry.file_type().map_err(|e| Error::io(entry.path(), e))?;
+            let path = entry.path();
+            if ft.is_dir() {
+                stack.push(path);
+            } else if ft.is_file() && entry.file_name().to_string_lossy().ends_with(TMP_SUFFIX) {
+                fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
+                removed.push(path);
+            }
+        }
+    }
+    removed.sort();
+    Ok(removed)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Inspect
+
+/// Validates the checkpoint at `path` and describes it (for `nimbus inspect CHECKPOINT`).
+pub fn describe(path: &Path) -> Result<String> {
+    let bytes = fs::read(path).map_err(|e| Error::io(path, e))?;
+    let ck = decode(&bytes).map_err(|reason| invalid(path, &reason))?;
+    let h = &ck.header;
+    let mut s = String::new();
+    let _ = writeln!(s, "nimbus checkpoint {}", path.display());
+    let _ = writeln!(s, "  format version   {FORMAT_VERSION}");
+    let _ = writeln!(s, "  tool version     {}", h.tool_version);
+    let _ = writeln!(s, "  sim config hash  {}", h.sim_hash);
+    let _ = writeln!(s, "  frame            {}", h.frame);
+    let _ = writeln!(s, "  step             {}", h.step);
+    let _ = writeln!(s, "  sim time         {} s", h.time);
+    let _ = writeln!(s, "  seed             {}", h.seed);
+    let _ = writeln!(s, "  particles        {}", h.particle_count);
+    let _ = writeln!(s, "  capacity         {}", h.capacity);
+    let _ = writeln!(s, "  adapter          {}", h.adapter);
+    let _ = writeln!(s, "  next id          {}", h.next_id);
+    let _ = writeln!(
+        s,
+        "  size             {} bytes ({:.1} bytes/particle)",
+        bytes.len(),
+        bytes.len() as f64 / (h.particle_count.max(1)) as f64
+    );
+    let array_bytes = |k: usize| h.particle_count * [16u64, 16, 16, 8, 4][k];
+    let mut names: Vec<String> = STATE_SECTIONS
+        .iter()
+        .enumerate()
+        .map(|(k, n)| format!("{n} ({} B)", array_bytes(k)))
+        .collect();
+    names.extend(ck.extra.iter().map(|(n, d)| format!("{n} ({} B)", d.len())));
+    let _ = writeln!(s, "  sections         {}", names.join(", "));
+    let digest = &bytes[bytes.len() - TRAILER..];
+    let hex: String = digest.iter().map(|b| format!("{b:02x}")).collect();
+    let _ = write!(s, "  checksums        ok (sha256 {hex})");
+    Ok(s)
+}

@@ -1,0 +1,187 @@
+//! `nimbus validate` through the real binary: every malformed config under tests/configs/bad/
+//! exits 2 with exactly one stderr line naming the file, the line:col (where the file has one)
+//! and the key path.
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn nimbus(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_nimbus"))
+        .args(args)
+        .current_dir(root())
+        .output()
+        .expect("run nimbus")
+}
+
+fn stderr_lines(o: &Output) -> Vec<String> {
+    String::from_utf8_lossy(&o.stderr)
+        .lines()
+        .map(str::to_string)
+        .collect()
+}
+
+/// (file, line:col expected in the message or None where the problem has no position,
+///  key path the message must name or None where there is no key).
+const BAD: &[(&str, Option<&str>, Option<&str>)] = &[
+    ("type_error.yaml", Some(":8:15:"), Some("solver.iterations")),
+    ("unknown_top_key.yaml", Some(":7:1:"), Some("solvr")),
+    ("unknown_nested_key.yaml", Some(":9:5:"), Some("physics.smoothing.kapa")),
+    ("missing_required.yaml", Some(":3:3:"), Some("output.frames")),
+    ("missing_section.yaml", Some(":1:1:"), Some("(top level)")),
+    ("out_of_range_kappa.yaml", Some(":9:5:"), Some("physics.smoothing.kappa")),
+    ("end_before_start.yaml", Some(":3:22:"), Some("output.frames.end")),
+    ("zero_substeps.yaml", Some(":4:3:"), Some("output.substeps")),
+    ("kernel_larger_than_domain.yaml", Some(":6:3:"), Some("domain.spacing")),
+    ("thresholds_inverted.yaml", Some(":10:3:"), Some("adaptive.merge_threshold")),
+    ("syntax_error.yaml", Some(":6:"), Some("domain.size")),
+    ("empty.yaml", None, None),
+    ("tabs.yaml", Some(":3:"), Some("output")),
+    ("duplicate_key.yaml", Some(":7:3:"), Some("domain.spacing")),
+    ("wrong_enum.yaml", Some(":9:18:"), Some("export.vdb.compression")),
+    ("negative_unsigned.yaml", Some(":3:19:"), Some("output.frames.start")),
+    ("negative_spacing.yaml", Some(":6:3:"), Some("domain.spacing")),
+    ("periodic_too_small.yaml", Some(":7:3:"), Some("domain.periodic")),
+    ("nan_value.yaml", Some(":5:15:"), Some("domain.size[1]")),
+    ("wrong_list_length.yaml", Some(":5:9:"), Some("domain.size")),
+    ("too_many_particles.yaml", Some(":6:3:"), Some("domain.spacing")),
+    ("padding_too_small.yaml", Some(":4:3:"), Some("output.frame_padding")),
+    ("empty_adapter.yaml", Some(":8:3:"), Some("gpu.adapter")),
+    ("capacity_below_one.yaml", Some(":8:3:"), Some("adaptive.capacity_factor")),
+    ("zero_voxel.yaml", Some(":8:3:"), Some("export.voxel_size")),
+    ("top_level_list.yaml", Some(":1:1:"), Some("(top level)")),
+    ("binary_garbage.yaml", Some(":1:1:"), None),
+    ("string_for_list.yaml", Some(":5:9:"), Some("domain.size")),
+];
+
+#[test]
+fn every_bad_config_exits_2_with_one_precise_line() {
+    let dir = root().join("tests/configs/bad");
+    let mut on_disk: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    on_disk.sort();
+    let mut listed: Vec<String> = BAD.iter().map(|(f, _, _)| f.to_string()).collect();
+    listed.sort();
+    assert_eq!(on_disk, listed, "every file in tests/configs/bad has a row in BAD");
+    assert!(BAD.len() >= 15);
+
+    for (file, pos, key) in BAD {
+        let rel = format!("tests/configs/bad/{file}");
+        let o = nimbus(&["validate", &rel]);
+        let lines = stderr_lines(&o);
+        assert_eq!(o.status.code(), Some(2), "{file}: {lines:?}");
+        assert_eq!(lines.len(), 1, "{file}: one stderr line, got {lines:?}");
+        let line = &lines[0];
+        assert!(line.contains(&rel), "{file}: names the file: {line}");
+        if let Some(pos) = pos {
+            assert!(
+                line.contains(&format!("{rel}{pos}")),
+                "{file}: position {pos}: {line}"
+            );
+        }
+        if let Some(key) = key {
+            assert!(line.contains(&format!(" {key}:")), "{file}: key {key}: {line}");
+        }
+        assert!(o.stdout.is_empty(), "{file}: nothing on stdout");
+    }
+}
+
+#[test]
+fn valid_sample_exits_0() {
+    let o = nimbus(&["validate", "samples/minimal.yaml"]);
+    assert_eq!(o.status.code(), Some(0), "{:?}", stderr_lines(&o));
+    assert!(o.stderr.is_empty());
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("samples/minimal.yaml: ok"), "{out}");
+}
+
+#[test]
+fn good_overrides_are_applied() {
+    let o = nimbus(&[
+        "validate",
+        "samples/minimal.yaml",
+        "--set",
+        "output.frames.end=10",
+        "--set",
+        "domain.size=[100,50,100]",
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{:?}", stderr_lines(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("frames 1..=10"), "{out}");
+}
+
+#[test]
+fn an_override_can_repair_a_bad_value() {
+    let o = nimbus(&[
+        "validate",
+        "tests/configs/bad/zero_substeps.yaml",
+        "--set",
+        "output.substeps=4",
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{:?}", stderr_lines(&o));
+}
+
+#[test]
+fn bad_overrides_exit_2_naming_the_set() {
+    for (set, key) in [
+        ("solver.iterations=four", "--set solver.iterations:"),
+        ("solver.iteratons=4", "--set solver.iteratons:"),
+        ("output.frames.end=0", "--set output.frames.end:"),
+        ("domain.size=[1,2", "--set domain.size:"),
+        ("novalue", "--set novalue:"),
+    ] {
+        let o = nimbus(&["validate", "samples/minimal.yaml", "--set", set]);
+        let lines = stderr_lines(&o);
+        assert_eq!(o.status.code(), Some(2), "{set}: {lines:?}");
+        assert_eq!(lines.len(), 1, "{set}: {lines:?}");
+        assert!(lines[0].contains("samples/minimal.yaml"), "{}", lines[0]);
+        assert!(lines[0].contains(key), "{set}: {}", lines[0]);
+    }
+}
+
+#[test]
+fn missing_file_exits_2() {
+    let o = nimbus(&["validate", "tests/configs/does_not_exist.yaml"]);
+    let lines = stderr_lines(&o);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(lines.len(), 1, "{lines:?}");
+    assert!(lines[0].contains("tests/configs/does_not_exist.yaml: cannot read config: no such file"));
+}
+
+#[test]
+fn several_files_report_each_and_exit_2() {
+    let o = nimbus(&[
+        "validate",
+        "samples/minimal.yaml",
+        "tests/configs/bad/type_error.yaml",
+        "tests/configs/bad/empty.yaml",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(stderr_lines(&o).len(), 2);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("minimal.yaml: ok"));
+}
+
+#[test]
+fn pipelines_and_samples_validate() {
+    let mut files: Vec<PathBuf> = Vec::new();
+    for dir in ["pipelines", "samples"] {
+        let Ok(rd) = std::fs::read_dir(root().join(dir)) else {
+            continue;
+        };
+        for e in rd {
+            let p = e.unwrap().path();
+            if p.extension().is_some_and(|x| x == "yaml") {
+                files.push(p);
+            }
+        }
+    }
+    assert!(files.iter().any(|p| p.ends_with(Path::new("samples/minimal.yaml"))));
+    for f in files {
+        let o = nimbus(&["validate", f.to_str().unwrap()]);
+        assert_eq!(o.status.code(), Some(0), "{}: {:?}", f.display(), stderr_lines(&o));
+    }
+}
