@@ -241,7 +241,10 @@ fn write_impl(dir: &Path, ck: &Checkpoint, fail_after: Option<u64>) -> Result<Pa
 }
 
 /// The sections of `ck` in file order, after checking that they are consistent.
-fn sections_of(ck: &Checkpoint) -> Result<Vec<(&str, Cow<'_, [u8]>)>> {
+/// A section to write: name and little-endian bytes.
+type Section<'a> = (&'a str, Cow<'a, [u8]>);
+
+fn sections_of(ck: &Checkpoint) -> Result<Vec<Section<'_>>> {
     let s = &ck.state;
     let n = s.pos.len();
     let lens = [
@@ -264,7 +267,7 @@ fn sections_of(ck: &Checkpoint) -> Result<Vec<(&str, Cow<'_, [u8]>)>> {
             ck.header.particle_count, ck.header.capacity
         )));
     }
-    let mut out: Vec<(&str, Cow<[u8]>)> = vec![
+    let mut out: Vec<Section> = vec![
         ("pos", le_bytes(&s.pos)),
         ("vel", le_bytes(&s.vel)),
         ("thermo", le_bytes(&s.thermo)),
@@ -283,7 +286,7 @@ fn sections_of(ck: &Checkpoint) -> Result<Vec<(&str, Cow<'_, [u8]>)>> {
     Ok(out)
 }
 
-fn encode_header(h: &CheckpointHeader, sections: &[(&str, Cow<[u8]>)]) -> Result<Vec<u8>> {
+fn encode_header(h: &CheckpointHeader, sections: &[Section]) -> Result<Vec<u8>> {
     let mut body = Vec::with_capacity(256);
     body.extend_from_slice(&0u64.to_le_bytes()); // file length, patched below
     put_str(&mut body, "tool version", &h.tool_version)?;
@@ -711,11 +714,14 @@ impl std::fmt::Display for Skipped {
     }
 }
 
+/// A checkpoint chosen for resuming, with its path.
+pub type Found = (PathBuf, Checkpoint);
+
 /// Result of looking for a checkpoint to resume from.
 #[derive(Debug)]
 pub struct ResumeScan {
     /// The newest checkpoint that validates and matches the config, if any.
-    pub found: Option<(PathBuf, Checkpoint)>,
+    pub found: Option<Found>,
     /// Newer checkpoint files passed over, newest first.
     pub skipped: Vec<Skipped>,
 }
@@ -771,10 +777,7 @@ pub fn scan_resumable(dir: &Path, expected_sim_hash: &str) -> Result<ResumeScan>
 }
 
 /// [`scan_resumable`] with the skipped files as printable lines.
-pub fn find_resumable(
-    dir: &Path,
-    expected_sim_hash: &str,
-) -> Result<(Option<(PathBuf, Checkpoint)>, Vec<String>)> {
+pub fn find_resumable(dir: &Path, expected_sim_hash: &str) -> Result<(Option<Found>, Vec<String>)> {
     let scan = scan_resumable(dir, expected_sim_hash)?;
     let lines = scan.skipped.iter().map(|s| s.to_string()).collect();
     Ok((scan.found, lines))
