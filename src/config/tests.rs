@@ -408,3 +408,40 @@ fn empty_section_takes_defaults() {
     assert_eq!(c.solver, SolverConfig::default());
     assert_eq!(c.physics.smoothing.kappa, 0.3);
 }
+
+/// docs/CONFIG.md must document every key of the schema (leaf keys, `[..]` lists as a whole).
+#[test]
+fn every_key_is_documented() {
+    fn leaves(v: &serde_json::Value, path: &str, out: &mut Vec<String>) {
+        match v {
+            serde_json::Value::Object(m) if !path.ends_with("aliases") => {
+                for (k, x) in m {
+                    let p = if path.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{path}.{k}")
+                    };
+                    leaves(x, &p, out);
+                }
+            }
+            _ => out.push(path.to_string()),
+        }
+    }
+    let mut c = ok(BASE, &[]);
+    c.output.preview.camera = Some(CameraConfig {
+        position: [0.0, 1.0, 2.0],
+        look_at: [1.0, 1.0, 1.0],
+        fov_deg: 45.0,
+    });
+    let mut keys = Vec::new();
+    leaves(&serde_json::to_value(&c).unwrap(), "", &mut keys);
+    assert!(keys.len() > 60, "{keys:?}");
+    let doc =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/CONFIG.md")).unwrap();
+    for k in keys {
+        assert!(
+            doc.contains(&format!("| `{k}` |")),
+            "docs/CONFIG.md lacks a row for `{k}`"
+        );
+    }
+}
