@@ -28,28 +28,80 @@ fn stderr_lines(o: &Output) -> Vec<String> {
 const BAD: &[(&str, Option<&str>, Option<&str>)] = &[
     ("type_error.yaml", Some(":8:15:"), Some("solver.iterations")),
     ("unknown_top_key.yaml", Some(":7:1:"), Some("solvr")),
-    ("unknown_nested_key.yaml", Some(":9:5:"), Some("physics.smoothing.kapa")),
-    ("missing_required.yaml", Some(":3:3:"), Some("output.frames")),
+    (
+        "unknown_nested_key.yaml",
+        Some(":9:5:"),
+        Some("physics.smoothing.kapa"),
+    ),
+    (
+        "missing_required.yaml",
+        Some(":3:3:"),
+        Some("output.frames"),
+    ),
     ("missing_section.yaml", Some(":1:1:"), Some("(top level)")),
-    ("out_of_range_kappa.yaml", Some(":9:5:"), Some("physics.smoothing.kappa")),
-    ("end_before_start.yaml", Some(":3:22:"), Some("output.frames.end")),
+    (
+        "out_of_range_kappa.yaml",
+        Some(":9:5:"),
+        Some("physics.smoothing.kappa"),
+    ),
+    (
+        "end_before_start.yaml",
+        Some(":3:23:"),
+        Some("output.frames.end"),
+    ),
     ("zero_substeps.yaml", Some(":4:3:"), Some("output.substeps")),
-    ("kernel_larger_than_domain.yaml", Some(":6:3:"), Some("domain.spacing")),
-    ("thresholds_inverted.yaml", Some(":10:3:"), Some("adaptive.merge_threshold")),
-    ("syntax_error.yaml", Some(":6:"), Some("domain.size")),
+    (
+        "kernel_larger_than_domain.yaml",
+        Some(":6:3:"),
+        Some("domain.spacing"),
+    ),
+    (
+        "thresholds_inverted.yaml",
+        Some(":10:3:"),
+        Some("adaptive.merge_threshold"),
+    ),
+    ("syntax_error.yaml", Some(":6:10:"), Some("domain.spacing")),
     ("empty.yaml", None, None),
-    ("tabs.yaml", Some(":3:"), Some("output")),
+    ("tabs.yaml", Some(":3:2:"), Some("output.frames")),
     ("duplicate_key.yaml", Some(":7:3:"), Some("domain.spacing")),
-    ("wrong_enum.yaml", Some(":9:18:"), Some("export.vdb.compression")),
-    ("negative_unsigned.yaml", Some(":3:19:"), Some("output.frames.start")),
-    ("negative_spacing.yaml", Some(":6:3:"), Some("domain.spacing")),
-    ("periodic_too_small.yaml", Some(":7:3:"), Some("domain.periodic")),
+    (
+        "wrong_enum.yaml",
+        Some(":9:18:"),
+        Some("export.vdb.compression"),
+    ),
+    (
+        "negative_unsigned.yaml",
+        Some(":3:19:"),
+        Some("output.frames.start"),
+    ),
+    (
+        "negative_spacing.yaml",
+        Some(":6:3:"),
+        Some("domain.spacing"),
+    ),
+    (
+        "periodic_too_small.yaml",
+        Some(":7:3:"),
+        Some("domain.periodic"),
+    ),
     ("nan_value.yaml", Some(":5:15:"), Some("domain.size[1]")),
     ("wrong_list_length.yaml", Some(":5:9:"), Some("domain.size")),
-    ("too_many_particles.yaml", Some(":6:3:"), Some("domain.spacing")),
-    ("padding_too_small.yaml", Some(":4:3:"), Some("output.frame_padding")),
+    (
+        "too_many_particles.yaml",
+        Some(":6:3:"),
+        Some("domain.spacing"),
+    ),
+    (
+        "padding_too_small.yaml",
+        Some(":4:3:"),
+        Some("output.frame_padding"),
+    ),
     ("empty_adapter.yaml", Some(":8:3:"), Some("gpu.adapter")),
-    ("capacity_below_one.yaml", Some(":8:3:"), Some("adaptive.capacity_factor")),
+    (
+        "capacity_below_one.yaml",
+        Some(":8:3:"),
+        Some("adaptive.capacity_factor"),
+    ),
     ("zero_voxel.yaml", Some(":8:3:"), Some("export.voxel_size")),
     ("top_level_list.yaml", Some(":1:1:"), Some("(top level)")),
     ("binary_garbage.yaml", Some(":1:1:"), None),
@@ -66,7 +118,10 @@ fn every_bad_config_exits_2_with_one_precise_line() {
     on_disk.sort();
     let mut listed: Vec<String> = BAD.iter().map(|(f, _, _)| f.to_string()).collect();
     listed.sort();
-    assert_eq!(on_disk, listed, "every file in tests/configs/bad has a row in BAD");
+    assert_eq!(
+        on_disk, listed,
+        "every file in tests/configs/bad has a row in BAD"
+    );
     assert!(BAD.len() >= 15);
 
     for (file, pos, key) in BAD {
@@ -84,7 +139,10 @@ fn every_bad_config_exits_2_with_one_precise_line() {
             );
         }
         if let Some(key) = key {
-            assert!(line.contains(&format!(" {key}:")), "{file}: key {key}: {line}");
+            assert!(
+                line.contains(&format!(" {key}:")),
+                "{file}: key {key}: {line}"
+            );
         }
         assert!(o.stdout.is_empty(), "{file}: nothing on stdout");
     }
@@ -149,7 +207,9 @@ fn missing_file_exits_2() {
     let lines = stderr_lines(&o);
     assert_eq!(o.status.code(), Some(2));
     assert_eq!(lines.len(), 1, "{lines:?}");
-    assert!(lines[0].contains("tests/configs/does_not_exist.yaml: cannot read config: no such file"));
+    assert!(
+        lines[0].contains("tests/configs/does_not_exist.yaml: cannot read config: no such file")
+    );
 }
 
 #[test]
@@ -179,9 +239,17 @@ fn pipelines_and_samples_validate() {
             }
         }
     }
-    assert!(files.iter().any(|p| p.ends_with(Path::new("samples/minimal.yaml"))));
+    assert!(files
+        .iter()
+        .any(|p| p.ends_with(Path::new("samples/minimal.yaml"))));
     for f in files {
         let o = nimbus(&["validate", f.to_str().unwrap()]);
-        assert_eq!(o.status.code(), Some(0), "{}: {:?}", f.display(), stderr_lines(&o));
+        assert_eq!(
+            o.status.code(),
+            Some(0),
+            "{}: {:?}",
+            f.display(),
+            stderr_lines(&o)
+        );
     }
 }

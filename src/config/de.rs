@@ -62,6 +62,8 @@ fn unexpected_words(u: de::Unexpected) -> String {
         U::Bool(b) => b.to_string(),
         U::Unsigned(n) => n.to_string(),
         U::Signed(n) => n.to_string(),
+        // "4.0", not "4": the user must see why an integer key refused it.
+        U::Float(f) if f.is_finite() && f.fract() == 0.0 && f.abs() < 1e15 => format!("{f:.1}"),
         U::Float(f) => fmt_float(f),
         U::Char(c) => format!("{c:?}"),
         U::Str(s) => format!("{:?}", super::node::clip(s)),
@@ -209,7 +211,9 @@ impl<'de, 'a> de::Deserializer<'de> for NodeDe<'a> {
             Val::Int(i) => v.visit_i64(*i),
             Val::Float(f) => {
                 if !f.is_finite() {
-                    return Err(self.err(format!("expected a finite number, got {}", fmt_float(*f))));
+                    return Err(
+                        self.err(format!("expected a finite number, got {}", fmt_float(*f)))
+                    );
                 }
                 v.visit_f64(*f)
             }
@@ -353,8 +357,7 @@ impl<'de, 'a, 'p> de::MapAccess<'de> for MapAcc<'a, 'p> {
             return Ok(None);
         };
         let path = join(self.path, &key.name);
-        let k: Result<K::Value, DeError> =
-            seed.deserialize(key.name.as_str().into_deserializer());
+        let k: Result<K::Value, DeError> = seed.deserialize(key.name.as_str().into_deserializer());
         let k = k.map_err(|e| e.locate(&path, key.pos, key.pos))?;
         self.value = Some((node, path, key.pos));
         Ok(Some(k))

@@ -49,7 +49,12 @@ pub fn load_str(text: &str, origin: &str, overrides: &[String]) -> Result<ShotCo
                 Pos::At { line, .. } => key_near(text, line),
                 _ => None,
             };
-            let msg = format!("invalid YAML: {}", yaml_words(&e.msg));
+            let mut msg = format!("invalid YAML: {}", yaml_words(&e.msg));
+            if let Pos::At { line, .. } = e.pos {
+                if let Some((open, l, c)) = unclosed_bracket(text, line) {
+                    msg.push_str(&format!(" (is the '{open}' at line {l}:{c} closed?)"));
+                }
+            }
             return Err(match near {
                 Some(k) => ctx.at(&k, e.pos, &msg),
                 None => ctx.at_no_key(e.pos, &msg),
@@ -180,7 +185,10 @@ fn decode(name: &str, bytes: &[u8]) -> Result<String> {
 
 fn line_col(before: &[u8]) -> (usize, usize) {
     let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
-    let start = before.iter().rposition(|&b| b == b'\n').map_or(0, |p| p + 1);
+    let start = before
+        .iter()
+        .rposition(|&b| b == b'\n')
+        .map_or(0, |p| p + 1);
     let col = String::from_utf8_lossy(&before[start..]).chars().count() + 1;
     (line, col)
 }
@@ -203,7 +211,7 @@ fn key_near(text: &str, line: u64) -> Option<String> {
         if i as u64 >= line {
             break;
         }
-        let content = raw.trim_start_matches([' ', '-']);
+        let content = raw.trim_start_matches([' ', '\t', '-']);
         let indent = raw.len() - content.len();
         let Some((k, _)) = content.split_once(':') else {
             continue;
@@ -230,6 +238,32 @@ fn key_near(text: &str, line: u64) -> Option<String> {
         );
     }
     found
+}
+
+/// The innermost flow bracket still open before `line` (quotes and comments skipped), if any:
+/// a forgotten `]` makes the parser complain lines later about something else.
+fn unclosed_bracket(text: &str, line: u64) -> Option<(char, usize, usize)> {
+    let mut stack = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        if i as u64 + 1 >= line {
+            break;
+        }
+        let mut quote = None;
+        for (j, ch) in raw.chars().enumerate() {
+            match (quote, ch) {
+                (Some(q), c) if c == q => quote = None,
+                (Some(_), _) => {}
+                (None, '"' | '\'') => quote = Some(ch),
+                (None, '#') => break,
+                (None, '[' | '{') => stack.push((ch, i + 1, j + 1)),
+                (None, ']' | '}') => {
+                    stack.pop();
+                }
+                _ => {}
+            }
+        }
+    }
+    stack.pop()
 }
 
 /// Dotted path of every key (key position) and list element (value position).
@@ -276,11 +310,15 @@ fn parse_key(key: &str) -> std::result::Result<Vec<Seg>, String> {
             None => (part, ""),
         };
         if name.is_empty() && (rest.is_empty() || segs.is_empty()) {
-            return Err("empty key segment; write KEY.PATH=VALUE, e.g. output.frames.end=10".into());
+            return Err(
+                "empty key segment; write KEY.PATH=VALUE, e.g. output.frames.end=10".into(),
+            );
         }
         if !name.is_empty() {
             if name.chars().all(|c| c.is_ascii_digit()) && !segs.is_empty() {
-                segs.push(Seg::Index(name.parse().map_err(|_| format!("bad index {name:?}"))?));
+                segs.push(Seg::Index(
+                    name.parse().map_err(|_| format!("bad index {name:?}"))?,
+                ));
             } else {
                 segs.push(Seg::Key(name.to_string()));
             }
@@ -288,10 +326,9 @@ fn parse_key(key: &str) -> std::result::Result<Vec<Seg>, String> {
         while !rest.is_empty() {
             let close = rest.find(']').ok_or("unclosed '[' in key path")?;
             let idx = &rest[1..close];
-            segs.push(Seg::Index(
-                idx.parse()
-                    .map_err(|_| format!("expected a list index in [..], got {idx:?}"))?,
-            ));
+            segs.push(Seg::Index(idx.parse().map_err(|_| {
+                format!("expected a list index in [..], got {idx:?}")
+            })?));
             rest = &rest[close + 1..];
             if !rest.is_empty() && !rest.starts_with('[') {
                 return Err(format!("unexpected {rest:?} after ']' in key path"));
@@ -318,7 +355,11 @@ fn seg_path(segs: &[Seg]) -> String {
 }
 
 /// Applies the i-th `--set`. Errors are (key path to report, message).
-fn apply_override(root: &mut Node, i: usize, set: &str) -> std::result::Result<(), (String, String)> {
+fn apply_override(
+    root: &mut Node,
+    i: usize,
+    set: &str,
+) -> std::result::Result<(), (String, String)> {
     let Some((key, value)) = set.split_once('=') else {
         return Err((
             set.to_string(),
@@ -336,7 +377,11 @@ fn apply_override(root: &mut Node, i: usize, set: &str) -> std::result::Result<(
         node::parse(value).map_err(|e| {
             (
                 key.to_string(),
-                format!("cannot read the value {:?} as YAML: {}", node::clip(value), e.msg),
+                format!(
+                    "cannot read the value {:?} as YAML: {}",
+                    node::clip(value),
+                    e.msg
+                ),
             )
         })?
     };
@@ -407,7 +452,11 @@ fn set_at(
                 Seg::Key(_) => "a mapping",
                 Seg::Index(_) => "a list",
             };
-            let what = if here.is_empty() { "the top level".to_string() } else { here.clone() };
+            let what = if here.is_empty() {
+                "the top level".to_string()
+            } else {
+                here.clone()
+            };
             Err((
                 seg_path(&segs[..=depth]),
                 format!("cannot set it: {what} is {}, not {want}", other.describe()),

@@ -87,8 +87,11 @@ pub(crate) fn fmt_float(f: f64) -> String {
         ".nan".into()
     } else if f.is_infinite() {
         if f > 0.0 { ".inf" } else { "-.inf" }.into()
+    } else if f != 0.0 && (f.abs() >= 1e15 || f.abs() < 1e-5) {
+        format!("{f:e}")
     } else {
-        format!("{f:?}")
+        // Display is the shortest round-trip form without a trailing ".0".
+        format!("{f}")
     }
 }
 

@@ -51,62 +51,107 @@ fn type_error_names_line_col_key_and_values() {
 #[test]
 fn negative_for_unsigned() {
     let e = err(&format!("{BASE}solver:\n  iterations: -3\n"), &[]);
-    assert!(e.starts_with("shot.yaml:8:15: solver.iterations: expected an unsigned integer"), "{e}");
+    assert!(
+        e.starts_with("shot.yaml:8:15: solver.iterations: expected an unsigned integer"),
+        "{e}"
+    );
     assert!(e.ends_with("got -3"), "{e}");
 }
 
 #[test]
 fn unknown_keys_list_valid_ones() {
     let e = err(&format!("{BASE}solvr:\n  iterations: 3\n"), &[]);
-    assert!(e.starts_with("shot.yaml:7:1: solvr: unknown key \"solvr\""), "{e}");
+    assert!(
+        e.starts_with("shot.yaml:7:1: solvr: unknown key \"solvr\""),
+        "{e}"
+    );
     assert!(e.contains("solver") && e.contains("physics"), "{e}");
     let e = err(&format!("{BASE}  spacng: 3\n"), &[]);
-    assert!(e.starts_with("shot.yaml:7:3: domain.spacng: unknown key"), "{e}");
+    assert!(
+        e.starts_with("shot.yaml:7:3: domain.spacng: unknown key"),
+        "{e}"
+    );
     assert!(e.contains("kernel_ratio"), "{e}");
 }
 
 #[test]
 fn missing_key_names_parent() {
-    let e = err("shot: a\noutput:\n  frames: {start: 1}\ndomain: {size: [1,1,1], spacing: 0.1}\n", &[]);
-    assert_eq!(e, "shot.yaml:3:3: output.frames: missing required key 'end'");
+    let e = err(
+        "shot: a\noutput:\n  frames: {start: 1}\ndomain: {size: [1,1,1], spacing: 0.1}\n",
+        &[],
+    );
+    assert_eq!(
+        e,
+        "shot.yaml:3:3: output.frames: missing required key 'end'"
+    );
     let e = err("shot: a\noutput:\n  frames: {start: 1, end: 2}\n", &[]);
-    assert!(e.starts_with("shot.yaml:1:1: (top level): missing required key 'domain'"), "{e}");
+    assert!(
+        e.starts_with("shot.yaml:1:1: (top level): missing required key 'domain'"),
+        "{e}"
+    );
 }
 
 #[test]
 fn wrong_enum_value() {
     let e = err(&format!("{BASE}  periodic: [x, y]\n"), &[]);
-    assert_eq!(e, "shot.yaml:7:17: domain.periodic[1]: expected one of x, z, got \"y\"");
+    assert_eq!(
+        e,
+        "shot.yaml:7:17: domain.periodic[1]: expected one of x, z, got \"y\""
+    );
     let e = err(&format!("{BASE}  periodic: [x, yes]\n"), &[]);
-    assert!(e.ends_with("domain.periodic[1]: expected one of x, z, got \"yes\""), "{e}");
+    assert!(
+        e.ends_with("domain.periodic[1]: expected one of x, z, got \"yes\""),
+        "{e}"
+    );
     let e = err(&format!("{BASE}gpu: {{backend: metal}}\n"), &[]);
-    assert!(e.contains("gpu.backend: expected one of auto, vulkan, gl, got \"metal\""), "{e}");
+    assert!(
+        e.contains("gpu.backend: expected one of auto, vulkan, gl, got \"metal\""),
+        "{e}"
+    );
 }
 
 #[test]
 fn wrong_list_length() {
-    let e = err("shot: a\noutput: {frames: {start: 1, end: 2}}\ndomain: {size: [1, 2], spacing: 0.1}\n", &[]);
-    assert!(e.starts_with("shot.yaml:3:16: domain.size: expected a list of 3 values, got 2 values"), "{e}");
+    let e = err(
+        "shot: a\noutput: {frames: {start: 1, end: 2}}\ndomain: {size: [1, 2], spacing: 0.1}\n",
+        &[],
+    );
+    assert!(
+        e.starts_with("shot.yaml:3:16: domain.size: expected a list of 3 values, got 2 values"),
+        "{e}"
+    );
     let e = err("shot: a\noutput: {frames: {start: 1, end: 2}}\ndomain: {size: [1, 2, 3, 4], spacing: 0.1}\n", &[]);
-    assert!(e.contains("domain.size: too many values: expected 3, got 4"), "{e}");
+    assert!(
+        e.contains("domain.size: too many values: expected 3, got 4"),
+        "{e}"
+    );
 }
 
 #[test]
 fn nan_is_rejected_with_its_key() {
     let e = err(&format!("{BASE}solver: {{gravity: .nan}}\n"), &[]);
-    assert!(e.contains(":7:19: solver.gravity: expected a finite number, got .nan"), "{e}");
+    assert!(
+        e.contains(":7:19: solver.gravity: expected a finite number, got .nan"),
+        "{e}"
+    );
 }
 
 #[test]
 fn duplicate_keys_are_errors() {
     let e = err(&format!("{BASE}  spacing: 4\n"), &[]);
-    assert_eq!(e, "shot.yaml:7:3: domain.spacing: duplicate key (first given at line 6:3)");
+    assert_eq!(
+        e,
+        "shot.yaml:7:3: domain.spacing: duplicate key (first given at line 6:3)"
+    );
 }
 
 #[test]
 fn string_fields_refuse_numbers_with_a_hint() {
     let e = err(&BASE.replace("shot: test", "shot: 0420"), &[]);
-    assert!(e.starts_with("shot.yaml:1:7: shot: expected a string, got"), "{e}");
+    assert!(
+        e.starts_with("shot.yaml:1:7: shot: expected a string, got"),
+        "{e}"
+    );
     assert!(e.contains("quotes"), "{e}");
 }
 
@@ -126,19 +171,34 @@ fn top_level_must_be_a_mapping() {
 
 #[test]
 fn syntax_errors_have_position_and_nearby_key() {
-    let e = err(&format!("{BASE}solver:\n  iterations: [1, 2\n  gravity: 3\n"), &[]);
+    let e = err(
+        &format!("{BASE}solver:\n  iterations: [1, 2\n  gravity: 3\n"),
+        &[],
+    );
     assert!(e.starts_with("shot.yaml:"), "{e}");
     assert!(e.contains("invalid YAML"), "{e}");
     let e = err("shot: a\noutput:\n\tframes: {start: 1, end: 2}\n", &[]);
     assert!(e.starts_with("shot.yaml:3:"), "{e}");
+    assert!(e.contains(" output.frames: "), "{e}");
+    assert!(e.contains("tabs"), "{e}");
+    let e = err("shot: a\ndomain:\n  size: [1, 2, 3\n  spacing: 1\n", &[]);
+    assert!(e.contains("(is the '[' at line 3:9 closed?)"), "{e}");
 }
 
 #[test]
 fn validation_errors_point_at_the_key() {
     let e = err(&BASE.replace("end: 10", "end: 0"), &[]);
-    assert_eq!(e, "shot.yaml:3:22: output.frames.end: end frame 0 is before start frame 1");
+    assert_eq!(
+        e,
+        "shot.yaml:3:22: output.frames.end: end frame 0 is before start frame 1"
+    );
     let e = err(&format!("{BASE}adaptive:\n  merge_threshold: 0.7\n"), &[]);
-    assert!(e.starts_with("shot.yaml:8:3: adaptive.merge_threshold: merge_threshold (0.7) must be below"), "{e}");
+    assert!(
+        e.starts_with(
+            "shot.yaml:8:3: adaptive.merge_threshold: merge_threshold (0.7) must be below"
+        ),
+        "{e}"
+    );
     // A default key is named without a position.
     let e = err(&format!("{BASE}output2: 1\n"), &[]);
     assert!(e.contains("output2: unknown key"), "{e}");
@@ -146,7 +206,14 @@ fn validation_errors_point_at_the_key() {
 
 #[test]
 fn overrides_apply_before_validation() {
-    let c = ok(BASE, &["output.frames.end=20", "domain.size=[200,60,100]", "solver.gravity=9.81"]);
+    let c = ok(
+        BASE,
+        &[
+            "output.frames.end=20",
+            "domain.size=[200,60,100]",
+            "solver.gravity=9.81",
+        ],
+    );
     assert_eq!(c.output.frames.end, 20);
     assert_eq!(c.domain.size, [200.0, 60.0, 100.0]);
     assert_eq!(c.solver.gravity, 9.81);
@@ -169,21 +236,45 @@ fn bad_overrides_name_the_set() {
         "shot.yaml: --set solver.iterations: expected an unsigned integer (0, 1, 2, ...), got \"four\""
     );
     let e = err(BASE, &["solver.iteratons=4"]);
-    assert!(e.starts_with("shot.yaml: --set solver.iteratons: unknown key \"iteratons\""), "{e}");
+    assert!(
+        e.starts_with("shot.yaml: --set solver.iteratons: unknown key \"iteratons\""),
+        "{e}"
+    );
     let e = err(BASE, &["output.frames.end"]);
-    assert!(e.contains("--set output.frames.end: expected KEY.PATH=VALUE"), "{e}");
+    assert!(
+        e.contains("--set output.frames.end: expected KEY.PATH=VALUE"),
+        "{e}"
+    );
     let e = err(BASE, &["shot.name=x"]);
-    assert!(e.contains("--set shot.name: cannot set it: shot is \"test\", not a mapping"), "{e}");
+    assert!(
+        e.contains("--set shot.name: cannot set it: shot is \"test\", not a mapping"),
+        "{e}"
+    );
     let e = err(BASE, &["domain.size[5]=1"]);
-    assert!(e.contains("--set domain.size[5]: index 5 is past the end of domain.size"), "{e}");
+    assert!(
+        e.contains("--set domain.size[5]: index 5 is past the end of domain.size"),
+        "{e}"
+    );
     let e = err(BASE, &["domain.size=[1,2"]);
-    assert!(e.contains("--set domain.size: cannot read the value"), "{e}");
+    assert!(
+        e.contains("--set domain.size: cannot read the value"),
+        "{e}"
+    );
     let e = err(BASE, &["output.frames.end=0"]);
-    assert_eq!(e, "shot.yaml: --set output.frames.end: end frame 0 is before start frame 1");
+    assert_eq!(
+        e,
+        "shot.yaml: --set output.frames.end: end frame 0 is before start frame 1"
+    );
     let e = err(BASE, &["domain={size: [1, 1, 1], spacing: x}"]);
-    assert!(e.contains("--set domain: domain.spacing: expected a number, got \"x\""), "{e}");
+    assert!(
+        e.contains("--set domain: domain.spacing: expected a number, got \"x\""),
+        "{e}"
+    );
     let e = err(BASE, &["=3"]);
-    assert!(e.contains("--set : empty key segment") || e.contains("empty key"), "{e}");
+    assert!(
+        e.contains("--set : empty key segment") || e.contains("empty key"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -191,11 +282,17 @@ fn load_reports_files_that_are_not_text() {
     let dir = tempfile::tempdir().unwrap();
     let missing = dir.path().join("nope.yaml");
     let e = load(&missing, &[]).unwrap_err().to_string();
-    assert!(e.ends_with("nope.yaml: cannot read config: no such file"), "{e}");
+    assert!(
+        e.ends_with("nope.yaml: cannot read config: no such file"),
+        "{e}"
+    );
     let bin = dir.path().join("bin.yaml");
     std::fs::write(&bin, b"shot: a\n\xff\xfe\x00garbage").unwrap();
     let e = load(&bin, &[]).unwrap_err().to_string();
-    assert!(e.contains("bin.yaml:2:1: not UTF-8 text (byte 0xff at offset 8)"), "{e}");
+    assert!(
+        e.contains("bin.yaml:2:1: not UTF-8 text (byte 0xff at offset 8)"),
+        "{e}"
+    );
     let nul = dir.path().join("nul.yaml");
     std::fs::write(&nul, b"shot: a\x00\n").unwrap();
     let e = load(&nul, &[]).unwrap_err().to_string();
@@ -260,9 +357,17 @@ fn key_near_follows_indentation() {
 fn parse_key_paths() {
     assert_eq!(
         parse_key("a.b[2].c").unwrap(),
-        vec![Seg::Key("a".into()), Seg::Key("b".into()), Seg::Index(2), Seg::Key("c".into())]
+        vec![
+            Seg::Key("a".into()),
+            Seg::Key("b".into()),
+            Seg::Index(2),
+            Seg::Key("c".into())
+        ]
     );
-    assert_eq!(parse_key("a.1").unwrap(), vec![Seg::Key("a".into()), Seg::Index(1)]);
+    assert_eq!(
+        parse_key("a.1").unwrap(),
+        vec![Seg::Key("a".into()), Seg::Index(1)]
+    );
     assert!(parse_key("a..b").is_err());
     assert!(parse_key("a[x]").is_err());
     assert!(parse_key("").is_err());
@@ -274,5 +379,69 @@ fn public_validate_names_keys() {
     assert!(validate(&c).is_ok());
     c.output.substeps = 0;
     let e = validate(&c).unwrap_err().to_string();
-    assert!(e.starts_with("output.substeps: expected an integer from 1"), "{e}");
+    assert!(
+        e.starts_with("output.substeps: expected an integer from 1"),
+        "{e}"
+    );
+}
+
+#[test]
+fn decimals_for_integers_show_the_decimal() {
+    let e = err(&format!("{BASE}solver: {{iterations: 4.0}}\n"), &[]);
+    assert!(
+        e.ends_with("solver.iterations: expected an unsigned integer (0, 1, 2, ...), got 4.0"),
+        "{e}"
+    );
+    let e = err(&format!("{BASE}solver: {{rest_density: -2.0}}\n"), &[]);
+    assert!(
+        e.ends_with("solver.rest_density: expected a number > 0, got -2"),
+        "{e}"
+    );
+}
+
+#[test]
+fn empty_section_takes_defaults() {
+    let c = ok(
+        &format!("{BASE}solver:\nadaptive: {{}}\n"),
+        &["physics.smoothing.kappa=0.3"],
+    );
+    assert_eq!(c.solver, SolverConfig::default());
+    assert_eq!(c.physics.smoothing.kappa, 0.3);
+}
+
+/// docs/CONFIG.md must document every key of the schema (leaf keys, `[..]` lists as a whole).
+#[test]
+fn every_key_is_documented() {
+    fn leaves(v: &serde_json::Value, path: &str, out: &mut Vec<String>) {
+        match v {
+            serde_json::Value::Object(m) if !path.ends_with("aliases") => {
+                for (k, x) in m {
+                    let p = if path.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{path}.{k}")
+                    };
+                    leaves(x, &p, out);
+                }
+            }
+            _ => out.push(path.to_string()),
+        }
+    }
+    let mut c = ok(BASE, &[]);
+    c.output.preview.camera = Some(CameraConfig {
+        position: [0.0, 1.0, 2.0],
+        look_at: [1.0, 1.0, 1.0],
+        fov_deg: 45.0,
+    });
+    let mut keys = Vec::new();
+    leaves(&serde_json::to_value(&c).unwrap(), "", &mut keys);
+    assert!(keys.len() > 60, "{keys:?}");
+    let doc =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/CONFIG.md")).unwrap();
+    for k in keys {
+        assert!(
+            doc.contains(&format!("| `{k}` |")),
+            "docs/CONFIG.md lacks a row for `{k}`"
+        );
+    }
 }

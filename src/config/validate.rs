@@ -116,8 +116,15 @@ pub(crate) fn issues(c: &ShotConfig) -> Vec<Issue> {
 fn check_names(k: &mut Checks, c: &ShotConfig) {
     let s = &c.shot;
     if s.trim().is_empty() {
-        k.fail(&["shot"], "expected a shot name, got an empty string".into());
-    } else if s == "." || s == ".." || s.chars().any(|ch| "/\\:*?\"<>|".contains(ch) || ch.is_control()) {
+        k.fail(
+            &["shot"],
+            "expected a shot name, got an empty string".into(),
+        );
+    } else if s == "."
+        || s == ".."
+        || s.chars()
+            .any(|ch| "/\\:*?\"<>|".contains(ch) || ch.is_control())
+    {
         k.fail(
             &["shot"],
             format!(
@@ -127,7 +134,10 @@ fn check_names(k: &mut Checks, c: &ShotConfig) {
         );
     }
     if c.output.dir.trim().is_empty() {
-        k.fail(&["output.dir"], "expected a directory, got an empty string".into());
+        k.fail(
+            &["output.dir"],
+            "expected a directory, got an empty string".into(),
+        );
     }
 }
 
@@ -161,22 +171,31 @@ fn check_output(k: &mut Checks, o: &OutputConfig) {
         k.uint_within(&format!("output.preview.resolution[{i}]"), *r, 1, 16384);
     }
     let len2: f64 = p.sun_direction.iter().map(|x| x * x).sum();
-    if p.sun_direction.iter().all(|x| x.is_finite()) && !(len2 > 1e-24) {
+    if p.sun_direction.iter().all(|x| x.is_finite()) && len2 <= 1e-24 {
         k.fail(
             &["output.preview.sun_direction"],
             "expected a non-zero direction, got [0, 0, 0]".into(),
         );
     }
     for i in 0..3 {
-        k.finite(&format!("output.preview.sun_direction[{i}]"), p.sun_direction[i]);
+        k.finite(
+            &format!("output.preview.sun_direction[{i}]"),
+            p.sun_direction[i],
+        );
         k.non_negative(&format!("output.preview.sun_color[{i}]"), p.sun_color[i]);
     }
     k.non_negative("output.preview.sun_intensity", p.sun_intensity);
     k.positive("output.preview.density_scale", p.density_scale);
     if let Some(cam) = &p.camera {
         for i in 0..3 {
-            k.finite(&format!("output.preview.camera.position[{i}]"), cam.position[i]);
-            k.finite(&format!("output.preview.camera.look_at[{i}]"), cam.look_at[i]);
+            k.finite(
+                &format!("output.preview.camera.position[{i}]"),
+                cam.position[i],
+            );
+            k.finite(
+                &format!("output.preview.camera.look_at[{i}]"),
+                cam.look_at[i],
+            );
         }
         if cam.position == cam.look_at {
             k.fail(
@@ -207,7 +226,9 @@ fn check_domain(k: &mut Checks, c: &ShotConfig) {
         k.positive(&format!("domain.size[{i}]"), d.size[i]);
     }
     k.positive("domain.spacing", d.spacing);
-    if k.finite("domain.kernel_ratio", d.kernel_ratio) && !(d.kernel_ratio > 1.0 && d.kernel_ratio <= 5.0) {
+    if k.finite("domain.kernel_ratio", d.kernel_ratio)
+        && !(d.kernel_ratio > 1.0 && d.kernel_ratio <= 5.0)
+    {
         k.fail(
             &["domain.kernel_ratio"],
             format!(
@@ -228,14 +249,14 @@ fn check_domain(k: &mut Checks, c: &ShotConfig) {
         return; // the derived checks below need sane inputs
     }
     let h0 = d.spacing * d.kernel_ratio;
-    for i in 0..3 {
+    for (i, axis) in AXES.iter().enumerate() {
         if h0 > d.size[i] {
             k.fail(
                 &["domain.spacing", "domain.kernel_ratio"],
                 format!(
                     "kernel radius h0 = spacing * kernel_ratio = {} m is larger than the domain along {} ({} m)",
                     num(h0),
-                    AXES[i],
+                    axis,
                     num(d.size[i])
                 ),
             );
@@ -410,7 +431,7 @@ fn check_adaptive(k: &mut Checks, a: &AdaptiveConfig, c: &ShotConfig) {
             ),
         );
     }
-    if k.finite("adaptive.capacity_factor", a.capacity_factor) && !(a.capacity_factor >= 1.0) {
+    if k.finite("adaptive.capacity_factor", a.capacity_factor) && a.capacity_factor < 1.0 {
         k.fail(
             &["adaptive.capacity_factor"],
             format!(
@@ -449,16 +470,14 @@ fn check_export(k: &mut Checks, e: &ExportConfig, d: &DomainConfig) {
     k.positive("export.voxel_size", e.voxel_size);
     k.non_negative("export.threshold", e.threshold);
     if e.voxel_size.is_finite() && e.voxel_size > 0.0 {
-        for i in 0..3 {
+        for (i, axis) in AXES.iter().enumerate() {
             let n = d.size[i] / e.voxel_size;
             if n > MAX_VOXELS_PER_AXIS {
                 k.fail(
                     &["export.voxel_size"],
                     format!(
                         "{:.0} voxels along {} exceeds {}; increase the voxel size",
-                        n,
-                        AXES[i],
-                        MAX_VOXELS_PER_AXIS
+                        n, axis, MAX_VOXELS_PER_AXIS
                     ),
                 );
                 break;
@@ -555,26 +574,65 @@ mod tests {
             (|c| c.domain.kernel_ratio = 30.0, "domain.kernel_ratio"),
             (|c| c.domain.size = [100.0, 8.0, 100.0], "domain.spacing"),
             (|c| c.domain.size = [25.0, 50.0, 100.0], "domain.periodic"),
-            (|c| c.domain.periodic = vec![Axis::X, Axis::X], "domain.periodic[1]"),
+            (
+                |c| c.domain.periodic = vec![Axis::X, Axis::X],
+                "domain.periodic[1]",
+            ),
             (|c| c.domain.spacing = 0.01, "domain.spacing"),
             (|c| c.export.voxel_size = 0.0, "export.voxel_size"),
-            (|c| c.physics.smoothing.kappa = 0.0, "physics.smoothing.kappa"),
-            (|c| c.physics.smoothing.kappa = 1.5, "physics.smoothing.kappa"),
-            (|c| c.adaptive.merge_threshold = 0.5, "adaptive.merge_threshold"),
-            (|c| c.adaptive.capacity_factor = 0.5, "adaptive.capacity_factor"),
+            (
+                |c| c.physics.smoothing.kappa = 0.0,
+                "physics.smoothing.kappa",
+            ),
+            (
+                |c| c.physics.smoothing.kappa = 1.5,
+                "physics.smoothing.kappa",
+            ),
+            (
+                |c| c.adaptive.merge_threshold = 0.5,
+                "adaptive.merge_threshold",
+            ),
+            (
+                |c| c.adaptive.capacity_factor = 0.5,
+                "adaptive.capacity_factor",
+            ),
             (|c| c.output.frames.end = 100_000, "output.frame_padding"),
             (|c| c.gpu.adapter = " ".into(), "gpu.adapter"),
             (|c| c.shot = "a/b".into(), "shot"),
             (|c| c.solver.iterations = 0, "solver.iterations"),
             (|c| c.physics.phase_rate = 10.0, "physics.phase_rate"),
             (|c| c.physics.saturation_c = -400.0, "physics.saturation_c"),
-            (|c| c.physics.environment_lapse_rate = 10.0, "physics.environment_lapse_rate"),
+            (
+                |c| c.physics.environment_lapse_rate = 10.0,
+                "physics.environment_lapse_rate",
+            ),
             (|c| c.physics.initial_speed = 100.0, "physics.initial_speed"),
-            (|c| c.output.preview.sun_direction = [0.0; 3], "output.preview.sun_direction"),
-            (|c| c.export.grids.aliases.insert("heat".into(), "temp".into()).map_or((), drop), "export.grids.aliases.heat"),
-            (|c| c.export.grids.vapor = "density".into(), "export.grids.vapor"),
+            (
+                |c| c.output.preview.sun_direction = [0.0; 3],
+                "output.preview.sun_direction",
+            ),
+            (
+                |c| {
+                    c.export
+                        .grids
+                        .aliases
+                        .insert("heat".into(), "temp".into())
+                        .map_or((), drop)
+                },
+                "export.grids.aliases.heat",
+            ),
+            (
+                |c| c.export.grids.vapor = "density".into(),
+                "export.grids.vapor",
+            ),
             (|c| c.checkpoint.keep = 0, "checkpoint.keep"),
-            (|c| { c.adaptive.enabled = true; c.adaptive.split_threshold = 2.0; }, "adaptive.split_threshold"),
+            (
+                |c| {
+                    c.adaptive.enabled = true;
+                    c.adaptive.split_threshold = 2.0;
+                },
+                "adaptive.split_threshold",
+            ),
         ];
         for (edit, key) in cases {
             let mut c = base();
