@@ -1,0 +1,3 @@
+//! Measurement entry points (no timing assertions anywhere: these only report figures).
+pub mod preview;
+pub mod splat;
