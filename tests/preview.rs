@@ -246,7 +246,7 @@ fn bad_preview_parameters_are_errors() {
     p.width = 16;
     p.density_scale = f64::NAN;
     assert!(render(&g, &p).is_err());
-    let cfg = nimbus::config::schema::PreviewConfig {
+    let cfg = nimbus::config::PreviewConfig {
         sun_direction: [0.0; 3],
         ..Default::default()
     };

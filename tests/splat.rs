@@ -228,8 +228,8 @@ fn voxels_match_brute_force_sums() {
             sd += w * st.thermo[j][2] as f64;
             sv += w * st.thermo[j][1] as f64;
             st_ += w * st.thermo[j][0] as f64;
-            for c in 0..3 {
-                su[c] += w * st.vel[j][c] as f64;
+            for (acc, u) in su.iter_mut().zip(st.vel[j]) {
+                *acc += w * u as f64;
             }
         }
         let close = |a: f32, b: f64| (a as f64 - b).abs() <= 1e-5 * b.abs() + 1e-9;

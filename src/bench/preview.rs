@@ -106,10 +106,15 @@ pub fn bench_preview(
         .build()
         .map_err(|e| Error::Runtime(format!("thread pool: {e}")))?;
     let mut best = f64::INFINITY;
+    let mut best_cpu = f64::INFINITY;
     for _ in 0..3 {
+        let c = super::process_cpu_seconds();
         let t = Instant::now();
         pool.install(|| render(&grid, &params))?;
         best = best.min(t.elapsed().as_secs_f64());
+        if let (Some(a), Some(b)) = (c, super::process_cpu_seconds()) {
+            best_cpu = best_cpu.min(b - a);
+        }
     }
     Ok(serde_json::json!({
         "width": width,
@@ -120,5 +125,6 @@ pub fn bench_preview(
         "threads": threads,
         "grid_build_s": build,
         "render_s": best,
+        "render_cpu_s": best_cpu.is_finite().then_some(best_cpu),
     }))
 }

@@ -18,7 +18,7 @@ mod volume;
 
 pub use sheet::{contact_sheet, write_contact_sheet};
 
-use crate::config::schema::PreviewConfig;
+use crate::config::PreviewConfig;
 use crate::error::{Error, Result};
 use crate::splat::SparseGrid;
 use rayon::prelude::*;
@@ -146,7 +146,8 @@ impl PreviewParams {
                 return bad(format!("{name} must be >= 0, got {v}"));
             }
         }
-        if !(0.0..=1.0).contains(&self.albedo) || !(self.phase_g.abs() < 1.0) {
+        if !(0.0..=1.0).contains(&self.albedo) || self.phase_g.is_nan() || self.phase_g.abs() >= 1.0
+        {
             return bad("albedo must be in [0, 1] and |phase_g| < 1".into());
         }
         if !(self.step.is_finite() && self.step >= 0.05) {
@@ -240,7 +241,7 @@ fn sky_ambient() -> [f64; 3] {
     sky_gradient([0.0, 0.5, 0.0])
 }
 
-const GROUND_ALBEDO: [f64; 3] = [0.30, 0.28, 0.24];
+const GROUND_ALBEDO: [f64; 3] = [0.20, 0.22, 0.16];
 
 /// What a ray from `origin` along `dir` sees without any cloud: the sky above the horizon, the
 /// sunlit ground plane y = 0 below it (faded into the horizon haze with distance).

@@ -60,7 +60,7 @@ pub fn render_particles(
         let p = state.pos[j];
         let rel = sub([p[0] as f64, p[1] as f64, p[2] as f64], c.position);
         let z = dot(rel, fwd);
-        if !(z > 1e-9) {
+        if z.is_nan() || z <= 1e-9 {
             continue;
         }
         let u = dot(rel, right) / (z * th * aspect);

@@ -21,7 +21,7 @@
 pub mod grid;
 pub use grid::{GridTransform, Leaf, SparseGrid, LEAF_DIM, LEAF_VOXELS};
 
-use crate::config::schema::{Axis, ShotConfig};
+use crate::config::{Axis, ShotConfig};
 use crate::error::{Error, Result};
 use crate::sim::ParticleState;
 use rayon::prelude::*;
@@ -268,7 +268,8 @@ pub fn splat(state: &ParticleState, params: &SplatParams) -> Result<SplatGrids> 
         .into_par_iter()
         .map(|j| {
             let th = state.thermo[j];
-            if !all && !(f.density && th[2] != 0.0) && !(f.vapor && th[1] != 0.0) {
+            let useful = all || (f.density && th[2] != 0.0) || (f.vapor && th[1] != 0.0);
+            if !useful {
                 return Vec::new();
             }
             let pw = state.pos[j];
@@ -486,8 +487,8 @@ impl LeafCtx<'_> {
                                     dens[n] += w * s.cloud;
                                     vap[n] += w * s.vapor;
                                     tnum[n] += w * s.temp;
-                                    for c in 0..3 {
-                                        vnum[n][c] += w * s.vel[c];
+                                    for (acc, u) in vnum[n].iter_mut().zip(s.vel) {
+                                        *acc += w * u;
                                     }
                                 }
                             }
