@@ -1,3 +1,546 @@
 //! CPU splatting (rayon) of particle fields onto sparse 8^3-leaf grids.
+//!
+//! SPH interpolation at voxel centres with the simulation's poly6 kernel and each particle's own
+//! radius (h_j = h0 2^(-l/3), m_j = m0 2^(-l), volume V_j = m_j / rho_j):
+//! - `density` (cloud water) = sum_j cloud_j V_j W(x - x_j, h_j), `vapor` likewise: plain SPH sums,
+//!   so they fade to 0 at the edge of the particles, as a fog volume should;
+//! - `temperature` and `vel` are Shepard-normalised, sum_j T_j V_j W / sum_j V_j W: a weighted mean
+//!   of the particles' values, which does not fade towards 0 K at the edge where the kernel sum
+//!   drops below 1. They are active where the coverage sum_j V_j W reaches `min_coverage`.
+//!
+//! Index space: voxel centres on integer points (`GridTransform`). Periodic axes (x, z) must hold
+//! a whole number N of voxels per period; particles close to a periodic face also contribute,
+//! through image copies shifted by ±N voxels (the paper's image particles), to voxels on the other
+//! side. Output voxels are those whose centres lie in the domain `[0, size]` (on a periodic axis
+//! N of them, the face at `size` being the image of the face at 0).
+//!
+//! Determinism: particles (and their images) are binned to the leaf that holds them by a stable
+//! sort; every output leaf is computed by one thread, which visits the bins of its neighbour leaves
+//! in a fixed order and the particles of a bin in index order, accumulating in f64. The output is
+//! therefore byte-identical whatever the number of threads.
 pub mod grid;
 pub use grid::{GridTransform, Leaf, SparseGrid, LEAF_DIM, LEAF_VOXELS};
+
+use crate::config::{Axis, ShotConfig};
+use crate::error::{Error, Result};
+use crate::sim::ParticleState;
+use rayon::prelude::*;
+
+/// Which grids to produce.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SplatFields {
+    pub density: bool,
+    pub temperature: bool,
+    pub vapor: bool,
+    pub velocity: bool,
+}
+
+impl Default for SplatFields {
+    fn default() -> Self {
+        Self {
+            density: true,
+            temperature: true,
+            vapor: true,
+            velocity: true,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct SplatParams {
+    /// One transform for the whole shot (voxel size and the world position of voxel (0,0,0)).
+    pub transform: GridTransform,
+    /// Level-0 kernel radius and mass.
+    pub h0: f64,
+    pub m0: f64,
+    /// rho0: densities are clamped to >= `MIN_DENSITY_RATIO * rest_density` (guards V = m/rho).
+    pub rest_density: f64,
+    /// Domain box `[0, size]` (metres).
+    pub domain_size: [f64; 3],
+    /// Periodic [x, z].
+    pub periodic: [bool; 2],
+    /// `density` and `vapor` voxels below this stay inactive.
+    pub threshold: f64,
+    /// `temperature` and `vel` voxels whose coverage sum_j V_j W is below this stay inactive.
+    pub min_coverage: f64,
+    pub fields: SplatFields,
+}
+
+/// An isolated particle's own SPH density is m W(0) ~ 0.2 rho0 for h = 2d, so this clamp only
+/// catches zero, negative or garbage densities, never a real SPH value.
+pub const MIN_DENSITY_RATIO: f64 = 0.05;
+/// Largest kernel radius in voxels: beyond it one particle would touch thousands of leaves.
+pub const MAX_RADIUS_VOXELS: f64 = 64.0;
+
+impl SplatParams {
+    /// Voxel centres at `(i + 1/2) * voxel_size`: voxel i covers `[i v, (i+1) v]` of the domain.
+    pub fn domain_transform(voxel_size: f64) -> GridTransform {
+        GridTransform {
+            voxel_size,
+            origin: [0.5 * voxel_size; 3],
+        }
+    }
+
+    /// Parameters of a shot: m0 = rho0 d^3, h0 = kernel_ratio * d (as the simulation sets them).
+    pub fn from_config(cfg: &ShotConfig) -> Result<Self> {
+        let d = cfg.domain.spacing;
+        let p = Self {
+            transform: Self::domain_transform(cfg.export.voxel_size),
+            h0: cfg.domain.kernel_ratio * d,
+            m0: cfg.solver.rest_density * d * d * d,
+            rest_density: cfg.solver.rest_density,
+            domain_size: cfg.domain.size,
+            periodic: [
+                cfg.domain.periodic.contains(&Axis::X),
+                cfg.domain.periodic.contains(&Axis::Z),
+            ],
+            threshold: cfg.export.threshold,
+            min_coverage: 1.0e-3,
+            fields: SplatFields {
+                density: !cfg.export.grids.density.is_empty(),
+                temperature: !cfg.export.grids.temperature.is_empty(),
+                vapor: !cfg.export.grids.vapor.is_empty(),
+                velocity: !cfg.export.grids.velocity.is_empty(),
+            },
+        };
+        p.validate()?;
+        Ok(p)
+    }
+
+    fn is_periodic(&self, axis: usize) -> bool {
+        match axis {
+            0 => self.periodic[0],
+            2 => self.periodic[1],
+            _ => false,
+        }
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::InvalidInput(format!("splat: {m}")));
+        let v = self.transform.voxel_size;
+        if !(v.is_finite() && v > 0.0) {
+            return bad(format!("voxel size must be > 0, got {v}"));
+        }
+        if !self.transform.origin.iter().all(|o| o.is_finite()) {
+            return bad("grid origin must be finite".into());
+        }
+        for (name, x) in [
+            ("h0", self.h0),
+            ("m0", self.m0),
+            ("rest density", self.rest_density),
+        ] {
+            if !(x.is_finite() && x > 0.0) {
+                return bad(format!("{name} must be > 0, got {x}"));
+            }
+        }
+        if !(self.threshold.is_finite() && self.threshold >= 0.0) {
+            return bad(format!("threshold must be >= 0, got {}", self.threshold));
+        }
+        if !(self.min_coverage.is_finite() && self.min_coverage > 0.0) {
+            return bad(format!(
+                "min coverage must be > 0, got {}",
+                self.min_coverage
+            ));
+        }
+        if self.h0 / v > MAX_RADIUS_VOXELS {
+            return bad(format!(
+                "voxel size {v} is too small for the kernel radius {} (at most {MAX_RADIUS_VOXELS} voxels per radius)",
+                self.h0
+            ));
+        }
+        for a in 0..3 {
+            let s = self.domain_size[a];
+            if !(s.is_finite() && s > 0.0) {
+                return bad(format!("domain size must be > 0, got {s}"));
+            }
+            if self.is_periodic(a) {
+                let n = s / v;
+                if (n - n.round()).abs() > 1e-6 * n.max(1.0) || n.round() < 1.0 {
+                    return bad(format!(
+                        "voxel size {v} must divide the periodic domain extent {s} (axis {})",
+                        ["x", "y", "z"][a]
+                    ));
+                }
+                if s < 2.0 * self.h0 {
+                    return bad(format!(
+                        "periodic extent {s} is smaller than two kernel radii ({})",
+                        2.0 * self.h0
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Inclusive index range of the output voxels per axis and, for periodic axes, the period N.
+    fn index_range(&self) -> ([i64; 3], [i64; 3], [Option<i64>; 3]) {
+        let t = &self.transform;
+        let mut lo = [0i64; 3];
+        let mut hi = [0i64; 3];
+        let mut period = [None; 3];
+        for a in 0..3 {
+            let eps = 1e-9;
+            let first = ((0.0 - t.origin[a]) / t.voxel_size - eps).ceil() as i64;
+            if self.is_periodic(a) {
+                let n = (self.domain_size[a] / t.voxel_size).round() as i64;
+                lo[a] = first;
+                hi[a] = first + n - 1;
+                period[a] = Some(n);
+            } else {
+                lo[a] = first;
+                hi[a] = ((self.domain_size[a] - t.origin[a]) / t.voxel_size + eps).floor() as i64;
+            }
+        }
+        (lo, hi, period)
+    }
+}
+
+/// The grids of one frame; a field not requested is `None`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SplatGrids {
+    pub density: Option<SparseGrid<f32>>,
+    pub temperature: Option<SparseGrid<f32>>,
+    pub vapor: Option<SparseGrid<f32>>,
+    pub velocity: Option<SparseGrid<[f32; 3]>>,
+    pub stats: SplatStats,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SplatStats {
+    /// Particles that contributed (finite position, inside the walled extent).
+    pub particles: u64,
+    /// Particles plus periodic images.
+    pub sources: u64,
+    /// Leaves allocated (touched by some kernel support).
+    pub leaves: u64,
+    /// Voxels evaluated: `leaves * 512`.
+    pub voxels: u64,
+}
+
+/// One particle or periodic image, in index space.
+#[derive(Debug, Clone, Copy)]
+struct Source {
+    key: [i32; 3],
+    p: [f64; 3],
+    /// Radius in voxels and the squared world radius.
+    r: f64,
+    h2: f64,
+    /// V_j * poly6 normalisation: weight = c (h^2 - r^2)^3.
+    c: f64,
+    cloud: f64,
+    vapor: f64,
+    temp: f64,
+    vel: [f64; 3],
+}
+
+fn leaf_of(i: f64) -> i32 {
+    (i / LEAF_DIM as f64).floor() as i32
+}
+
+/// Splats `state` onto the requested sparse grids (see the module docs for the formulas).
+pub fn splat(state: &ParticleState, params: &SplatParams) -> Result<SplatGrids> {
+    params.validate()?;
+    let n = state.len();
+    let need_vel = params.fields.velocity;
+    if state.thermo.len() != n
+        || state.info.len() != n
+        || state.density.len() != n
+        || (need_vel && state.vel.len() != n)
+    {
+        return Err(Error::InvalidInput(format!(
+            "splat: particle arrays differ in length (pos {n}, vel {}, thermo {}, info {}, density {})",
+            state.vel.len(),
+            state.thermo.len(),
+            state.info.len(),
+            state.density.len()
+        )));
+    }
+    let f = params.fields;
+    let t = params.transform;
+    let v = t.voxel_size;
+    let (lo, hi, period) = params.index_range();
+    // Particles with zero cloud and vapor add nothing to those grids: skip them unless a
+    // normalised field needs every particle.
+    let all = f.temperature || f.velocity;
+    let rho_min = MIN_DENSITY_RATIO * params.rest_density;
+
+    let per_particle: Vec<Vec<Source>> = (0..n)
+        .into_par_iter()
+        .map(|j| {
+            let th = state.thermo[j];
+            let useful = all || (f.density && th[2] != 0.0) || (f.vapor && th[1] != 0.0);
+            if !useful {
+                return Vec::new();
+            }
+            let pw = state.pos[j];
+            let mut world = [pw[0] as f64, pw[1] as f64, pw[2] as f64];
+            if !world.iter().all(|x| x.is_finite()) {
+                return Vec::new();
+            }
+            for a in [0, 2] {
+                if params.is_periodic(a) {
+                    world[a] = world[a].rem_euclid(params.domain_size[a]);
+                }
+            }
+            let level = state.info[j][1] as f64;
+            if level > 60.0 {
+                // No simulation splits that deep; h^9 would underflow.
+                return Vec::new();
+            }
+            let h = params.h0 * (-level / 3.0).exp2();
+            let m = params.m0 * (-level).exp2();
+            let rho = (state.density[j] as f64).max(rho_min);
+            let rho = if rho.is_finite() { rho } else { rho_min };
+            let vol = m / rho;
+            let c = vol * 315.0 / (64.0 * std::f64::consts::PI * h.powi(9));
+            let r = h / v;
+            let p = t.world_to_index(world);
+            let vel = if need_vel {
+                let u = state.vel[j];
+                [u[0] as f64, u[1] as f64, u[2] as f64]
+            } else {
+                [0.0; 3]
+            };
+            // Shifts (in voxels) of the images whose support meets the output range.
+            let mut shifts: [Vec<f64>; 3] = Default::default();
+            for a in 0..3 {
+                let ks: Vec<i64> = match period[a] {
+                    Some(np) => {
+                        let m = (r / np as f64).ceil() as i64 + 1;
+                        (-m..=m).map(|k| k * np).collect()
+                    }
+                    None => vec![0],
+                };
+                for s in ks {
+                    let q = p[a] + s as f64;
+                    if q + r > lo[a] as f64 && q - r < hi[a] as f64 {
+                        shifts[a].push(s as f64);
+                    }
+                }
+            }
+            let mut out = Vec::new();
+            for &sx in &shifts[0] {
+                for &sy in &shifts[1] {
+                    for &sz in &shifts[2] {
+                        let q = [p[0] + sx, p[1] + sy, p[2] + sz];
+                        out.push(Source {
+                            key: q.map(leaf_of),
+                            p: q,
+                            r,
+                            h2: h * h,
+                            c,
+                            cloud: th[2] as f64,
+                            vapor: th[1] as f64,
+                            temp: th[0] as f64,
+                            vel,
+                        });
+                    }
+                }
+            }
+            out
+        })
+        .collect();
+    let particles = per_particle.iter().filter(|s| !s.is_empty()).count() as u64;
+    let mut sources: Vec<Source> = per_particle.into_iter().flatten().collect();
+    // Stable: within a bin, sources stay in (particle index, image) order.
+    sources.par_sort_by_key(|s| s.key);
+
+    // Leaves touched by some support, clipped to the output range.
+    let leaf_lo = lo.map(|x| leaf_of(x as f64));
+    let leaf_hi = hi.map(|x| leaf_of(x as f64));
+    let mut touched: Vec<[i32; 3]> = sources
+        .par_iter()
+        .flat_map_iter(|s| {
+            // Leaves of the voxels within the support (a voxel exactly at distance h gets 0).
+            let a = [0, 1, 2].map(|k| leaf_of((s.p[k] - s.r).ceil()).max(leaf_lo[k]));
+            let b = [0, 1, 2].map(|k| leaf_of((s.p[k] + s.r).floor()).min(leaf_hi[k]));
+            (a[0]..=b[0]).flat_map(move |x| {
+                (a[1]..=b[1]).flat_map(move |y| (a[2]..=b[2]).map(move |z| [x, y, z]))
+            })
+        })
+        .collect();
+    touched.par_sort_unstable();
+    touched.dedup();
+
+    // Bins: unique keys and their ranges in `sources`.
+    let mut bin_keys: Vec<[i32; 3]> = Vec::new();
+    let mut bin_start: Vec<usize> = Vec::new();
+    for (i, s) in sources.iter().enumerate() {
+        if bin_keys.last() != Some(&s.key) {
+            bin_keys.push(s.key);
+            bin_start.push(i);
+        }
+    }
+    bin_start.push(sources.len());
+    let max_r = sources.iter().map(|s| s.r).fold(0.0f64, f64::max);
+    let reach = (max_r / LEAF_DIM as f64).ceil() as i32;
+
+    let ctx = LeafCtx {
+        sources: &sources,
+        bin_keys: &bin_keys,
+        bin_start: &bin_start,
+        reach,
+        lo,
+        hi,
+        voxel: v,
+        params,
+    };
+    let leaves: Vec<LeafOut> = touched.par_iter().map(|&k| ctx.compute(k)).collect();
+
+    let stats = SplatStats {
+        particles,
+        sources: sources.len() as u64,
+        leaves: touched.len() as u64,
+        voxels: touched.len() as u64 * LEAF_VOXELS as u64,
+    };
+    let mut dens = Vec::new();
+    let mut temp = Vec::new();
+    let mut vap = Vec::new();
+    let mut vel = Vec::new();
+    for l in leaves {
+        dens.extend(l.density);
+        temp.extend(l.temperature);
+        vap.extend(l.vapor);
+        vel.extend(l.velocity);
+    }
+    let grid = |name: &str, leaves| SparseGrid {
+        name: name.into(),
+        background: 0.0f32,
+        transform: t,
+        leaves,
+    };
+    Ok(SplatGrids {
+        density: f.density.then(|| grid("density", dens)),
+        temperature: f.temperature.then(|| grid("temperature", temp)),
+        vapor: f.vapor.then(|| grid("vapor", vap)),
+        velocity: f.velocity.then(|| SparseGrid {
+            name: "vel".into(),
+            background: [0.0f32; 3],
+            transform: t,
+            leaves: vel,
+        }),
+        stats,
+    })
+}
+
+struct LeafCtx<'a> {
+    sources: &'a [Source],
+    bin_keys: &'a [[i32; 3]],
+    bin_start: &'a [usize],
+    reach: i32,
+    lo: [i64; 3],
+    hi: [i64; 3],
+    voxel: f64,
+    params: &'a SplatParams,
+}
+
+struct LeafOut {
+    density: Option<Leaf<f32>>,
+    temperature: Option<Leaf<f32>>,
+    vapor: Option<Leaf<f32>>,
+    velocity: Option<Leaf<[f32; 3]>>,
+}
+
+impl LeafCtx<'_> {
+    fn compute(&self, key: [i32; 3]) -> LeafOut {
+        let f = self.params.fields;
+        let o = key.map(|k| k * LEAF_DIM);
+        let mut cov = [0.0f64; LEAF_VOXELS];
+        let mut dens = [0.0f64; LEAF_VOXELS];
+        let mut vap = [0.0f64; LEAF_VOXELS];
+        let mut tnum = [0.0f64; LEAF_VOXELS];
+        let mut vnum = [[0.0f64; 3]; LEAF_VOXELS];
+        // Voxels of this leaf inside the output range.
+        let vlo = [0, 1, 2].map(|a| (o[a] as i64).max(self.lo[a]));
+        let vhi = [0, 1, 2].map(|a| (o[a] as i64 + 7).min(self.hi[a]));
+        let v2 = self.voxel * self.voxel;
+        let r = self.reach;
+        for dx in -r..=r {
+            for dy in -r..=r {
+                for dz in -r..=r {
+                    let nk = [key[0] + dx, key[1] + dy, key[2] + dz];
+                    let Ok(b) = self.bin_keys.binary_search(&nk) else {
+                        continue;
+                    };
+                    for s in &self.sources[self.bin_start[b]..self.bin_start[b + 1]] {
+                        let a = [0, 1, 2].map(|k| ((s.p[k] - s.r).ceil() as i64).max(vlo[k]));
+                        let e = [0, 1, 2].map(|k| ((s.p[k] + s.r).floor() as i64).min(vhi[k]));
+                        if a[0] > e[0] || a[1] > e[1] || a[2] > e[2] {
+                            continue;
+                        }
+                        for x in a[0]..=e[0] {
+                            let ddx = (x as f64 - s.p[0]) * (x as f64 - s.p[0]) * v2;
+                            for y in a[1]..=e[1] {
+                                let ddy = ddx + (y as f64 - s.p[1]) * (y as f64 - s.p[1]) * v2;
+                                if ddy >= s.h2 {
+                                    continue;
+                                }
+                                for z in a[2]..=e[2] {
+                                    let r2 = ddy + (z as f64 - s.p[2]) * (z as f64 - s.p[2]) * v2;
+                                    if r2 >= s.h2 {
+                                        continue;
+                                    }
+                                    let d = s.h2 - r2;
+                                    let w = s.c * d * d * d;
+                                    let n = Leaf::<f32>::offset(x as i32, y as i32, z as i32);
+                                    cov[n] += w;
+                                    dens[n] += w * s.cloud;
+                                    vap[n] += w * s.vapor;
+                                    tnum[n] += w * s.temp;
+                                    for (acc, u) in vnum[n].iter_mut().zip(s.vel) {
+                                        *acc += w * u;
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        let thr = self.params.threshold;
+        let minc = self.params.min_coverage;
+        let plain = |acc: &[f64; LEAF_VOXELS]| {
+            leaf_from(o, |n| {
+                let x = acc[n];
+                (x > 0.0 && x >= thr).then_some(x as f32)
+            })
+        };
+        LeafOut {
+            density: if f.density { plain(&dens) } else { None },
+            vapor: if f.vapor { plain(&vap) } else { None },
+            temperature: if f.temperature {
+                leaf_from(o, |n| (cov[n] >= minc).then(|| (tnum[n] / cov[n]) as f32))
+            } else {
+                None
+            },
+            velocity: if f.velocity {
+                leaf_from(o, |n| {
+                    (cov[n] >= minc).then(|| vnum[n].map(|u| (u / cov[n]) as f32))
+                })
+            } else {
+                None
+            },
+        }
+    }
+}
+
+/// A leaf whose voxel n holds `value(n)` where that is `Some` (active), the zero background
+/// elsewhere; `None` when no voxel is active.
+fn leaf_from<T: Copy + Default>(
+    origin: [i32; 3],
+    value: impl Fn(usize) -> Option<T>,
+) -> Option<Leaf<T>> {
+    let mut values = Box::new([T::default(); LEAF_VOXELS]);
+    let mut mask = [0u64; 8];
+    for n in 0..LEAF_VOXELS {
+        if let Some(x) = value(n) {
+            values[n] = x;
+            mask[n / 64] |= 1 << (n % 64);
+        }
+    }
+    mask.iter().any(|&w| w != 0).then_some(Leaf {
+        origin,
+        values,
+        mask,
+    })
+}

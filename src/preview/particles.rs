@@ -1,0 +1,120 @@
+//! Debug view (paper Fig. 3): particles drawn as discs of their kernel size, coloured by adaptive
+//! level or by shape energy, over the sky. Sequential with a depth test (strictly nearer wins),
+//! so ties go to the lower particle index: deterministic.
+use super::{cross, dot, normalize, sky, sub, LinearImage, PreviewParams};
+use crate::error::Result;
+use crate::sim::ParticleState;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ParticleColor {
+    /// Level 0 blue ... `max_level` red.
+    Level { max_level: u32 },
+    /// Shape energy (thermo.w) from 0 (blue) to `max` (red).
+    ShapeEnergy,
+}
+
+fn ramp(t: f64) -> [f64; 3] {
+    let t = t.clamp(0.0, 1.0);
+    // blue -> cyan -> yellow -> red
+    let stops = [
+        [0.1, 0.2, 0.9],
+        [0.1, 0.8, 0.9],
+        [0.95, 0.9, 0.1],
+        [0.9, 0.1, 0.05],
+    ];
+    let x = t * 3.0;
+    let i = (x.floor() as usize).min(2);
+    let f = x - i as f64;
+    [0, 1, 2].map(|c| stops[i][c] + (stops[i + 1][c] - stops[i][c]) * f)
+}
+
+/// Particles seen by the preview camera; disc radius = 0.5 h_j projected (at least one pixel).
+pub fn render_particles(
+    state: &ParticleState,
+    params: &PreviewParams,
+    h0: f64,
+    color: ParticleColor,
+    energy_max: f64,
+) -> Result<LinearImage> {
+    params.validate()?;
+    let (w, h) = (params.width, params.height);
+    let c = &params.camera;
+    let fwd = normalize(sub(c.look_at, c.position));
+    let mut right = cross(fwd, [0.0, 1.0, 0.0]);
+    if dot(right, right) < 1e-12 {
+        right = cross(fwd, [0.0, 0.0, -1.0]);
+    }
+    let right = normalize(right);
+    let up = cross(right, fwd);
+    let th = (c.fov_deg.to_radians() * 0.5).tan();
+    let aspect = w as f64 / h as f64;
+    let mut data: Vec<[f32; 4]> = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let s = sky(params, c.position, params.ray(x, y));
+            [s[0] as f32, s[1] as f32, s[2] as f32, 0.0]
+        })
+        .collect();
+    let mut depth = vec![f64::INFINITY; data.len()];
+    for j in 0..state.len() {
+        let p = state.pos[j];
+        let rel = sub([p[0] as f64, p[1] as f64, p[2] as f64], c.position);
+        let z = dot(rel, fwd);
+        if z.is_nan() || z <= 1e-9 {
+            continue;
+        }
+        let u = dot(rel, right) / (z * th * aspect);
+        let v = dot(rel, up) / (z * th);
+        let px = (u + 1.0) * 0.5 * w as f64;
+        let py = (1.0 - v) * 0.5 * h as f64;
+        let level = state.info.get(j).map_or(0, |i| i[1]);
+        let hj = h0 * (-(level as f64) / 3.0).exp2();
+        let rad = (0.5 * hj / (z * th) * 0.5 * h as f64).max(0.5);
+        if !(px.is_finite() && py.is_finite()) || px + rad < 0.0 || py + rad < 0.0 {
+            continue;
+        }
+        if px - rad > w as f64 || py - rad > h as f64 {
+            continue;
+        }
+        let t = match color {
+            ParticleColor::Level { max_level } => level as f64 / max_level.max(1) as f64,
+            ParticleColor::ShapeEnergy => {
+                state.thermo.get(j).map_or(0.0, |t| t[3] as f64) / energy_max.max(1e-30)
+            }
+        };
+        let col = ramp(t);
+        let (x0, x1) = (
+            (px - rad).floor().max(0.0) as u32,
+            ((px + rad).ceil() as u32).min(w),
+        );
+        let (y0, y1) = (
+            (py - rad).floor().max(0.0) as u32,
+            ((py + rad).ceil() as u32).min(h),
+        );
+        for y in y0..y1 {
+            for x in x0..x1 {
+                let (dx, dy) = (x as f64 + 0.5 - px, y as f64 + 0.5 - py);
+                if dx * dx + dy * dy > rad * rad {
+                    continue;
+                }
+                let i = (y * w + x) as usize;
+                if z < depth[i] {
+                    depth[i] = z;
+                    // Simple shading: darker towards the disc's rim.
+                    let s = 1.0 - 0.4 * (dx * dx + dy * dy) / (rad * rad);
+                    data[i] = [
+                        (col[0] * s) as f32,
+                        (col[1] * s) as f32,
+                        (col[2] * s) as f32,
+                        1.0,
+                    ];
+                }
+            }
+        }
+    }
+    Ok(LinearImage {
+        width: w,
+        height: h,
+        data,
+    })
+}

@@ -1,0 +1,309 @@
+//! Splat: partition of unity on a lattice, periodic continuity, determinism, brute-force check.
+use nimbus::sim::reference::kernels::{min_image, poly6};
+use nimbus::sim::ParticleState;
+use nimbus::splat::{splat, SparseGrid, SplatFields, SplatParams};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+const RHO0: f64 = 1.2;
+
+fn params(size: [f64; 3], d: f64, voxel: f64, periodic: [bool; 2]) -> SplatParams {
+    SplatParams {
+        transform: SplatParams::domain_transform(voxel),
+        h0: 2.0 * d,
+        m0: RHO0 * d * d * d,
+        rest_density: RHO0,
+        domain_size: size,
+        periodic,
+        threshold: 0.0,
+        min_coverage: 1e-3,
+        fields: SplatFields::default(),
+    }
+}
+
+/// A lattice of spacing d filling `size` (first particle at d/2), rho = rho0, level 0.
+fn lattice(size: [f64; 3], d: f64, cloud: impl Fn([f64; 3]) -> f32) -> ParticleState {
+    let n = size.map(|s| (s / d).round() as usize);
+    let mut st = ParticleState::default();
+    for i in 0..n[0] {
+        for j in 0..n[1] {
+            for k in 0..n[2] {
+                let p = [i, j, k].map(|v| (v as f64 + 0.5) * d);
+                st.pos.push([p[0] as f32, p[1] as f32, p[2] as f32, 0.0]);
+                st.vel.push([1.0, -2.0, 0.5, 0.0]);
+                st.thermo.push([290.0, 0.01, cloud(p), 0.0]);
+                st.info.push([st.info.len() as u32, 0]);
+                st.density.push(RHO0 as f32);
+            }
+        }
+    }
+    st
+}
+
+fn random_state(n: usize, size: [f64; 3], seed: u64) -> ParticleState {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut st = ParticleState::default();
+    for i in 0..n {
+        let p: [f64; 3] = std::array::from_fn(|a| rng.random_range(0.0..size[a]));
+        st.pos.push([p[0] as f32, p[1] as f32, p[2] as f32, 0.0]);
+        st.vel
+            .push(std::array::from_fn(|_| rng.random_range(-1.0..1.0)));
+        st.thermo.push([
+            rng.random_range(270.0..300.0),
+            rng.random_range(0.0..0.02),
+            if rng.random_bool(0.5) {
+                rng.random_range(0.0..0.01)
+            } else {
+                0.0
+            },
+            0.0,
+        ]);
+        st.info.push([i as u32, rng.random_range(0..3)]);
+        st.density
+            .push(rng.random_range(0.8..1.6) as f32 * RHO0 as f32);
+    }
+    st
+}
+
+#[test]
+fn uniform_lattice_is_a_partition_of_unity() {
+    // Periodic in x and z, so only the walls in y have an edge: inside (a kernel radius away from
+    // the floor and ceiling) sum_j (m/rho) W = 1 within 2% (lattice sum of poly6 at h = 2d deviates
+    // by at most 1.4%), so density = cloud content w.
+    let d = 1.0;
+    let size = [16.0, 16.0, 16.0];
+    let w = 0.004f32;
+    let st = lattice(size, d, |_| w);
+    let p = params(size, d, 0.5, [true, true]);
+    let g = splat(&st, &p).unwrap();
+    let dens = g.density.unwrap();
+    let temp = g.temperature.unwrap();
+    let mut checked = 0;
+    for leaf in &dens.leaves {
+        for n in 0..512 {
+            let ijk = [n >> 6, (n >> 3) & 7, n & 7].map(|v| v as i32);
+            let idx = [0, 1, 2].map(|a| leaf.origin[a] + ijk[a]);
+            let y = p.transform.index_to_world(idx.map(|v| v as f64))[1];
+            if y > 2.0 * d + 0.01 && y < size[1] - 2.0 * d - 0.01 {
+                assert!(leaf.is_active(n));
+                let ratio = leaf.values[n] as f64 / w as f64;
+                assert!(
+                    (ratio - 1.0).abs() < 0.02,
+                    "sum (m/rho) W = {ratio} at {idx:?}"
+                );
+                // Shepard temperature of a uniform field is exact.
+                assert!((temp.get(idx) - 290.0).abs() < 1e-3);
+                checked += 1;
+            }
+        }
+    }
+    // 32 x 32 x 32 voxels, of which y in (2, 14): 24 rows.
+    assert_eq!(checked, 32 * 24 * 32);
+    // Every voxel of the periodic extent exists: no hole at the x/z faces.
+    let (lo, hi) = dens.active_bbox().unwrap();
+    assert_eq!((lo[0], hi[0], lo[2], hi[2]), (0, 31, 0, 31));
+    assert!(lo[1] >= 0 && hi[1] <= 31);
+}
+
+#[test]
+fn periodic_wrap_is_continuous_across_x_faces() {
+    // A cloud blob centred on the x = 0 face: the splat must be mirror-symmetric about it, i.e.
+    // voxel i and voxel N-1-i agree, and the last and first columns are neighbours in value.
+    let d = 1.0;
+    let size = [16.0, 8.0, 8.0];
+    let st = lattice(size, d, |p| {
+        let dx = p[0].min(size[0] - p[0]);
+        if dx < 3.0 {
+            0.01
+        } else {
+            0.0
+        }
+    });
+    let p = params(size, d, 1.0, [true, true]);
+    let dens = splat(&st, &p).unwrap().density.unwrap();
+    let n = 16;
+    for j in 0..8 {
+        for k in 0..8 {
+            for i in 0..n / 2 {
+                let a = dens.get([i, j, k]);
+                let b = dens.get([n - 1 - i, j, k]);
+                assert!(
+                    (a - b).abs() <= 1e-6 * a.abs().max(1e-9),
+                    "{i},{j},{k}: {a} vs {b}"
+                );
+            }
+            // Across the face the field is as smooth as inside it.
+            let jump = (dens.get([0, j, k]) - dens.get([n - 1, j, k])).abs();
+            assert!(jump <= 1e-7);
+            if (2..6).contains(&j) {
+                assert!(dens.get([0, j, k]) > 0.009);
+            }
+        }
+    }
+    // Without periodicity the face voxels only see half the blob.
+    let p2 = params(size, d, 1.0, [false, true]);
+    let open = splat(&st, &p2).unwrap().density.unwrap();
+    assert!(open.get([0, 4, 4]) < 0.9 * dens.get([0, 4, 4]));
+}
+
+fn grid_bytes(g: &SparseGrid<f32>) -> Vec<u8> {
+    let mut out = Vec::new();
+    for l in &g.leaves {
+        for o in l.origin {
+            out.extend(o.to_le_bytes());
+        }
+        for m in l.mask {
+            out.extend(m.to_le_bytes());
+        }
+        for v in l.values.iter() {
+            out.extend(v.to_bits().to_le_bytes());
+        }
+    }
+    out
+}
+
+#[test]
+fn splat_is_identical_with_one_and_two_threads() {
+    let size = [12.0, 10.0, 14.0];
+    let st = random_state(3000, size, 7);
+    let p = params(size, 0.5, 0.4, [true, true]);
+    let run = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| splat(&st, &p).unwrap())
+    };
+    let a = run(1);
+    let b = run(2);
+    let c = run(2);
+    for (x, y) in [(&a, &b), (&b, &c)] {
+        for (ga, gb) in [
+            (&x.density, &y.density),
+            (&x.temperature, &y.temperature),
+            (&x.vapor, &y.vapor),
+        ] {
+            assert_eq!(
+                grid_bytes(ga.as_ref().unwrap()),
+                grid_bytes(gb.as_ref().unwrap())
+            );
+        }
+        assert_eq!(x.velocity, y.velocity);
+    }
+    // Leaves sorted, unique, none empty.
+    let g = a.density.unwrap();
+    assert!(g.leaves.windows(2).all(|w| w[0].origin < w[1].origin));
+    assert!(g.leaves.iter().all(|l| l.active_count() > 0));
+}
+
+#[test]
+fn voxels_match_brute_force_sums() {
+    let size = [10.0, 8.0, 9.0];
+    let st = random_state(800, size, 11);
+    let mut p = params(size, 0.6, 0.5, [true, true]);
+    p.threshold = 1e-7;
+    let g = splat(&st, &p).unwrap();
+    let (dens, temp, vap, vel) = (
+        g.density.unwrap(),
+        g.temperature.unwrap(),
+        g.vapor.unwrap(),
+        g.velocity.unwrap(),
+    );
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let dims = [20, 16, 18];
+    let mut active_seen = 0;
+    for _ in 0..60 {
+        let ijk: [i32; 3] = std::array::from_fn(|a| rng.random_range(0..dims[a]));
+        let x = p.transform.index_to_world(ijk.map(|v| v as f64));
+        let (mut cov, mut sd, mut sv, mut st_, mut su) = (0.0, 0.0, 0.0, 0.0, [0.0; 3]);
+        for j in 0..st.len() {
+            let l = st.info[j][1] as f64;
+            let h = p.h0 * 2f64.powf(-l / 3.0);
+            let m = p.m0 * 2f64.powf(-l);
+            let vol = m / st.density[j] as f64;
+            let q = st.pos[j];
+            let dd = min_image([0, 1, 2].map(|a| x[a] - q[a] as f64), size, [true, true]);
+            let w = vol * poly6(dd[0] * dd[0] + dd[1] * dd[1] + dd[2] * dd[2], h);
+            cov += w;
+            sd += w * st.thermo[j][2] as f64;
+            sv += w * st.thermo[j][1] as f64;
+            st_ += w * st.thermo[j][0] as f64;
+            for (acc, u) in su.iter_mut().zip(st.vel[j]) {
+                *acc += w * u as f64;
+            }
+        }
+        let close = |a: f32, b: f64| (a as f64 - b).abs() <= 1e-5 * b.abs() + 1e-9;
+        if sd >= p.threshold && sd > 0.0 {
+            assert!(
+                close(dens.get(ijk), sd),
+                "density {ijk:?}: {} vs {sd}",
+                dens.get(ijk)
+            );
+            active_seen += 1;
+        } else {
+            assert_eq!(dens.get(ijk), 0.0);
+        }
+        assert!(close(
+            vap.get(ijk),
+            if sv >= p.threshold { sv } else { 0.0 }
+        ));
+        if cov >= p.min_coverage {
+            assert!(close(temp.get(ijk), st_ / cov), "temperature {ijk:?}");
+            let u = vel.get(ijk);
+            for c in 0..3 {
+                assert!((u[c] as f64 - su[c] / cov).abs() < 1e-5);
+            }
+        } else {
+            assert_eq!(temp.get(ijk), 0.0);
+        }
+    }
+    assert!(
+        active_seen > 10,
+        "too few active voxels sampled: {active_seen}"
+    );
+}
+
+#[test]
+fn only_touched_blocks_are_allocated() {
+    // One particle in a big domain: at most 2x2x2 leaves, and nothing when its cloud is 0 and
+    // only density is asked for.
+    let size = [200.0, 100.0, 200.0];
+    let mut st = ParticleState::default();
+    st.pos.push([100.0, 50.0, 100.0, 0.0]);
+    st.vel.push([0.0; 4]);
+    st.thermo.push([290.0, 0.0, 0.5, 0.0]);
+    st.info.push([0, 0]);
+    st.density.push(RHO0 as f32);
+    let p = params(size, 1.0, 1.0, [true, true]);
+    let g = splat(&st, &p).unwrap();
+    let dens = g.density.unwrap();
+    assert!(!dens.leaves.is_empty() && dens.leaves.len() <= 8);
+    assert!(g.stats.leaves <= 8);
+    st.thermo[0][2] = 0.0;
+    let mut p2 = p.clone();
+    p2.fields = SplatFields {
+        density: true,
+        temperature: false,
+        vapor: false,
+        velocity: false,
+    };
+    let g2 = splat(&st, &p2).unwrap();
+    assert!(g2.density.unwrap().leaves.is_empty());
+    assert!(g2.temperature.is_none() && g2.velocity.is_none());
+}
+
+#[test]
+fn bad_parameters_are_errors_not_panics() {
+    let size = [10.0, 10.0, 10.0];
+    let st = lattice(size, 1.0, |_| 0.1);
+    let mut p = params(size, 1.0, 3.0, [true, true]);
+    let e = splat(&st, &p).unwrap_err();
+    assert_eq!(e.exit_code(), 2);
+    assert!(e.to_string().contains("divide"), "{e}");
+    p.transform.voxel_size = 0.0;
+    assert!(splat(&st, &p).is_err());
+    let p = params(size, 1.0, 1.0, [true, true]);
+    let mut short = st.clone();
+    short.density.pop();
+    assert_eq!(splat(&short, &p).unwrap_err().exit_code(), 2);
+}
