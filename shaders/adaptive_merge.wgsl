@@ -2,6 +2,9 @@
 // A thread owns one cell and reads/writes only particles of the 27 cells around it; cells of
 // one colour are >= 3 cells apart (also across periodic wraps), so no two threads of a pass
 // touch the same particle and the result does not depend on thread scheduling.
+// A cell's slots are processed in rounds of `merge_round.len` (one dispatch each, in order): the
+// same sequence as one pass over the cell, but each invocation stays within lavapipe's budget
+// of 65535 loop iterations per invocation (llvmpipe silently ends longer loops).
 //!include shared/common.wgsl
 //!include shared/adaptive.wgsl
 
@@ -19,7 +22,17 @@ struct ColourPass {
 @group(0) @binding(5) var<storage, read_write> info: array<vec2<u32>>;
 @group(0) @binding(6) var<storage, read> cell_start: array<u32>;
 @group(0) @binding(7) var<storage, read_write> flags: array<u32>;
+@group(0) @binding(8) var<storage, read_write> load: array<atomic<u32>>;
 @group(1) @binding(0) var<uniform> colour: ColourPass;
+@group(2) @binding(0) var<uniform> merge_round: MergeRound;
+
+// Slots cell_start + first .. + first + len of every cell in this dispatch.
+struct MergeRound {
+    first: u32,
+    len: u32,
+    pad0: u32,
+    pad1: u32,
+}
 
 // Nearest merge-marked partner of i on the same level within h (first found wins ties), or -1.
 fn find_partner(i: u32, xi: vec3<f32>, level: u32, h: f32, c: vec3<i32>) -> i32 {
@@ -75,7 +88,9 @@ fn adaptive_merge(@builtin(global_invocation_id) gid: vec3<u32>,
     let d = vec3<i32>(grid.dims);
     let cell = u32((c.z * d.y + c.y) * d.x + c.x);
     // One thread pairs the particles of its cell in slot order (deterministic).
-    for (var i = cell_start[cell]; i < cell_start[cell + 1]; i++) {
+    let begin = cell_start[cell] + merge_round.first;
+    let end = min(begin + merge_round.len, cell_start[cell + 1]);
+    for (var i = begin; i < end; i++) {
         if (flags[i] != FLAG_MERGE) { continue; }
         let level = info[i].y;
         let xi = pos[i].xyz;
@@ -94,4 +109,26 @@ fn adaptive_merge(@builtin(global_invocation_id) gid: vec3<u32>,
         flags[i] = FLAG_MERGED;
         flags[j] = FLAG_DEAD;
     }
+}
+
+// Largest cell occupancy (load[0]) and 27-cell neighbourhood (load[1]): the host sizes the
+// merge rounds from them.
+@compute @workgroup_size(64)
+fn cell_load(@builtin(global_invocation_id) gid: vec3<u32>,
+             @builtin(num_workgroups) nwg: vec3<u32>) {
+    let c = thread_index(gid, nwg, 64u);
+    if (c >= grid.num_cells) { return; }
+    let d = grid.dims;
+    let cc = vec3<i32>(vec3<u32>(c % d.x, (c / d.x) % d.y, c / (d.x * d.y)));
+    var nb = 0u;
+    for (var dz = -1; dz <= 1; dz++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            for (var dx = -1; dx <= 1; dx++) {
+                let n = neighbor_cell(cc, vec3<i32>(dx, dy, dz), grid);
+                if (n >= 0) { nb += cell_start[n + 1] - cell_start[n]; }
+            }
+        }
+    }
+    atomicMax(&load[0], cell_start[c + 1] - cell_start[c]);
+    atomicMax(&load[1], nb);
 }

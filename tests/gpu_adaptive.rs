@@ -218,6 +218,14 @@ fn gpu_matches_mirror_on_random_inputs() {
             assert_matches_mirror(&s, &gpu, &grep, &m, &mrep);
             next_id = grep.next_id;
             host = gpu;
+            // Fresh cloud water for the next round, so it has merges and splits again.
+            for t in &mut host.thermo {
+                t[2] = match rng.random_range(0..3) {
+                    0 => rng.random_range(0.0..5e-5f32),
+                    1 => rng.random_range(2e-4..4e-4f32),
+                    _ => rng.random_range(1e-3..5e-3f32),
+                };
+            }
         }
     }
 }
@@ -254,7 +262,7 @@ fn mass_exact_and_water_conserved_over_many_rounds() {
         host = out;
         for t in &mut host.thermo {
             let total = t[1] + t[2];
-            let w = match rng.random_range(0..3) {
+            let w: f32 = match rng.random_range(0..3) {
                 0 => 0.0,
                 1 => 3e-4,
                 _ => 4e-3,
@@ -451,4 +459,32 @@ fn measure_phase_ms() {
         );
     }
     host.sort(&s.grid);
+}
+
+/// 300 particles in one cell, all marked: a single merge thread would run past lavapipe's
+/// 65535 loop iterations per invocation; the rounds keep it whole, so every particle pairs
+/// (as in the mirror) instead of the thread stopping part-way through its cell.
+#[test]
+fn crowded_cell_merges_completely() {
+    let ctx = ctx();
+    let mut s = setup(true, 400);
+    s.cfg.min_distance = 0.0;
+    let stage = s.stage(&ctx);
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let n = 300;
+    let mut host = Host {
+        pos: (0..n)
+            .map(|_| [0.41 + 0.05 * rng.random::<f32>(), 0.21 + 0.05 * rng.random::<f32>(), 0.41 + 0.05 * rng.random::<f32>(), 0.0])
+            .collect(),
+        vel: (0..n).map(|_| [0, 1, 2, 3].map(|_| rng.random_range(-1.0..1.0f32))).collect(),
+        thermo: vec![[280.0, 0.01, 0.0, 0.0]; n],
+        info: (0..n as u32).map(|id| [id, 2]).collect(),
+    };
+    host.sort(&s.grid);
+    let input = host.clone();
+    let (out, rep) = s.gpu(&ctx, &stage, &mut host, n as u32);
+    assert_eq!((rep.merges, rep.count), (150, 150), "{rep:?}");
+    assert_eq!(rep.per_level, vec![0, 150, 0, 0]);
+    let (m, mrep) = s.mirror(&input, n as u32);
+    assert_matches_mirror(&s, &out, &rep, &m, &mrep);
 }

@@ -246,6 +246,7 @@ struct ScanParams {
 struct Pipelines {
     mark: wgpu::ComputePipeline,
     merge: wgpu::ComputePipeline,
+    cell_load: wgpu::ComputePipeline,
     scan_blocks: wgpu::ComputePipeline,
     scan_add: wgpu::ComputePipeline,
     holes: wgpu::ComputePipeline,
@@ -265,6 +266,9 @@ pub struct AdaptiveStage {
     flags: wgpu::Buffer,
     hole_index: wgpu::Buffer,
     counters: wgpu::Buffer,
+    /// Largest cell occupancy and 27-cell neighbourhood (sizes the merge rounds).
+    load: wgpu::Buffer,
+    num_cells: u32,
     scan: Vec<ScanLevel>,
     colours: Vec<(ColourPass, wgpu::BindGroup)>,
 }
@@ -325,6 +329,42 @@ fn dispatch(
     pass.dispatch_workgroups(x, n_groups.div_ceil(x), 1);
 }
 
+/// Loop iterations one shader invocation may run: llvmpipe (lavapipe) ends every loop of an
+/// invocation after 65535 iterations in total, silently; stay below with a margin.
+pub const LOOP_BUDGET: u64 = 60_000;
+
+/// Slot range of one merge round (`MergeRound` in adaptive_merge.wgsl).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct MergeRound {
+    pub first: u32,
+    pub len: u32,
+    pub pad: [u32; 2],
+}
+
+/// Rounds that split every cell's merge loop so one invocation stays within [`LOOP_BUDGET`]:
+/// each slot costs at most two scans of its 27-cell neighbourhood (`max_neighbourhood`
+/// particles) plus the cell loops. Rounds run in order, so the result is the one of a single
+/// pass over each cell (the mirror's).
+pub fn merge_rounds(max_occupancy: u32, max_neighbourhood: u32) -> Result<Vec<MergeRound>> {
+    let per_slot = 2 * max_neighbourhood as u64 + 100;
+    let len = LOOP_BUDGET / per_slot;
+    if len == 0 {
+        return Err(Error::Runtime(format!(
+            "adaptive: {max_neighbourhood} particles around one grid cell are more than a merge \
+             pass can scan; lower the particle density or max_level"
+        )));
+    }
+    let len = len.min(u32::MAX as u64) as u32;
+    Ok((0..max_occupancy.div_ceil(len))
+        .map(|r| MergeRound {
+            first: r * len,
+            len,
+            pad: [0; 2],
+        })
+        .collect())
+}
+
 fn wait(ctx: &Context) -> Result<()> {
     ctx.device
         .poll(wgpu::PollType::wait_indefinitely())
@@ -357,6 +397,7 @@ impl AdaptiveStage {
         let pipes = Pipelines {
             mark: shaders::compute_pipeline(d, "adaptive_mark.wgsl", "adaptive_mark")?,
             merge: shaders::compute_pipeline(d, "adaptive_merge.wgsl", "adaptive_merge")?,
+            cell_load: shaders::compute_pipeline(d, "adaptive_merge.wgsl", "cell_load")?,
             scan_blocks: shaders::compute_pipeline(d, "adaptive_scan.wgsl", "scan_blocks")?,
             scan_add: shaders::compute_pipeline(d, "adaptive_scan.wgsl", "add_block_offsets")?,
             holes: shaders::compute_pipeline(d, "adaptive_compact.wgsl", "compact_holes")?,
@@ -371,6 +412,7 @@ impl AdaptiveStage {
         let flags = buffers::storage_zeroed::<u32>(d, "adaptive flags", cap);
         let hole_index = buffers::storage_zeroed::<u32>(d, "adaptive holes", cap);
         let counters = buffers::storage_zeroed::<u32>(d, "adaptive counters", N_COUNTERS);
+        let load = buffers::storage_zeroed::<u32>(d, "adaptive cell load", 4);
 
         // Scan levels: lengths cap, cap/256, ... down to one block.
         let mut lens = vec![cap as u32];
@@ -428,6 +470,8 @@ impl AdaptiveStage {
             flags,
             hole_index,
             counters,
+            load,
+            num_cells: grid.num_cells,
             scan,
             colours,
         })
@@ -584,24 +628,43 @@ impl AdaptiveStage {
         let levels = bind_at(d, &p.levels, 0, &[(1, &self.counters), (4, bufs.info)]);
         let groups = count.div_ceil(256);
 
-        // Phase 1 (split): marks and the split room check.
+        // Phase 1 (split): marks and the split room check; the cell load for the merge rounds.
+        let cell_load = bind_at(
+            d,
+            &p.cell_load,
+            0,
+            &[(0, bufs.grid), (6, bufs.cell_start), (8, &self.load)],
+        );
+        ctx.queue.write_buffer(&self.load, 0, &[0u8; 16]);
         let t0 = Instant::now();
         let mut enc = d.create_command_encoder(&Default::default());
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
             dispatch(&mut pass, &p.mark, &[&mark], groups);
+            dispatch(&mut pass, &p.cell_load, &[&cell_load], self.num_cells.div_ceil(64));
         }
         ctx.queue.submit([enc.finish()]);
         wait(ctx)?;
         let t1 = Instant::now();
 
-        // Phase 2 (merge): coloured passes, then the compaction of the dead slots.
+        // Phase 2 (merge): coloured passes in rounds, then the compaction of the dead slots.
+        let load: Vec<u32> = buffers::read_back(d, &ctx.queue, &self.load, 2)?;
+        let rounds = merge_rounds(load[0], load[1])?;
+        let round_groups: Vec<wgpu::BindGroup> = rounds
+            .iter()
+            .map(|r| {
+                let buf = buffers::uniform_init(d, "adaptive merge round", r);
+                bind(d, &p.merge, 2, &[&buf])
+            })
+            .collect();
         let mut enc = d.create_command_encoder(&Default::default());
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
             if count > 0 {
                 for (c, cg) in &self.colours {
-                    dispatch(&mut pass, &p.merge, &[&merge, cg], c.cells().div_ceil(64));
+                    for rg in &round_groups {
+                        dispatch(&mut pass, &p.merge, &[&merge, cg, rg], c.cells().div_ceil(64));
+                    }
                 }
             }
             self.record_scan(ctx, &mut pass, 0, count);
@@ -715,6 +778,19 @@ mod tests {
                 Err(Error::Config(_))
             ));
         }
+    }
+
+    #[test]
+    fn merge_rounds_cover_the_fullest_cell_within_budget() {
+        assert!(merge_rounds(0, 0).unwrap().is_empty());
+        for (occ, nb) in [(1, 1), (300, 300), (64, 1728), (100, 29_000)] {
+            let r = merge_rounds(occ, nb).unwrap();
+            let len = r[0].len as u64;
+            assert!(len * (2 * nb as u64 + 100) <= LOOP_BUDGET);
+            assert_eq!(r.iter().map(|x| x.first).collect::<Vec<_>>(), (0..r.len() as u32).map(|k| k * r[0].len).collect::<Vec<_>>());
+            assert!(r.last().unwrap().first + r[0].len >= occ);
+        }
+        assert!(matches!(merge_rounds(10, 40_000), Err(Error::Runtime(_))));
     }
 
     #[test]
