@@ -1,6 +1,7 @@
 //! GPU adaptive stage (split/merge) against its f64 mirror, and its invariants: exact mass,
 //! water, disjoint merges, determinism, split-then-merge round trip, full capacity.
 //! Runs on any wgpu adapter (lavapipe here): `XDG_RUNTIME_DIR=/tmp/xdg cargo test --test gpu_adaptive`.
+#![allow(clippy::needless_range_loop)] // component loops over xyz read clearer indexed
 use nimbus::config::{AdaptiveConfig, GpuConfig};
 use nimbus::gpu::{buffers, Context};
 use nimbus::sim::adaptive::{
@@ -19,7 +20,8 @@ const TOL: f64 = 1e-5;
 
 fn ctx() -> Context {
     std::env::set_var("XDG_RUNTIME_DIR", "/tmp/xdg");
-    Context::new(&GpuConfig::default()).expect("these tests need a wgpu adapter (lavapipe is enough)")
+    Context::new(&GpuConfig::default())
+        .expect("these tests need a wgpu adapter (lavapipe is enough)")
 }
 
 /// Host copy of the first `count` particles.
@@ -38,7 +40,11 @@ impl Host {
 
     /// Permutes into cell order (the stage's input contract) and returns the cell table.
     fn sort(&mut self, g: &GridParams) -> Vec<u32> {
-        let p64: Vec<[f64; 3]> = self.pos.iter().map(|p| [0, 1, 2].map(|a| p[a] as f64)).collect();
+        let p64: Vec<[f64; 3]> = self
+            .pos
+            .iter()
+            .map(|p| [0, 1, 2].map(|a| p[a] as f64))
+            .collect();
         let (order, cell_start) = build_cell_table(g, &p64);
         let perm = |v: &mut Vec<[f32; 4]>| *v = order.iter().map(|&o| v[o as usize]).collect();
         perm(&mut self.pos);
@@ -49,7 +55,10 @@ impl Host {
     }
 
     fn mass_units(&self, max_level: u32) -> u64 {
-        self.info.iter().map(|i| level_mass_units(i[1], max_level)).sum()
+        self.info
+            .iter()
+            .map(|i| level_mass_units(i[1], max_level))
+            .sum()
     }
 
     /// Sum of m (vapor + cloud), m in units of m0.
@@ -89,7 +98,13 @@ impl Setup {
     }
 
     /// Sorts `host`, runs the GPU stage, returns the live particles and the report.
-    fn gpu(&self, ctx: &Context, stage: &AdaptiveStage, host: &mut Host, next_id: u32) -> (Host, AdaptiveReport) {
+    fn gpu(
+        &self,
+        ctx: &Context,
+        stage: &AdaptiveStage,
+        host: &mut Host,
+        next_id: u32,
+    ) -> (Host, AdaptiveReport) {
         let cell_start = host.sort(&self.grid);
         let cap = self.capacity as usize;
         let d = &ctx.device;
@@ -126,8 +141,14 @@ impl Setup {
         let mut h = host.clone();
         let cell_start = h.sort(&self.grid);
         assert_eq!(&h, host, "mirror input must already be sorted");
-        let mut p = RefParticles::from_f32(&h.pos, &h.vel, &h.thermo, &h.info, self.capacity as usize);
-        let rep = mirror::run(&self.grid, &self.params(h.len() as u32, next_id), &cell_start, &mut p);
+        let mut p =
+            RefParticles::from_f32(&h.pos, &h.vel, &h.thermo, &h.info, self.capacity as usize);
+        let rep = mirror::run(
+            &self.grid,
+            &self.params(h.len() as u32, next_id),
+            &cell_start,
+            &mut p,
+        );
         (p, rep)
     }
 
@@ -154,13 +175,19 @@ fn random_host(rng: &mut ChaCha8Rng, n: usize, g: &GridParams) -> Host {
             rng.random::<f32>() * size[2],
             0.0,
         ]);
-        h.vel.push([0, 1, 2, 3].map(|_| rng.random_range(-1.0..1.0f32)));
+        h.vel
+            .push([0, 1, 2, 3].map(|_| rng.random_range(-1.0..1.0f32)));
         let w = match rng.random_range(0..3) {
             0 => rng.random_range(0.0..5e-5f32),
             1 => rng.random_range(2e-4..4e-4f32),
             _ => rng.random_range(1e-3..5e-3f32),
         };
-        h.thermo.push([rng.random_range(250.0..300.0f32), rng.random_range(0.0..0.02f32), w, 0.0]);
+        h.thermo.push([
+            rng.random_range(250.0..300.0f32),
+            rng.random_range(0.0..0.02f32),
+            w,
+            0.0,
+        ]);
         h.info.push([id, rng.random_range(0..=3)]);
     }
     h
@@ -177,7 +204,13 @@ fn setup(periodic: bool, capacity: u32) -> Setup {
     }
 }
 
-fn assert_matches_mirror(s: &Setup, gpu: &Host, grep: &AdaptiveReport, m: &RefParticles, mrep: &AdaptiveReport) {
+fn assert_matches_mirror(
+    s: &Setup,
+    gpu: &Host,
+    grep: &AdaptiveReport,
+    m: &RefParticles,
+    mrep: &AdaptiveReport,
+) {
     let strip = |r: &AdaptiveReport| AdaptiveReport {
         phase_ms: Default::default(),
         ..r.clone()
@@ -191,12 +224,22 @@ fn assert_matches_mirror(s: &Setup, gpu: &Host, grep: &AdaptiveReport, m: &RefPa
             if (a == 0 && s.grid.periodic_x()) || (a == 2 && s.grid.periodic_z()) {
                 d = d.min(size[a] as f64 - d);
             }
-            assert!(d < TOL, "pos of slot {i}: {:?} vs {:?}", gpu.pos[i], m.pos[i]);
+            assert!(
+                d < TOL,
+                "pos of slot {i}: {:?} vs {:?}",
+                gpu.pos[i],
+                m.pos[i]
+            );
         }
         for a in 0..4 {
             let close = |x: f32, y: f64| (x as f64 - y).abs() <= TOL * (1.0 + y.abs());
             assert!(close(gpu.vel[i][a], m.vel[i][a]), "vel of slot {i}");
-            assert!(close(gpu.thermo[i][a], m.thermo[i][a]), "thermo of slot {i}: {:?} vs {:?}", gpu.thermo[i], m.thermo[i]);
+            assert!(
+                close(gpu.thermo[i][a], m.thermo[i][a]),
+                "thermo of slot {i}: {:?} vs {:?}",
+                gpu.thermo[i],
+                m.thermo[i]
+            );
         }
     }
 }
@@ -214,7 +257,10 @@ fn gpu_matches_mirror_on_random_inputs() {
         for round in 0..2 {
             let (gpu, grep) = s.gpu(&ctx, &stage, &mut host, next_id);
             let (m, mrep) = s.mirror(&host, next_id);
-            assert!(grep.merges > 20 && grep.splits > 20, "seed {seed} round {round}: {grep:?}");
+            assert!(
+                grep.merges > 20 && grep.splits > 20,
+                "seed {seed} round {round}: {grep:?}"
+            );
             assert_matches_mirror(&s, &gpu, &grep, &m, &mrep);
             next_id = grep.next_id;
             host = gpu;
@@ -251,10 +297,16 @@ fn mass_exact_and_water_conserved_over_many_rounds() {
             .collect();
         assert_eq!(rep.per_level, per_level);
         let ids = out.sorted_ids();
-        assert!(ids.windows(2).all(|w| w[0] < w[1]), "duplicate ids in round {round}");
+        assert!(
+            ids.windows(2).all(|w| w[0] < w[1]),
+            "duplicate ids in round {round}"
+        );
         assert!(ids.iter().all(|&id| id < rep.next_id));
         let water = out.water();
-        assert!((water - water0).abs() <= 1e-6 * water0, "round {round}: water {water} vs {water0}");
+        assert!(
+            (water - water0).abs() <= 1e-6 * water0,
+            "round {round}: water {water} vs {water0}"
+        );
         splits += rep.splits;
         merges += rep.merges;
         next_id = rep.next_id;
@@ -278,7 +330,10 @@ fn mass_exact_and_water_conserved_over_many_rounds() {
             }
         }
     }
-    assert!(splits > 500 && merges > 500, "splits {splits} merges {merges}");
+    assert!(
+        splits > 500 && merges > 500,
+        "splits {splits} merges {merges}"
+    );
 }
 
 /// Every particle at level 2 wants to merge, packed densely: each particle takes part in at
@@ -304,7 +359,9 @@ fn dense_cluster_merges_are_disjoint_and_repeatable() {
             })
             .collect(),
         // Distinct random velocities identify the partners of each merge.
-        vel: (0..n).map(|_| [0, 1, 2, 3].map(|_| rng.random_range(-1.0..1.0f32))).collect(),
+        vel: (0..n)
+            .map(|_| [0, 1, 2, 3].map(|_| rng.random_range(-1.0..1.0f32)))
+            .collect(),
         thermo: (0..n).map(|_| [280.0, 0.01, 0.0, 0.0]).collect(),
         info: (0..n as u32).map(|id| [id, 2]).collect(),
     };
@@ -339,7 +396,9 @@ fn dense_cluster_merges_are_disjoint_and_repeatable() {
         assert_eq!(inf[1], 1);
         products += 1;
         // The partner: a vanished particle with v_j = 2 v - v_i and a larger id.
-        let want: Vec<f32> = (0..3).map(|c| 2.0 * a.vel[k][c] - input.vel[i][c]).collect();
+        let want: Vec<f32> = (0..3)
+            .map(|c| 2.0 * a.vel[k][c] - input.vel[i][c])
+            .collect();
         let hits: Vec<usize> = vanished
             .iter()
             .enumerate()
@@ -350,7 +409,11 @@ fn dense_cluster_merges_are_disjoint_and_repeatable() {
             .map(|(x, _)| x)
             .collect();
         assert_eq!(hits.len(), 1, "product {} has no unique partner", inf[0]);
-        assert!(!used[hits[0]], "particle {} merged twice", vanished[hits[0]]);
+        assert!(
+            !used[hits[0]],
+            "particle {} merged twice",
+            vanished[hits[0]]
+        );
         assert!(vanished[hits[0]] > inf[0]);
         used[hits[0]] = true;
         let j = by_id(vanished[hits[0]]);
@@ -370,7 +433,10 @@ fn dense_cluster_merges_are_disjoint_and_repeatable() {
 #[test]
 fn split_then_merge_restores_isolated_particle() {
     let ctx = ctx();
-    for (x, id, level) in [([0.43f32, 0.31, 0.57], 7u32, 0u32), ([0.999, 0.2, 0.001], 123, 2)] {
+    for (x, id, level) in [
+        ([0.43f32, 0.31, 0.57], 7u32, 0u32),
+        ([0.999, 0.2, 0.001], 123, 2),
+    ] {
         let mut s = setup(true, 8);
         s.cfg.split_threshold = -1.0;
         s.cfg.merge_threshold = -2.0;
@@ -395,7 +461,12 @@ fn split_then_merge_restores_isolated_particle() {
         assert_eq!(&merged.thermo[0][..3], &orig.thermo[0][..3]);
         assert!((merged.thermo[0][3] - e).abs() < 1e-6);
         for a in 0..3 {
-            assert!((merged.pos[0][a] - orig.pos[0][a]).abs() < 1e-6, "{:?} vs {:?}", merged.pos, orig.pos);
+            assert!(
+                (merged.pos[0][a] - orig.pos[0][a]).abs() < 1e-6,
+                "{:?} vs {:?}",
+                merged.pos,
+                orig.pos
+            );
         }
     }
 }
@@ -411,7 +482,16 @@ fn full_capacity_skips_and_counts_splits() {
         let stage = s.stage(&ctx);
         // Isolated particles (0.15 m apart), all with dense cloud.
         let mut host = Host {
-            pos: (0..n).map(|k| [0.05 + 0.15 * (k % 6) as f32, 0.1 + 0.15 * ((k / 6) % 3) as f32, 0.05 + 0.3 * (k / 18) as f32, 0.0]).collect(),
+            pos: (0..n)
+                .map(|k| {
+                    [
+                        0.05 + 0.15 * (k % 6) as f32,
+                        0.1 + 0.15 * ((k / 6) % 3) as f32,
+                        0.05 + 0.3 * (k / 18) as f32,
+                        0.0,
+                    ]
+                })
+                .collect(),
             vel: vec![[0.0; 4]; n],
             thermo: vec![[280.0, 0.01, 0.01, 0.0]; n],
             info: (0..n as u32).map(|id| [id, 0]).collect(),
@@ -438,7 +518,7 @@ fn full_capacity_skips_and_counts_splits() {
 }
 
 /// Phase timings of one run on 100k random particles (a measurement, not a test):
-/// `XDG_RUNTIME_DIR=/tmp/xdg cargo test --release --test gpu_adaptive -- --ignored --nocapture`
+/// `XDG_RUNTIME_DIR=/tmp/xdg cargo test --test gpu_adaptive measure_phase_ms -- --ignored --nocapture`
 #[test]
 #[ignore]
 fn measure_phase_ms() {
@@ -455,7 +535,11 @@ fn measure_phase_ms() {
         let (out, rep) = s.gpu(&ctx, &stage, &mut host.clone(), 100_000);
         println!(
             "adaptive 100k: split {:.2} ms, merge {:.2} ms ({} splits, {} merges, count {})",
-            rep.phase_ms.split, rep.phase_ms.merge, rep.splits, rep.merges, out.len()
+            rep.phase_ms.split,
+            rep.phase_ms.merge,
+            rep.splits,
+            rep.merges,
+            out.len()
         );
     }
     host.sort(&s.grid);
@@ -474,9 +558,18 @@ fn crowded_cell_merges_completely() {
     let n = 300;
     let mut host = Host {
         pos: (0..n)
-            .map(|_| [0.41 + 0.05 * rng.random::<f32>(), 0.21 + 0.05 * rng.random::<f32>(), 0.41 + 0.05 * rng.random::<f32>(), 0.0])
+            .map(|_| {
+                [
+                    0.41 + 0.05 * rng.random::<f32>(),
+                    0.21 + 0.05 * rng.random::<f32>(),
+                    0.41 + 0.05 * rng.random::<f32>(),
+                    0.0,
+                ]
+            })
             .collect(),
-        vel: (0..n).map(|_| [0, 1, 2, 3].map(|_| rng.random_range(-1.0..1.0f32))).collect(),
+        vel: (0..n)
+            .map(|_| [0, 1, 2, 3].map(|_| rng.random_range(-1.0..1.0f32)))
+            .collect(),
         thermo: vec![[280.0, 0.01, 0.0, 0.0]; n],
         info: (0..n as u32).map(|id| [id, 2]).collect(),
     };
@@ -487,4 +580,44 @@ fn crowded_cell_merges_completely() {
     assert_eq!(rep.per_level, vec![0, 150, 0, 0]);
     let (m, mrep) = s.mirror(&input, n as u32);
     assert_matches_mirror(&s, &out, &rep, &m, &mrep);
+}
+
+/// No particles: a clean no-op with an all-zero report, and count > capacity is an error.
+#[test]
+fn empty_input_and_bad_count() {
+    let ctx = ctx();
+    let s = setup(true, 16);
+    let stage = s.stage(&ctx);
+    let mut empty = Host {
+        pos: vec![],
+        vel: vec![],
+        thermo: vec![],
+        info: vec![],
+    };
+    let (out, rep) = s.gpu(&ctx, &stage, &mut empty, 3);
+    assert_eq!(out.len(), 0);
+    assert_eq!(
+        (
+            rep.count,
+            rep.splits,
+            rep.merges,
+            rep.mass_units,
+            rep.next_id
+        ),
+        (0, 0, 0, 0, 3)
+    );
+    assert_eq!(rep.per_level, vec![0; 4]);
+    let b = buffers::storage_zeroed::<[f32; 4]>(&ctx.device, "b", 16);
+    let bufs = AdaptiveBuffers {
+        grid: &buffers::uniform_init(&ctx.device, "g", &s.grid),
+        pos: &b,
+        vel: &b,
+        thermo: &b,
+        info: &b,
+        cell_start: &b,
+    };
+    assert!(matches!(
+        stage.run(&ctx, &bufs, 17, 0),
+        Err(nimbus::Error::InvalidInput(_))
+    ));
 }

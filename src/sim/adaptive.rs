@@ -139,7 +139,7 @@ impl ColourPass {
 }
 
 /// Classes of one axis: `(start, count)` with cells start, start + 3, ... Cells of a class are
-/// >= 3 apart. On a periodic axis whose cell count is not a multiple of 3, the last one or two
+/// at least 3 apart. On a periodic axis whose cell count is not a multiple of 3, the last one or two
 /// cells get classes of their own, so no class has cells adjacent across the wrap.
 fn axis_classes(dim: u32, periodic: bool) -> Vec<(u32, u32)> {
     let mut v = Vec::new();
@@ -383,7 +383,11 @@ impl AdaptiveStage {
         capacity: u32,
     ) -> Result<Self> {
         let params = AdaptiveParams::new(cfg, h0, capacity)?;
-        if let Some(edge) = grid.cell_size.iter().find(|&&e| e < h0 as f32 * (1.0 - 1e-6)) {
+        if let Some(edge) = grid
+            .cell_size
+            .iter()
+            .find(|&&e| e < h0 as f32 * (1.0 - 1e-6))
+        {
             return Err(Error::Config(format!(
                 "domain: grid cells ({edge}) are smaller than the kernel radius {h0}"
             )));
@@ -426,7 +430,11 @@ impl AdaptiveStage {
         let sums: Vec<wgpu::Buffer> = lens
             .iter()
             .map(|&n| {
-                buffers::storage_zeroed::<u32>(d, "adaptive scan sums", n.div_ceil(SCAN_BLOCK) as usize)
+                buffers::storage_zeroed::<u32>(
+                    d,
+                    "adaptive scan sums",
+                    n.div_ceil(SCAN_BLOCK) as usize,
+                )
             })
             .collect();
         let zero = ScanParams {
@@ -440,7 +448,12 @@ impl AdaptiveStage {
             let params: [wgpu::Buffer; 2] =
                 std::array::from_fn(|_| buffers::uniform_init(d, "adaptive scan params", &zero));
             let blocks = std::array::from_fn(|s| {
-                bind(d, &pipes.scan_blocks, 0, &[&params[s], input, &outs[k], &sums[k]])
+                bind(
+                    d,
+                    &pipes.scan_blocks,
+                    0,
+                    &[&params[s], input, &outs[k], &sums[k]],
+                )
             });
             let add = (k + 1 < lens.len()).then(|| {
                 std::array::from_fn(|s| {
@@ -508,7 +521,10 @@ impl AdaptiveStage {
             );
         }
         for k in (0..ns.len() - 1).rev() {
-            let add = self.scan[k].add.as_ref().expect("level below the top has an add");
+            let add = self.scan[k]
+                .add
+                .as_ref()
+                .expect("level below the top has an add");
             dispatch(
                 pass,
                 &self.pipes.scan_add,
@@ -641,7 +657,12 @@ impl AdaptiveStage {
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
             dispatch(&mut pass, &p.mark, &[&mark], groups);
-            dispatch(&mut pass, &p.cell_load, &[&cell_load], self.num_cells.div_ceil(64));
+            dispatch(
+                &mut pass,
+                &p.cell_load,
+                &[&cell_load],
+                self.num_cells.div_ceil(64),
+            );
         }
         ctx.queue.submit([enc.finish()]);
         wait(ctx)?;
@@ -663,7 +684,12 @@ impl AdaptiveStage {
             if count > 0 {
                 for (c, cg) in &self.colours {
                     for rg in &round_groups {
-                        dispatch(&mut pass, &p.merge, &[&merge, cg, rg], c.cells().div_ceil(64));
+                        dispatch(
+                            &mut pass,
+                            &p.merge,
+                            &[&merge, cg, rg],
+                            c.cells().div_ceil(64),
+                        );
                     }
                 }
             }
@@ -722,7 +748,14 @@ mod tests {
     /// of each other, wrap included (so their 27-cell neighbourhoods are disjoint).
     #[test]
     fn colour_passes_cover_once_and_never_touch() {
-        for want in [[3, 3, 3], [4, 5, 7], [10, 4, 11], [5, 2, 8], [1, 1, 1], [6, 6, 6]] {
+        for want in [
+            [3, 3, 3],
+            [4, 5, 7],
+            [10, 4, 11],
+            [5, 2, 8],
+            [1, 1, 1],
+            [6, 6, 6],
+        ] {
             for (px, pz) in [(true, true), (false, false), (true, false)] {
                 if (px && want[0] < 3) || (pz && want[2] < 3) {
                     continue;
@@ -787,7 +820,12 @@ mod tests {
             let r = merge_rounds(occ, nb).unwrap();
             let len = r[0].len as u64;
             assert!(len * (2 * nb as u64 + 100) <= LOOP_BUDGET);
-            assert_eq!(r.iter().map(|x| x.first).collect::<Vec<_>>(), (0..r.len() as u32).map(|k| k * r[0].len).collect::<Vec<_>>());
+            assert_eq!(
+                r.iter().map(|x| x.first).collect::<Vec<_>>(),
+                (0..r.len() as u32)
+                    .map(|k| k * r[0].len)
+                    .collect::<Vec<_>>()
+            );
             assert!(r.last().unwrap().first + r[0].len >= occ);
         }
         assert!(matches!(merge_rounds(10, 40_000), Err(Error::Runtime(_))));

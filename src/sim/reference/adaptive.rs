@@ -134,7 +134,13 @@ fn for_slots(g: &GridParams, cell_start: &[u32], c: [i32; 3], mut f: impl FnMut(
     }
 }
 
-fn children(g: &GridParams, prm: &AdaptiveParams, x: [f64; 3], id: u32, level: u32) -> [[f64; 3]; 2] {
+fn children(
+    g: &GridParams,
+    prm: &AdaptiveParams,
+    x: [f64; 3],
+    id: u32,
+    level: u32,
+) -> [[f64; 3]; 2] {
     let hc = level_radius(prm.h0 as f64, level + 1);
     let d = split_dir(id);
     let r = prm.split_offset as f64 * hc;
@@ -174,6 +180,7 @@ fn split_fits(
 }
 
 /// Shape energy and marks (adaptive_mark.wgsl).
+#[allow(clippy::needless_range_loop)] // indexed like the shader: split_fits reads all of `p`
 pub fn adaptive_mark(
     g: &GridParams,
     prm: &AdaptiveParams,
@@ -211,7 +218,9 @@ pub fn adaptive_merge(
     let h0 = prm.h0 as f64;
     for t in 0..colour.cells() {
         let c = colour.cell(t);
-        let cell = g.neighbor_cell(c, [0, 0, 0]).expect("colour cells are inside") as usize;
+        let cell = g
+            .neighbor_cell(c, [0, 0, 0])
+            .expect("colour cells are inside") as usize;
         for i in cell_start[cell] as usize..cell_start[cell + 1] as usize {
             if flags[i] != FLAG_MERGE {
                 continue;
@@ -233,7 +242,11 @@ pub fn adaptive_merge(
             let Some(j) = best else { continue };
             let dj = mi(sub(xyz(p.pos[j]), xi), g);
             let m = wrap_pos(
-                [xi[0] + 0.5 * dj[0], xi[1] + 0.5 * dj[1], xi[2] + 0.5 * dj[2]],
+                [
+                    xi[0] + 0.5 * dj[0],
+                    xi[1] + 0.5 * dj[1],
+                    xi[2] + 0.5 * dj[2],
+                ],
                 g,
             );
             let r = prm.min_distance as f64 * level_radius(h0, level - 1);
@@ -432,14 +445,25 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let n = 1500;
         let pos: Vec<[f64; 3]> = (0..n)
-            .map(|_| [rng.random::<f64>(), 0.05 + 0.55 * rng.random::<f64>(), 1.1 * rng.random::<f64>()])
+            .map(|_| {
+                [
+                    rng.random::<f64>(),
+                    0.05 + 0.55 * rng.random::<f64>(),
+                    1.1 * rng.random::<f64>(),
+                ]
+            })
             .collect();
         let (order, cell_start) = build_cell_table(&g, &pos);
         let mut p = RefParticles::from_f32(&[], &[], &[], &[], 2 * n);
         for (k, &o) in order.iter().enumerate() {
             let x = pos[o as usize];
             p.pos[k] = [x[0], x[1], x[2], 0.0];
-            p.thermo[k] = [280.0, 0.01, if rng.random::<bool>() { 0.0 } else { 0.01 }, 0.0];
+            p.thermo[k] = [
+                280.0,
+                0.01,
+                if rng.random::<bool>() { 0.0 } else { 0.01 },
+                0.0,
+            ];
             p.info[k] = [o, rng.random_range(0..=3)];
         }
         let cfg = AdaptiveConfig::default();
