@@ -23,7 +23,9 @@ fn collect(dir: &Path, root: &Path, out: &mut Vec<String>) {
 }
 
 fn main() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("shaders");
+    // Read at run time: a build script compiled in another checkout must not scan that one.
+    let manifest = env::var("CARGO_MANIFEST_DIR").unwrap();
+    let root = Path::new(&manifest).join("shaders");
     println!("cargo:rerun-if-changed=shaders");
     let mut files = Vec::new();
     collect(&root, &root, &mut files);

@@ -301,6 +301,9 @@ pub struct AdaptiveConfig {
     pub capacity_factor: f64,
     /// No split/merge product may come closer than this fraction of its kernel radius to others.
     pub min_distance: f64,
+    /// Split children sit at +-split_offset * h_child from the parent (fraction of the
+    /// child's kernel radius; 0.25 puts them one rest spacing apart at kernel_ratio 2).
+    pub split_offset: f64,
 }
 impl Default for AdaptiveConfig {
     fn default() -> Self {
@@ -313,6 +316,7 @@ impl Default for AdaptiveConfig {
             merge_threshold: 0.1,
             capacity_factor: 2.0,
             min_distance: 0.3,
+            split_offset: 0.25,
         }
     }
 }

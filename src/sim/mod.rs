@@ -7,6 +7,7 @@
 //!   `thermo`: (temperature K, vapor, cloud, shape energy), `info`: (id, level);
 //! - level l gives h = h0 * 2^(-l/3) and m = m0 * 2^(-l);
 //! - boundary particles (floor and ceiling walls) live in their own static arrays.
+pub mod adaptive;
 pub mod grid_params;
 pub mod reference;
 

@@ -1,3 +1,4 @@
 //! f64 CPU mirrors of the GPU stages, same names as the shaders; used by tests.
+pub mod adaptive;
 pub mod grid;
 pub mod kernels;

@@ -1,0 +1,38 @@
+// Adaptive stage 4: split (paper section 5.2.1). A marked particle becomes two children of
+// level l+1 at x +- split_offset * h_child * dir(id); the first reuses its slot and id, the
+// second goes to newcount + (its rank in the scan of split marks) with id next_id + rank.
+// Ranks beyond the free capacity are skipped (counted by totals_split).
+//!include shared/common.wgsl
+//!include shared/adaptive.wgsl
+
+@group(0) @binding(0) var<uniform> grid: GridParams;
+@group(0) @binding(1) var<uniform> params: AdaptiveParams;
+@group(0) @binding(2) var<storage, read> counters: array<u32>;
+// Exclusive scan of the split marks.
+@group(0) @binding(3) var<storage, read> scan: array<u32>;
+@group(0) @binding(4) var<storage, read> flags: array<u32>;
+@group(0) @binding(5) var<storage, read_write> pos: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read_write> vel: array<vec4<f32>>;
+@group(0) @binding(7) var<storage, read_write> thermo: array<vec4<f32>>;
+@group(0) @binding(8) var<storage, read_write> info: array<vec2<u32>>;
+
+@compute @workgroup_size(256)
+fn adaptive_split(@builtin(global_invocation_id) gid: vec3<u32>,
+                  @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = thread_index(gid, nwg, 256u);
+    let newcount = counters[C_NEWCOUNT];
+    if (i >= params.count || i >= newcount || (flags[i] & FLAG_SPLIT) == 0u) { return; }
+    let k = scan[i];
+    if (k >= counters[C_SPLITS]) { return; }
+    let slot = newcount + k;
+    let p = pos[i];
+    let inf = info[i];
+    let hc = level_radius(params.h0, inf.y + 1u);
+    let off = (params.split_offset * hc) * split_dir(inf.x);
+    pos[i] = vec4<f32>(wrap_pos(p.xyz + off, grid), p.w);
+    pos[slot] = vec4<f32>(wrap_pos(p.xyz - off, grid), p.w);
+    vel[slot] = vel[i];
+    thermo[slot] = thermo[i];
+    info[i] = vec2<u32>(inf.x, inf.y + 1u);
+    info[slot] = vec2<u32>(params.next_id + k, inf.y + 1u);
+}
