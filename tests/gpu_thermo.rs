@@ -31,7 +31,9 @@ fn shot() -> ShotConfig {
 }
 
 fn vec4(v: &[[f64; 3]]) -> Vec<[f32; 4]> {
-    v.iter().map(|p| [p[0] as f32, p[1] as f32, p[2] as f32, 0.0]).collect()
+    v.iter()
+        .map(|p| [p[0] as f32, p[1] as f32, p[2] as f32, 0.0])
+        .collect()
 }
 
 struct ThermoRun {
@@ -68,7 +70,11 @@ fn gpu_thermo(
     }
 }
 
-fn random_thermo_state(n: usize, seed: u64, cfg: &ShotConfig) -> (Vec<[f32; 4]>, Vec<[f32; 4]>, Vec<[f32; 4]>) {
+fn random_thermo_state(
+    n: usize,
+    seed: u64,
+    cfg: &ShotConfig,
+) -> (Vec<[f32; 4]>, Vec<[f32; 4]>, Vec<[f32; 4]>) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let s = cfg.domain.size;
     let mut pos = Vec::new();
@@ -81,7 +87,12 @@ fn random_thermo_state(n: usize, seed: u64, cfg: &ShotConfig) -> (Vec<[f32; 4]>,
         } else {
             rng.random_range(0.0..s[1])
         };
-        pos.push([rng.random_range(0.0..s[0]) as f32, y as f32, rng.random_range(0.0..s[2]) as f32, 0.0]);
+        pos.push([
+            rng.random_range(0.0..s[0]) as f32,
+            y as f32,
+            rng.random_range(0.0..s[2]) as f32,
+            0.0,
+        ]);
         vel.push([
             rng.random_range(-1.0..1.0f32),
             rng.random_range(-6.0..6.0f32),
@@ -91,7 +102,11 @@ fn random_thermo_state(n: usize, seed: u64, cfg: &ShotConfig) -> (Vec<[f32; 4]>,
         let base = initial_thermo(&cfg.physics, y);
         // Temperatures around the environment, vapor from 0.2 to 2.5 times the initial value,
         // cloud in half of them: both condensation and evaporation happen.
-        let cloud = if rng.random_bool(0.5) { rng.random_range(0.0..0.004f32) } else { 0.0 };
+        let cloud = if rng.random_bool(0.5) {
+            rng.random_range(0.0..0.004f32)
+        } else {
+            0.0
+        };
         th.push([
             base[0] + rng.random_range(-4.0..4.0f32),
             base[1] * rng.random_range(0.2..2.5f32),
@@ -112,17 +127,38 @@ fn thermo_step_matches_mirror() {
     let params = ThermoParams::new(&cfg, n as u32, 2.0, 137.0);
     let out = gpu_thermo(&ctx, &stage, &[params], &pos, &vel, &th);
 
-    let pos64: Vec<[f64; 3]> = pos.iter().map(|p| [p[0] as f64, p[1] as f64, p[2] as f64]).collect();
-    let mut vel64: Vec<[f64; 3]> = vel.iter().map(|v| [v[0] as f64, v[1] as f64, v[2] as f64]).collect();
+    let pos64: Vec<[f64; 3]> = pos
+        .iter()
+        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
+        .collect();
+    let mut vel64: Vec<[f64; 3]> = vel
+        .iter()
+        .map(|v| [v[0] as f64, v[1] as f64, v[2] as f64])
+        .collect();
     let mut th64: Vec<[f64; 4]> = th.iter().map(|t| t.map(|v| v as f64)).collect();
     thermo_step(&params, &pos64, &mut vel64, &mut th64);
 
     let (mut heated, mut condensed, mut evaporated) = (0, 0, 0);
     for i in 0..n {
         let (g, m) = (out.thermo[i], th64[i]);
-        assert!((g[0] as f64 - m[0]).abs() < 2e-3, "T {i}: {} vs {}", g[0], m[0]);
-        assert!((g[1] as f64 - m[1]).abs() < 1e-8, "v {i}: {} vs {}", g[1], m[1]);
-        assert!((g[2] as f64 - m[2]).abs() < 1e-8, "w {i}: {} vs {}", g[2], m[2]);
+        assert!(
+            (g[0] as f64 - m[0]).abs() < 2e-3,
+            "T {i}: {} vs {}",
+            g[0],
+            m[0]
+        );
+        assert!(
+            (g[1] as f64 - m[1]).abs() < 1e-8,
+            "v {i}: {} vs {}",
+            g[1],
+            m[1]
+        );
+        assert!(
+            (g[2] as f64 - m[2]).abs() < 1e-8,
+            "w {i}: {} vs {}",
+            g[2],
+            m[2]
+        );
         assert_eq!(g[3], th[i][3], "shape energy is not ours to change");
         assert!((out.vel[i][1] as f64 - vel64[i][1]).abs() < 1e-5, "u_y {i}");
         assert_eq!([out.vel[i][0], out.vel[i][2]], [vel[i][0], vel[i][2]]);
@@ -130,7 +166,10 @@ fn thermo_step_matches_mirror() {
         condensed += (m[2] > th[i][2] as f64) as usize;
         evaporated += (m[2] < th[i][2] as f64) as usize;
     }
-    assert!(heated > 100 && condensed > 100 && evaporated > 100, "{heated} {condensed} {evaporated}");
+    assert!(
+        heated > 100 && condensed > 100 && evaporated > 100,
+        "{heated} {condensed} {evaporated}"
+    );
 }
 
 /// Fifty steps on the GPU: v + w per particle kept to f32 rounding, never negative, and the
@@ -148,14 +187,23 @@ fn gpu_phase_transition_conserves_water_and_is_deterministic() {
         .collect();
     let a = gpu_thermo(&ctx, &stage, &params, &pos, &vel, &th);
     let b = gpu_thermo(&ctx, &stage, &params, &pos, &vel, &th);
-    assert_eq!(bytemuck::cast_slice::<_, u8>(&a.thermo), bytemuck::cast_slice::<_, u8>(&b.thermo));
-    assert_eq!(bytemuck::cast_slice::<_, u8>(&a.vel), bytemuck::cast_slice::<_, u8>(&b.vel));
+    assert_eq!(
+        bytemuck::cast_slice::<_, u8>(&a.thermo),
+        bytemuck::cast_slice::<_, u8>(&b.thermo)
+    );
+    assert_eq!(
+        bytemuck::cast_slice::<_, u8>(&a.vel),
+        bytemuck::cast_slice::<_, u8>(&b.vel)
+    );
     let (mut total0, mut total1) = (0.0f64, 0.0f64);
     for i in 0..n {
         let s0 = th[i][1] + th[i][2];
         let s1 = a.thermo[i][1] + a.thermo[i][2];
         // Each step may round v + w by half an ulp: 50 steps, a few ulp at most.
-        assert!((s1 - s0).abs() <= 50.0 * f32::EPSILON * s0, "{i}: {s0} -> {s1}");
+        assert!(
+            (s1 - s0).abs() <= 50.0 * f32::EPSILON * s0,
+            "{i}: {s0} -> {s1}"
+        );
         assert!(a.thermo[i][1] >= 0.0 && a.thermo[i][2] >= 0.0);
         total0 += s0 as f64;
         total1 += s1 as f64;
@@ -172,9 +220,19 @@ fn gpu_nothing_condenses_without_heating() {
     let stage = ThermoStage::new(&ctx, &cfg).unwrap();
     let n = 1000;
     let pos: Vec<[f32; 4]> = (0..n)
-        .map(|k| [(k * 37 % 2000) as f32, (k * 3) as f32, (k * 53 % 1600) as f32, 0.0])
+        .map(|k| {
+            [
+                (k * 37 % 2000) as f32,
+                (k * 3) as f32,
+                (k * 53 % 1600) as f32,
+                0.0,
+            ]
+        })
         .collect();
-    let th: Vec<[f32; 4]> = pos.iter().map(|p| initial_thermo(&cfg.physics, p[1] as f64)).collect();
+    let th: Vec<[f32; 4]> = pos
+        .iter()
+        .map(|p| initial_thermo(&cfg.physics, p[1] as f64))
+        .collect();
     let vel = vec![[0.0f32; 4]; n];
     let params: Vec<ThermoParams> = (0..100)
         .map(|k| ThermoParams::new(&cfg, n as u32, 2.0, k as f64 * 2.0))
@@ -216,7 +274,11 @@ fn scene(seed: u64) -> Scene {
                 let jit = [0, 1, 2].map(|_| rng.random_range(-0.3..0.3) * d);
                 // Wrap jittered x and z into the periodic box.
                 // Rounded to f32 first, so the CPU cell table matches the positions the GPU reads.
-                let q = [(p[0] + jit[0]).rem_euclid(size[0]), p[1] + jit[1], (p[2] + jit[2]).rem_euclid(size[2])];
+                let q = [
+                    (p[0] + jit[0]).rem_euclid(size[0]),
+                    p[1] + jit[1],
+                    (p[2] + jit[2]).rem_euclid(size[2]),
+                ];
                 pos.push(q.map(|v| v as f32 as f64));
                 level.push(rng.random_range(0..3u32));
                 temp.push(rng.random_range(280.0..300.0));
@@ -226,7 +288,12 @@ fn scene(seed: u64) -> Scene {
     let mut bpos = Vec::new();
     for i in 0..dims[0] {
         for k in 0..dims[2] {
-            for (y, t) in [(-0.5 * d, 297.0), (-1.5 * d, 297.0), (size[1] + 0.5 * d, 283.0), (size[1] + 1.5 * d, 283.0)] {
+            for (y, t) in [
+                (-0.5 * d, 297.0),
+                (-1.5 * d, 297.0),
+                (size[1] + 0.5 * d, 283.0),
+                (size[1] + 1.5 * d, 283.0),
+            ] {
                 bpos.push([(i as f64 + 0.5) * d, y, (k as f64 + 0.5) * d, t]);
             }
         }
@@ -259,7 +326,13 @@ fn smooth_params(s: &Scene, kappa: f32) -> SmoothParams {
 }
 
 /// Runs `iterations` GPU smoothing iterations on the scene; returns the thermo array.
-fn gpu_smooth(ctx: &Context, s: &Scene, p: &SmoothParams, iterations: u32, thermo: &[[f32; 4]]) -> Vec<[f32; 4]> {
+fn gpu_smooth(
+    ctx: &Context,
+    s: &Scene,
+    p: &SmoothParams,
+    iterations: u32,
+    thermo: &[[f32; 4]],
+) -> Vec<[f32; 4]> {
     let d = &ctx.device;
     let cfg = shot();
     let mut stage = SmoothingStage::new(ctx, &cfg).unwrap();
@@ -268,7 +341,12 @@ fn gpu_smooth(ctx: &Context, s: &Scene, p: &SmoothParams, iterations: u32, therm
     grid.n_boundary = s.boundary.len() as u32;
     let grid_b = buffers::uniform_init(d, "grid", &grid);
     let pos_b = buffers::storage_init(d, "pos", &vec4(&s.pos));
-    let info: Vec<[u32; 2]> = s.level.iter().enumerate().map(|(i, &l)| [i as u32, l]).collect();
+    let info: Vec<[u32; 2]> = s
+        .level
+        .iter()
+        .enumerate()
+        .map(|(i, &l)| [i as u32, l])
+        .collect();
     let info_b = buffers::storage_init(d, "info", &info);
     let th_b = buffers::storage_init(d, "thermo", thermo);
     let cs_b = buffers::storage_init(d, "cell_start", &s.cell_start);
@@ -294,7 +372,12 @@ fn gpu_smooth(ctx: &Context, s: &Scene, p: &SmoothParams, iterations: u32, therm
     buffers::read_back(d, &ctx.queue, &th_b, s.pos.len()).unwrap()
 }
 
-fn mirror_input<'a>(s: &'a Scene, p: &'a SmoothParams, pos: &'a [[f64; 3]], t: &'a [f64]) -> SmoothInput<'a> {
+fn mirror_input<'a>(
+    s: &'a Scene,
+    p: &'a SmoothParams,
+    pos: &'a [[f64; 3]],
+    t: &'a [f64],
+) -> SmoothInput<'a> {
     SmoothInput {
         grid: &s.grid,
         params: p,
@@ -313,7 +396,11 @@ fn smooth_temperature_matches_mirror() {
     for (seed, kappa, iterations) in [(5, 0.1f32, 1u32), (6, 1.0, 1), (8, 0.1, 3)] {
         let s = scene(seed);
         let p = smooth_params(&s, kappa);
-        let thermo: Vec<[f32; 4]> = s.temp.iter().map(|&t| [t as f32, 0.01, 0.002, 0.5]).collect();
+        let thermo: Vec<[f32; 4]> = s
+            .temp
+            .iter()
+            .map(|&t| [t as f32, 0.01, 0.002, 0.5])
+            .collect();
         let gpu = gpu_smooth(&ctx, &s, &p, iterations, &thermo);
         // The mirror starts from the same f32 inputs.
         let mut t: Vec<f64> = thermo.iter().map(|v| v[0] as f64).collect();
@@ -322,11 +409,19 @@ fn smooth_temperature_matches_mirror() {
         }
         let mut max_change = 0.0f64;
         for i in 0..s.pos.len() {
-            assert!((gpu[i][0] as f64 - t[i]).abs() < 2e-3, "seed {seed} particle {i}: {} vs {}", gpu[i][0], t[i]);
+            assert!(
+                (gpu[i][0] as f64 - t[i]).abs() < 2e-3,
+                "seed {seed} particle {i}: {} vs {}",
+                gpu[i][0],
+                t[i]
+            );
             assert_eq!(&gpu[i][1..], &thermo[i][1..], "only T changes");
             max_change = max_change.max((t[i] - s.temp[i]).abs());
         }
-        assert!(max_change > 0.5, "the test must smooth something: {max_change}");
+        assert!(
+            max_change > 0.5,
+            "the test must smooth something: {max_change}"
+        );
     }
 }
 
@@ -339,7 +434,10 @@ fn gpu_smoothing_lowers_laplacian_norm_and_is_deterministic() {
     let mut thermo: Vec<[f32; 4]> = s.temp.iter().map(|&t| [t as f32, 0.0, 0.0, 0.0]).collect();
     let norm = |th: &[[f32; 4]]| {
         let t: Vec<f64> = th.iter().map(|v| v[0] as f64).collect();
-        temperature_laplacian(&mirror_input(&s, &p, &s.pos, &t)).iter().map(|c| c * c).sum::<f64>()
+        temperature_laplacian(&mirror_input(&s, &p, &s.pos, &t))
+            .iter()
+            .map(|c| c * c)
+            .sum::<f64>()
     };
     let mut prev = norm(&thermo);
     for it in 0..5 {
@@ -351,5 +449,8 @@ fn gpu_smoothing_lowers_laplacian_norm_and_is_deterministic() {
     }
     let a = gpu_smooth(&ctx, &s, &p, 4, &thermo);
     let b = gpu_smooth(&ctx, &s, &p, 4, &thermo);
-    assert_eq!(bytemuck::cast_slice::<_, u8>(&a), bytemuck::cast_slice::<_, u8>(&b));
+    assert_eq!(
+        bytemuck::cast_slice::<_, u8>(&a),
+        bytemuck::cast_slice::<_, u8>(&b)
+    );
 }

@@ -103,7 +103,12 @@ impl SmoothingStage {
     }
 
     /// Records the configured number of iterations for the first `count` particles.
-    pub fn encode(&mut self, encoder: &mut wgpu::CommandEncoder, bufs: &SmoothingBuffers, count: u32) {
+    pub fn encode(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        bufs: &SmoothingBuffers,
+        count: u32,
+    ) {
         let params = SmoothParams::new(&self.cfg, count);
         let iterations = self.iterations();
         self.encode_params(encoder, bufs, &params, iterations);

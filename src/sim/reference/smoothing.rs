@@ -53,12 +53,18 @@ pub fn constraint_terms(input: &SmoothInput, i: usize) -> (f64, f64, f64) {
         c += a * (ti - input.temperature[j]);
     });
     let bpos: Vec<[f64; 3]> = input.boundary.iter().map(|b| [b[0], b[1], b[2]]).collect();
-    for_each_neighbor(input.grid, input.boundary_cell_start, &bpos, xi, |k, xik| {
-        let a = laplacian_coefficient(p, xik, hi, p.h0 as f64, p.volume0 as f64);
-        sum_a += a;
-        sum_a2 += a * a;
-        c += a * (ti - input.boundary[k][3]);
-    });
+    for_each_neighbor(
+        input.grid,
+        input.boundary_cell_start,
+        &bpos,
+        xi,
+        |k, xik| {
+            let a = laplacian_coefficient(p, xik, hi, p.h0 as f64, p.volume0 as f64);
+            sum_a += a;
+            sum_a2 += a * a;
+            c += a * (ti - input.boundary[k][3]);
+        },
+    );
     (sum_a, sum_a2, c)
 }
 
@@ -110,12 +116,16 @@ mod tests {
         let grid = GridParams::new([n as f64; 3], 2.0, true, true);
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut pos = Vec::new();
-        let mut level = Vec::new();
+        let mut level: Vec<u32> = Vec::new();
         for i in 0..n {
             for j in 0..n {
                 for k in 0..n {
                     let jit = |r: &mut ChaCha8Rng| r.random_range(-0.2..0.2);
-                    pos.push([i as f64 + 0.5 + jit(&mut rng), j as f64 + 0.5 + jit(&mut rng), k as f64 + 0.5 + jit(&mut rng)]);
+                    pos.push([
+                        i as f64 + 0.5 + jit(&mut rng),
+                        j as f64 + 0.5 + jit(&mut rng),
+                        k as f64 + 0.5 + jit(&mut rng),
+                    ]);
                     level.push(if levels { rng.random_range(0..3) } else { 0 });
                 }
             }
@@ -124,7 +134,12 @@ mod tests {
         let mut btemp = Vec::new();
         for i in 0..n {
             for k in 0..n {
-                for (y, t) in [(-0.5, floor_t), (-1.5, floor_t), (n as f64 + 0.5, ceiling_t), (n as f64 + 1.5, ceiling_t)] {
+                for (y, t) in [
+                    (-0.5, floor_t),
+                    (-1.5, floor_t),
+                    (n as f64 + 0.5, ceiling_t),
+                    (n as f64 + 1.5, ceiling_t),
+                ] {
                     bpos.push([i as f64 + 0.5, y, k as f64 + 0.5]);
                     btemp.push(t);
                 }
@@ -182,17 +197,27 @@ mod tests {
     /// mixed particle sizes and boundary particles of fixed temperature.
     #[test]
     fn smoothing_lowers_laplacian_norm_every_iteration() {
-        for (seed, levels, kappa) in [(1, false, 0.1), (2, true, 0.1), (3, false, 1.0), (4, true, 1.0)] {
+        for (seed, levels, kappa) in [
+            (1, false, 0.1),
+            (2, true, 0.1),
+            (3, false, 1.0),
+            (4, true, 1.0),
+        ] {
             let s = scene(seed, levels, 296.0, 284.0);
             let p = params(&s, kappa);
             let mut rng = ChaCha8Rng::seed_from_u64(seed + 100);
-            let mut t: Vec<f64> = (0..s.pos.len()).map(|_| rng.random_range(280.0..300.0)).collect();
+            let mut t: Vec<f64> = (0..s.pos.len())
+                .map(|_| rng.random_range(280.0..300.0))
+                .collect();
             let mut prev = norm2(&temperature_laplacian(&input(&s, &p, &t)));
             let first = prev;
             for it in 0..20 {
                 t = smooth_temperature(&input(&s, &p, &t));
                 let now = norm2(&temperature_laplacian(&input(&s, &p, &t)));
-                assert!(now < prev, "kappa {kappa} levels {levels}: iteration {it}: {prev} -> {now}");
+                assert!(
+                    now < prev,
+                    "kappa {kappa} levels {levels}: iteration {it}: {prev} -> {now}"
+                );
                 prev = now;
             }
             println!("kappa {kappa} levels {levels}: sum C^2 {first:.4e} -> {prev:.4e}");
@@ -205,7 +230,11 @@ mod tests {
     #[test]
     fn large_kappa_flattens_a_two_valued_field() {
         let s = scene(7, false, 295.0, 295.0);
-        let t0: Vec<f64> = s.pos.iter().map(|p| if p[0] < 4.0 { 290.0 } else { 300.0 }).collect();
+        let t0: Vec<f64> = s
+            .pos
+            .iter()
+            .map(|p| if p[0] < 4.0 { 290.0 } else { 300.0 })
+            .collect();
         let spread = |t: &[f64]| {
             let mean = t.iter().sum::<f64>() / t.len() as f64;
             (t.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / t.len() as f64).sqrt()
@@ -223,8 +252,13 @@ mod tests {
         let (s0, sb, ss) = (spread(&t0), spread(&big), spread(&small));
         println!("std of T: initial {s0:.3}, kappa 1: {sb:.4}, kappa 0.1: {ss:.4}");
         assert!(sb < 0.05 * s0, "kappa = 1 leaves std {sb} of {s0}");
-        assert!(ss > 3.0 * sb, "kappa = 0.1 should smooth less: {ss} vs {sb}");
-        let (lo, hi) = big.iter().fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+        assert!(
+            ss > 3.0 * sb,
+            "kappa = 0.1 should smooth less: {ss} vs {sb}"
+        );
+        let (lo, hi) = big
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
         assert!(hi - lo < 1.0, "range {lo}..{hi}");
     }
 

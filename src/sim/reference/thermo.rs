@@ -27,7 +27,12 @@ pub fn heat_factor(p: &ThermoParams, x: f64, z: f64, time: f64) -> f64 {
 }
 
 /// One particle: `pos` read, `vel` and `thermo` = (T, v, w, E) updated in place.
-pub fn thermo_step_particle(p: &ThermoParams, pos: [f64; 3], vel: &mut [f64; 3], th: &mut [f64; 4]) {
+pub fn thermo_step_particle(
+    p: &ThermoParams,
+    pos: [f64; 3],
+    vel: &mut [f64; 3],
+    th: &mut [f64; 4],
+) {
     let dt = p.dt as f64;
     let mut temp = th[0];
     // eq. 5
@@ -89,15 +94,27 @@ mod tests {
         let p = ThermoParams::new(&cfg, 500, 2.0, 0.0);
         let mut rng = ChaCha8Rng::seed_from_u64(11);
         let pos: Vec<[f64; 3]> = (0..500)
-            .map(|_| [rng.random_range(0.0..4000.0), rng.random_range(0.0..3000.0), rng.random_range(0.0..4000.0)])
+            .map(|_| {
+                [
+                    rng.random_range(0.0..4000.0),
+                    rng.random_range(0.0..3000.0),
+                    rng.random_range(0.0..4000.0),
+                ]
+            })
             .collect();
-        let mut vel: Vec<[f64; 3]> = (0..500).map(|_| [0.0, rng.random_range(-5.0..5.0), 0.0]).collect();
+        let mut vel: Vec<[f64; 3]> = (0..500)
+            .map(|_| [0.0, rng.random_range(-5.0..5.0), 0.0])
+            .collect();
         let mut th: Vec<[f64; 4]> = (0..500)
             .map(|_| {
                 [
                     rng.random_range(250.0..310.0),
                     rng.random_range(0.0..0.03),
-                    if rng.random_bool(0.5) { rng.random_range(0.0..0.01) } else { 0.0 },
+                    if rng.random_bool(0.5) {
+                        rng.random_range(0.0..0.01)
+                    } else {
+                        0.0
+                    },
                     0.0,
                 ]
             })
@@ -112,15 +129,24 @@ mod tests {
             thermo_step(&p, &pos, &mut vel, &mut th);
             for (a, b) in before.iter().zip(&th) {
                 let (s0, s1) = (a[1] + a[2], b[1] + b[2]);
-                assert!((s1 - s0).abs() <= 4.0 * f64::EPSILON * s0.max(1e-300), "{a:?} -> {b:?}");
+                assert!(
+                    (s1 - s0).abs() <= 4.0 * f64::EPSILON * s0.max(1e-300),
+                    "{a:?} -> {b:?}"
+                );
                 assert!(b[1] >= 0.0 && b[2] >= 0.0, "{b:?}");
                 condensed |= b[2] > a[2];
                 evaporated |= b[2] < a[2];
             }
         }
-        assert!(condensed && evaporated, "the test must exercise both directions");
+        assert!(
+            condensed && evaporated,
+            "the test must exercise both directions"
+        );
         let total1 = total(&th);
-        assert!((total1 - total0).abs() < 1e-12 * total0, "{total0} -> {total1}");
+        assert!(
+            (total1 - total0).abs() < 1e-12 * total0,
+            "{total0} -> {total1}"
+        );
     }
 
     /// Heating off, particles at rest in the environment with sub-saturated vapor (section 5
@@ -131,7 +157,9 @@ mod tests {
         cfg.physics.heat_source = 0.0;
         let n = 300;
         let p = ThermoParams::new(&cfg, n as u32, 2.0, 0.0);
-        let pos: Vec<[f64; 3]> = (0..n).map(|k| [13.0 * k as f64, 10.0 * k as f64, 7.0 * k as f64]).collect();
+        let pos: Vec<[f64; 3]> = (0..n)
+            .map(|k| [13.0 * k as f64, 10.0 * k as f64, 7.0 * k as f64])
+            .collect();
         let mut vel = vec![[0.0; 3]; n];
         // Exactly the environment (the f32 rounding of T0 would be a 1e-5 K excess).
         let mut th: Vec<[f64; 4]> = pos
@@ -160,7 +188,11 @@ mod tests {
     fn saturation_limit_matches_eq10() {
         let cfg = shot();
         let p = ThermoParams::new(&cfg, 1, 1.0, 0.0);
-        let (a, b, c) = (p.saturation_a as f64, p.saturation_b as f64, p.saturation_c as f64);
+        let (a, b, c) = (
+            p.saturation_a as f64,
+            p.saturation_b as f64,
+            p.saturation_c as f64,
+        );
         for t in [250.0, 273.15, 285.0, 293.15, 305.0] {
             let sat = a * (b / (t + c)).exp();
             assert!((saturation(&cfg.physics, t) - sat).abs() <= 1e-6 * sat);
@@ -169,7 +201,10 @@ mod tests {
             // Little water: gamma is v + w.
             assert_eq!(saturation_limit(&p, t, 1e-4, 2e-4), 1e-4 + 2e-4);
             let magnus = 380.0 / 1.0e5 * (17.67 * (t - 273.15) / (t - 29.65)).exp();
-            assert!((sat - magnus).abs() < 2e-3 * magnus, "T {t}: {sat} vs {magnus}");
+            assert!(
+                (sat - magnus).abs() < 2e-3 * magnus,
+                "T {t}: {sat} vs {magnus}"
+            );
         }
         let s20 = saturation(&cfg.physics, 293.15);
         assert!((s20 - 0.0145).abs() < 0.0002, "{s20}");
@@ -190,7 +225,10 @@ mod tests {
             .iter()
             .position(|r| r.y > cfg.physics.heat_height)
             .expect("the parcel leaves the heated layer");
-        assert!(base > first_dry + 5, "saturates too early: {base} vs {first_dry}");
+        assert!(
+            base > first_dry + 5,
+            "saturates too early: {base} vs {first_dry}"
+        );
         // Dry part: T(y) follows -Gamma_d exactly (no heating above heat_height, no latent heat).
         let (r0, r1) = (&trace[first_dry], &trace[base - 1]);
         assert_eq!(r1.w, 0.0);
@@ -203,12 +241,21 @@ mod tests {
         let r3 = &trace[end];
         let moist = (r3.t - r2.t) / (r3.y - r2.y);
         assert!(r3.y > r2.y + 100.0, "the cloudy parcel keeps rising");
-        assert!(moist > -0.8 * gd, "moist slope {moist} should be well above {}", -gd);
+        assert!(
+            moist > -0.8 * gd,
+            "moist slope {moist} should be well above {}",
+            -gd
+        );
         println!("step   time      y        T      T0    v(g/kg) w(g/kg)");
         for (k, r) in trace.iter().enumerate().step_by(10) {
             println!(
                 "{k:4} {:6.0} {:8.1} {:7.2} {:7.2} {:7.3} {:7.3}",
-                r.time, r.y, r.t, r.t0, r.v * 1e3, r.w * 1e3
+                r.time,
+                r.y,
+                r.t,
+                r.t0,
+                r.v * 1e3,
+                r.w * 1e3
             );
         }
         println!("saturation at step {base}, y = {:.0} m", trace[base].y);
@@ -227,7 +274,11 @@ mod tests {
     /// A single particle starting in the heated layer at the hottest spot of the noise pattern,
     /// with the section 5 initial state; per step `thermo_step` then the move `y += u_y dt`.
     /// Returns the trajectory and the first step with cloud (w > 0).
-    pub(crate) fn parcel_trace(cfg: &ShotConfig, dt: f64, steps: usize) -> (Vec<ParcelRow>, Option<usize>) {
+    pub(crate) fn parcel_trace(
+        cfg: &ShotConfig,
+        dt: f64,
+        steps: usize,
+    ) -> (Vec<ParcelRow>, Option<usize>) {
         let p0 = ThermoParams::new(cfg, 1, dt, 0.0);
         // Hottest ground point of the pattern at t = 0 on a 20 m raster.
         let mut best = (0.0, 0.0, -1.0);
