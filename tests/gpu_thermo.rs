@@ -36,6 +36,9 @@ fn vec4(v: &[[f64; 3]]) -> Vec<[f32; 4]> {
         .collect()
 }
 
+/// (pos, vel, thermo) arrays.
+type State = (Vec<[f32; 4]>, Vec<[f32; 4]>, Vec<[f32; 4]>);
+
 struct ThermoRun {
     vel: Vec<[f32; 4]>,
     thermo: Vec<[f32; 4]>,
@@ -70,11 +73,7 @@ fn gpu_thermo(
     }
 }
 
-fn random_thermo_state(
-    n: usize,
-    seed: u64,
-    cfg: &ShotConfig,
-) -> (Vec<[f32; 4]>, Vec<[f32; 4]>, Vec<[f32; 4]>) {
+fn random_thermo_state(n: usize, seed: u64, cfg: &ShotConfig) -> State {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let s = cfg.domain.size;
     let mut pos = Vec::new();
@@ -175,6 +174,7 @@ fn thermo_step_matches_mirror() {
 /// Fifty steps on the GPU: v + w per particle kept to f32 rounding, never negative, and the
 /// run is bit-reproducible.
 #[test]
+#[allow(clippy::needless_range_loop)] // parallel arrays indexed together
 fn gpu_phase_transition_conserves_water_and_is_deterministic() {
     let ctx = context();
     let mut cfg = shot();
@@ -213,6 +213,7 @@ fn gpu_phase_transition_conserves_water_and_is_deterministic() {
 
 /// Heating off, particles at rest in the sub-saturated initial state: no cloud appears.
 #[test]
+#[allow(clippy::needless_range_loop)] // parallel arrays indexed together
 fn gpu_nothing_condenses_without_heating() {
     let ctx = context();
     let mut cfg = shot();

@@ -63,8 +63,13 @@ pub fn thermo_step(
     thermo: &mut [[f64; 4]],
 ) {
     let n = p.count as usize;
-    for i in 0..n {
-        thermo_step_particle(p, pos[i], &mut vel[i], &mut thermo[i]);
+    for ((q, u), th) in pos
+        .iter()
+        .zip(vel.iter_mut())
+        .zip(thermo.iter_mut())
+        .take(n)
+    {
+        thermo_step_particle(p, *q, u, th);
     }
 }
 
