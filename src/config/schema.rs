@@ -223,6 +223,9 @@ pub struct PhysicsConfig {
     /// Feature size of the heating noise over the ground (m) and its change rate (1/s).
     pub heat_noise_scale: f64,
     pub heat_noise_speed: f64,
+    /// Contrast of the heating pattern: the heat fraction is clamp((n - 0.5) contrast + 0.5,
+    /// 0, 1) for noise n in [0, 1); 1 = plain noise, larger = distinct hot patches.
+    pub heat_noise_contrast: f64,
     /// Buoyancy k_b (m/s^2) and cloud weight k_g (m/s^2 per kg/kg), eq. 6.
     pub buoyancy: f64,
     pub cloud_weight: f64,
@@ -250,6 +253,7 @@ impl Default for PhysicsConfig {
             heat_height: 100.0,
             heat_noise_scale: 400.0,
             heat_noise_speed: 0.002,
+            heat_noise_contrast: 3.0,
             buoyancy: 9.81,
             cloud_weight: 9.81,
             phase_rate: 0.05,

@@ -8,8 +8,12 @@
 //! - level l gives h = h0 * 2^(-l/3) and m = m0 * 2^(-l);
 //! - boundary particles (floor and ceiling walls) live in their own static arrays.
 pub mod adaptive;
+pub mod diagnostics;
 pub mod grid_params;
+pub mod noise;
 pub mod reference;
+pub mod smoothing;
+pub mod thermo;
 
 /// Host copy of all per-particle state: what checkpoints store and what the splat reads.
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -2,3 +2,5 @@
 pub mod adaptive;
 pub mod grid;
 pub mod kernels;
+pub mod smoothing;
+pub mod thermo;

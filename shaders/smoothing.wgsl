@@ -1,0 +1,93 @@
+// Temperature smoothing as a constraint (paper section 4.1, eqs. 12-17), one Jacobi iteration:
+// reads thermo_in, writes thermo_out (only .x changes), so the result does not depend on the
+// order in which particles run. f64 mirror: src/sim/reference/smoothing.rs (`smooth_temperature`).
+//
+// With a_ij = V_j (x_ij . gradW_ij) / (|x_ij|^2 + eps)  (<= 0; V_j = volume0 2^-l_j, the m_j/rho0
+// of eq. 13; symmetric spiky gradient of eq. 19):
+//   C_i = sum_j a_ij (T_i - T_j)                    (eq. 13, the SPH Laplacian)
+//   dC_i/dT_i = S_i = sum_j a_ij, dC_i/dT_k = -a_ik (eq. 16)
+//   lambda_i = -C_i / (S_i^2 + sum_k a_ik^2)        (eq. 17a)
+//   T*_i = T_i + kappa lambda_i S_i                 (eq. 17b)
+// Boundary particles are neighbours with their own fixed temperature (boundary.w), level 0.
+//!include shared/common.wgsl
+
+struct SmoothParams {
+    count: u32,
+    h0: f32,
+    kappa: f32,
+    epsilon: f32,
+    volume0: f32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+@group(0) @binding(0) var<uniform> grid: GridParams;
+@group(0) @binding(1) var<uniform> S: SmoothParams;
+@group(0) @binding(2) var<storage, read> pos: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> info: array<vec2<u32>>;
+@group(0) @binding(4) var<storage, read> thermo_in: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> thermo_out: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read> cell_start: array<u32>;
+@group(0) @binding(7) var<storage, read> boundary: array<vec4<f32>>;
+@group(0) @binding(8) var<storage, read> boundary_cell_start: array<u32>;
+
+fn radius_of_level(level: u32) -> f32 {
+    return S.h0 * exp2(-f32(level) / 3.0);
+}
+
+// Coefficient a_ij of one neighbour; 0 outside both kernel radii.
+fn laplacian_coefficient(xij: vec3<f32>, hi: f32, hj: f32, volume: f32) -> f32 {
+    let r2 = dot(xij, xij);
+    let hmax = max(hi, hj);
+    if (r2 >= hmax * hmax) { return 0.0; }
+    let r = sqrt(r2);
+    return volume * dot(xij, spiky_grad_sym(xij, r, hi, hj)) / (r2 + S.epsilon);
+}
+
+@compute @workgroup_size(64)
+fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = gid.x + gid.y * nwg.x * 64u;
+    if (i >= S.count) { return; }
+    let th = thermo_in[i];
+    let xi = pos[i].xyz;
+    let hi = radius_of_level(info[i].y);
+    let ti = th.x;
+    var sum_a = 0.0;
+    var sum_a2 = 0.0;
+    var c = 0.0;
+    let ci = cell_coord(xi, grid);
+    for (var dz = -1; dz <= 1; dz++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            for (var dx = -1; dx <= 1; dx++) {
+                let n = neighbor_cell(ci, vec3<i32>(dx, dy, dz), grid);
+                if (n < 0) { continue; }
+                let cell = u32(n);
+                for (var j = cell_start[cell]; j < cell_start[cell + 1u]; j++) {
+                    if (j == i) { continue; }
+                    let lj = info[j].y;
+                    let xij = min_image(xi - pos[j].xyz, grid);
+                    let a = laplacian_coefficient(xij, hi, radius_of_level(lj), S.volume0 * exp2(-f32(lj)));
+                    sum_a += a;
+                    sum_a2 += a * a;
+                    c += a * (ti - thermo_in[j].x);
+                }
+                for (var k = boundary_cell_start[cell]; k < boundary_cell_start[cell + 1u]; k++) {
+                    let b = boundary[k];
+                    let xik = min_image(xi - b.xyz, grid);
+                    let a = laplacian_coefficient(xik, hi, S.h0, S.volume0);
+                    sum_a += a;
+                    sum_a2 += a * a;
+                    c += a * (ti - b.w);
+                }
+            }
+        }
+    }
+    var out = th;
+    let g = sum_a * sum_a + sum_a2;
+    if (g > 0.0) {
+        // T* = T + kappa lambda S with lambda = -C / g.
+        out.x = ti - S.kappa * c * sum_a / g;
+    }
+    thermo_out[i] = out;
+}

@@ -1,0 +1,127 @@
+// Cloud thermodynamics of one substep, per particle (paper section 4, in the paper's order
+// after the PBF move and the temperature smoothing):
+//   ground heating (eq. 5) -> buoyancy and cloud weight (eq. 6) -> adiabatic cooling (eq. 7)
+//   -> phase transition (eqs. 8-10) -> latent heat (eq. 11).
+// f64 mirror: src/sim/reference/thermo.rs (`thermo_step`); noise mirror: src/sim/noise.rs.
+// No neighbours are read, so every particle is independent (deterministic).
+
+// Mirror of sim::thermo::ThermoParams (byte for byte).
+struct ThermoParams {
+    dt: f32,
+    time: f32,
+    count: u32,
+    seed: u32,
+    ground_temperature: f32,
+    environment_lapse_rate: f32,
+    adiabatic_lapse_rate: f32,
+    heat_source: f32,
+    heat_height: f32,
+    noise_cell_x: f32,
+    noise_cell_z: f32,
+    noise_speed: f32,
+    noise_period_x: u32,
+    noise_period_z: u32,
+    noise_contrast: f32,
+    buoyancy: f32,
+    cloud_weight: f32,
+    // 1 - exp(-alpha dt): the exact relaxation fraction of eq. 9 over one step (host computed).
+    phase_fraction: f32,
+    saturation_a: f32,
+    saturation_b: f32,
+    saturation_c: f32,
+    latent_heat: f32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+@group(0) @binding(0) var<uniform> P: ThermoParams;
+@group(0) @binding(1) var<storage, read> pos: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read_write> vel: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> thermo: array<vec4<f32>>;
+
+// PCG-RXS-M-XS hash (Jarzynski & Olano 2020); u32 arithmetic wraps.
+fn pcg_hash(v: u32) -> u32 {
+    let state = v * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+// Lattice value in [0, 1): the top 24 bits are exact in f32, so GPU and mirror agree.
+fn lattice_value(ix: i32, iz: i32, it: i32, seed: u32) -> f32 {
+    let h = pcg_hash(bitcast<u32>(ix) ^ pcg_hash(bitcast<u32>(iz) ^ pcg_hash(bitcast<u32>(it) ^ pcg_hash(seed))));
+    return f32(h >> 8u) * (1.0 / 16777216.0);
+}
+
+fn fade(u: f32) -> f32 {
+    return u * u * u * (u * (u * 6.0 - 15.0) + 10.0);
+}
+
+fn wrap_index(i: i32, period: u32) -> i32 {
+    let p = i32(max(period, 1u));
+    return ((i % p) + p) % p;
+}
+
+// Value noise over (x, z) and time with quintic fade, tiling with the given lattice periods.
+fn value_noise3(x: f32, z: f32, t: f32, cell_x: f32, cell_z: f32, period_x: u32, period_z: u32, seed: u32) -> f32 {
+    let p = vec3<f32>(x / cell_x, z / cell_z, t);
+    let f = floor(p);
+    let u = vec3<f32>(fade(p.x - f.x), fade(p.y - f.y), fade(p.z - f.z));
+    let i = vec3<i32>(f);
+    let x0 = wrap_index(i.x, period_x);
+    let x1 = wrap_index(i.x + 1, period_x);
+    let z0 = wrap_index(i.y, period_z);
+    let z1 = wrap_index(i.y + 1, period_z);
+    var along_t: array<f32, 2>;
+    for (var dt = 0; dt < 2; dt++) {
+        let it = i.z + dt;
+        let a = mix(lattice_value(x0, z0, it, seed), lattice_value(x1, z0, it, seed), u.x);
+        let b = mix(lattice_value(x0, z1, it, seed), lattice_value(x1, z1, it, seed), u.x);
+        along_t[dt] = mix(a, b, u.y);
+    }
+    return mix(along_t[0], along_t[1], u.z);
+}
+
+// Fraction in [0, 1] of the heat source at ground point (x, z): the noise around 0.5 stretched
+// by the contrast and clamped, so contrast > 1 gives distinct hot patches and cold gaps.
+fn heat_factor(x: f32, z: f32, time: f32) -> f32 {
+    let n = value_noise3(x, z, time * P.noise_speed, P.noise_cell_x, P.noise_cell_z,
+        P.noise_period_x, P.noise_period_z, P.seed);
+    return clamp((n - 0.5) * P.noise_contrast + 0.5, 0.0, 1.0);
+}
+
+@compute @workgroup_size(64)
+fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = gid.x + gid.y * nwg.x * 64u;
+    if (i >= P.count) { return; }
+    let p = pos[i].xyz;
+    var u = vel[i];
+    let th = thermo[i];
+    var temp = th.x;
+
+    // eq. 5: dT/dt = Se near the ground, in a noise pattern over the ground that drifts in time.
+    if (p.y < P.heat_height) {
+        temp = temp + P.dt * P.heat_source * heat_factor(p.x, p.z, P.time);
+    }
+
+    // eq. 6: F = kb (T - T0) / T0 j - kg w j, applied as a velocity change dt F.
+    let t0 = P.ground_temperature - P.environment_lapse_rate * p.y;
+    u.y = u.y + P.dt * (P.buoyancy * (temp - t0) / t0 - P.cloud_weight * th.z);
+
+    // eq. 7: dT/dt = -Gamma_d u_y (with the velocity after eq. 6).
+    temp = temp - P.adiabatic_lapse_rate * u.y * P.dt;
+
+    // eqs. 8-10: w moves towards v - gamma, gamma = min(A exp(B / (T + C)), v + w). The total
+    // s = v + w is kept: w is clamped into [0, s] and v = s - w, so neither goes negative.
+    let v = th.y;
+    let w = th.z;
+    let s = v + w;
+    let gamma = min(P.saturation_a * exp(P.saturation_b / max(temp + P.saturation_c, 1e-3)), s);
+    let w_new = clamp(w + P.phase_fraction * (v - gamma), 0.0, s);
+    let v_new = s - w_new;
+
+    // eq. 11: latent heat Q per unit of condensed water (negative when evaporating).
+    temp = temp + P.latent_heat * (w_new - w);
+
+    vel[i] = u;
+    thermo[i] = vec4<f32>(temp, v_new, w_new, th.w);
+}

@@ -1,0 +1,324 @@
+//! f64 mirror of shaders/thermo.wgsl (`thermo_step`): heating, buoyancy, adiabatic cooling,
+//! phase transition and latent heat of one substep (eqs. 5-11). The constants come from the
+//! same [`ThermoParams`] the GPU gets, widened to f64.
+use crate::sim::noise::value_noise3;
+use crate::sim::thermo::ThermoParams;
+
+/// Saturation limit gamma of eq. 10: `min(A exp(B / (T + C)), v + w)`.
+pub fn saturation_limit(p: &ThermoParams, temperature: f64, vapor: f64, cloud: f64) -> f64 {
+    let sat = p.saturation_a as f64
+        * (p.saturation_b as f64 / (temperature + p.saturation_c as f64).max(1e-3)).exp();
+    sat.min(vapor + cloud)
+}
+
+/// Heat source fraction in [0, 1] at ground point (x, z) and time t (mirror of `heat_factor`).
+pub fn heat_factor(p: &ThermoParams, x: f64, z: f64, time: f64) -> f64 {
+    let n = value_noise3(
+        x,
+        z,
+        time * p.noise_speed as f64,
+        p.noise_cell_x as f64,
+        p.noise_cell_z as f64,
+        p.noise_period_x,
+        p.noise_period_z,
+        p.seed,
+    );
+    ((n - 0.5) * p.noise_contrast as f64 + 0.5).clamp(0.0, 1.0)
+}
+
+/// One particle: `pos` read, `vel` and `thermo` = (T, v, w, E) updated in place.
+pub fn thermo_step_particle(
+    p: &ThermoParams,
+    pos: [f64; 3],
+    vel: &mut [f64; 3],
+    th: &mut [f64; 4],
+) {
+    let dt = p.dt as f64;
+    let mut temp = th[0];
+    // eq. 5
+    if pos[1] < p.heat_height as f64 {
+        temp += dt * p.heat_source as f64 * heat_factor(p, pos[0], pos[2], p.time as f64);
+    }
+    // eq. 6
+    let t0 = p.ground_temperature as f64 - p.environment_lapse_rate as f64 * pos[1];
+    vel[1] += dt * (p.buoyancy as f64 * (temp - t0) / t0 - p.cloud_weight as f64 * th[2]);
+    // eq. 7
+    temp -= p.adiabatic_lapse_rate as f64 * vel[1] * dt;
+    // eqs. 8-10
+    let (v, w) = (th[1], th[2]);
+    let s = v + w;
+    let gamma = saturation_limit(p, temp, v, w);
+    let w_new = (w + p.phase_fraction as f64 * (v - gamma)).clamp(0.0, s);
+    let v_new = s - w_new;
+    // eq. 11
+    temp += p.latent_heat as f64 * (w_new - w);
+    *th = [temp, v_new, w_new, th[3]];
+}
+
+/// Mirror of the `thermo_step` entry: the first `p.count` particles.
+pub fn thermo_step(
+    p: &ThermoParams,
+    pos: &[[f64; 3]],
+    vel: &mut [[f64; 3]],
+    thermo: &mut [[f64; 4]],
+) {
+    let n = p.count as usize;
+    for ((q, u), th) in pos
+        .iter()
+        .zip(vel.iter_mut())
+        .zip(thermo.iter_mut())
+        .take(n)
+    {
+        thermo_step_particle(p, *q, u, th);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::ShotConfig;
+    use crate::sim::thermo::{environment_temperature, initial_thermo, saturation};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn shot() -> ShotConfig {
+        serde_saphyr::from_str(
+            "shot: t\noutput: {frames: {start: 1, end: 2}}\n\
+             domain: {size: [4000.0, 3000.0, 4000.0], spacing: 40.0}\n",
+        )
+        .unwrap()
+    }
+
+    /// Random states, some far above and some far below saturation, stepped with every
+    /// process on: v + w per particle is kept to f64 rounding, v and w never go negative,
+    /// and the total water (no sources in the model) stays constant.
+    #[test]
+    fn phase_transition_conserves_water_per_particle() {
+        let mut cfg = shot();
+        cfg.physics.phase_rate = 2.0; // phase_fraction near 1: the hardest case for clamping
+        let p = ThermoParams::new(&cfg, 500, 2.0, 0.0);
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let pos: Vec<[f64; 3]> = (0..500)
+            .map(|_| {
+                [
+                    rng.random_range(0.0..4000.0),
+                    rng.random_range(0.0..3000.0),
+                    rng.random_range(0.0..4000.0),
+                ]
+            })
+            .collect();
+        let mut vel: Vec<[f64; 3]> = (0..500)
+            .map(|_| [0.0, rng.random_range(-5.0..5.0), 0.0])
+            .collect();
+        let mut th: Vec<[f64; 4]> = (0..500)
+            .map(|_| {
+                [
+                    rng.random_range(250.0..310.0),
+                    rng.random_range(0.0..0.03),
+                    if rng.random_bool(0.5) {
+                        rng.random_range(0.0..0.01)
+                    } else {
+                        0.0
+                    },
+                    0.0,
+                ]
+            })
+            .collect();
+        let total = |th: &[[f64; 4]]| th.iter().map(|t| t[1] + t[2]).sum::<f64>();
+        let total0 = total(&th);
+        let (mut condensed, mut evaporated) = (false, false);
+        for step in 0..200 {
+            let mut p = p;
+            p.time = step as f32 * 2.0;
+            let before = th.clone();
+            thermo_step(&p, &pos, &mut vel, &mut th);
+            for (a, b) in before.iter().zip(&th) {
+                let (s0, s1) = (a[1] + a[2], b[1] + b[2]);
+                assert!(
+                    (s1 - s0).abs() <= 4.0 * f64::EPSILON * s0.max(1e-300),
+                    "{a:?} -> {b:?}"
+                );
+                assert!(b[1] >= 0.0 && b[2] >= 0.0, "{b:?}");
+                condensed |= b[2] > a[2];
+                evaporated |= b[2] < a[2];
+            }
+        }
+        assert!(
+            condensed && evaporated,
+            "the test must exercise both directions"
+        );
+        let total1 = total(&th);
+        assert!(
+            (total1 - total0).abs() < 1e-12 * total0,
+            "{total0} -> {total1}"
+        );
+    }
+
+    /// Heating off, particles at rest in the environment with sub-saturated vapor (section 5
+    /// initial state): nothing moves, warms or condenses.
+    #[test]
+    fn nothing_condenses_without_heating_when_subsaturated() {
+        let mut cfg = shot();
+        cfg.physics.heat_source = 0.0;
+        let n = 300;
+        let p = ThermoParams::new(&cfg, n as u32, 2.0, 0.0);
+        let pos: Vec<[f64; 3]> = (0..n)
+            .map(|k| [13.0 * k as f64, 10.0 * k as f64, 7.0 * k as f64])
+            .collect();
+        let mut vel = vec![[0.0; 3]; n];
+        // Exactly the environment (the f32 rounding of T0 would be a 1e-5 K excess).
+        let mut th: Vec<[f64; 4]> = pos
+            .iter()
+            .map(|q| {
+                let t0 = p.ground_temperature as f64 - p.environment_lapse_rate as f64 * q[1];
+                let v = initial_thermo(&cfg.physics, q[1])[1] as f64;
+                [t0, v, 0.0, 0.0]
+            })
+            .collect();
+        let start = th.clone();
+        for _ in 0..1000 {
+            thermo_step(&p, &pos, &mut vel, &mut th);
+        }
+        for (a, b) in start.iter().zip(&th) {
+            assert_eq!(b[2], 0.0);
+            assert_eq!(a[1], b[1]);
+            assert!((a[0] - b[0]).abs() < 1e-9);
+        }
+        assert!(vel.iter().all(|v| v[1].abs() < 1e-12));
+    }
+
+    /// gamma of eq. 10 against an independent evaluation, including the min with v + w, and the
+    /// default constants against the Magnus-Tetens saturation mixing ratio at 1000 hPa.
+    #[test]
+    fn saturation_limit_matches_eq10() {
+        let cfg = shot();
+        let p = ThermoParams::new(&cfg, 1, 1.0, 0.0);
+        let (a, b, c) = (
+            p.saturation_a as f64,
+            p.saturation_b as f64,
+            p.saturation_c as f64,
+        );
+        for t in [250.0, 273.15, 285.0, 293.15, 305.0] {
+            let sat = a * (b / (t + c)).exp();
+            assert!((saturation(&cfg.physics, t) - sat).abs() <= 1e-6 * sat);
+            // Plenty of water: gamma is the saturation value.
+            assert!((saturation_limit(&p, t, 0.05, 0.02) - sat).abs() <= 1e-12 * sat);
+            // Little water: gamma is v + w.
+            assert_eq!(saturation_limit(&p, t, 1e-4, 2e-4), 1e-4 + 2e-4);
+            let magnus = 380.0 / 1.0e5 * (17.67 * (t - 273.15) / (t - 29.65)).exp();
+            assert!(
+                (sat - magnus).abs() < 2e-3 * magnus,
+                "T {t}: {sat} vs {magnus}"
+            );
+        }
+        let s20 = saturation(&cfg.physics, 293.15);
+        assert!((s20 - 0.0145).abs() < 0.0002, "{s20}");
+    }
+
+    /// One parcel (a single particle, no neighbours, moved by its own velocity): heated near the
+    /// ground it rises, cools at the dry lapse rate Gamma_d while w = 0, then saturates and from
+    /// there cools more slowly (latent heat): the kink of the T(y) curve.
+    #[test]
+    fn heated_parcel_rises_dry_adiabatically_then_condenses() {
+        let cfg = shot();
+        let (trace, base) = parcel_trace(&cfg, 2.0, 600);
+        let gd = cfg.physics.adiabatic_lapse_rate;
+        let Some(base) = base else {
+            panic!("the parcel never saturated: {:?}", trace.last());
+        };
+        let first_dry = trace
+            .iter()
+            .position(|r| r.y > cfg.physics.heat_height)
+            .expect("the parcel leaves the heated layer");
+        assert!(
+            base > first_dry + 5,
+            "saturates too early: {base} vs {first_dry}"
+        );
+        // Dry part: T(y) follows -Gamma_d exactly (no heating above heat_height, no latent heat).
+        let (r0, r1) = (&trace[first_dry], &trace[base - 1]);
+        assert_eq!(r1.w, 0.0);
+        let slope = (r1.t - r0.t) / (r1.y - r0.y);
+        assert!((slope + gd).abs() < 1e-8, "dry slope {slope} vs {}", -gd);
+        // Cloudy part: water condenses and the parcel cools less than Gamma_d with height.
+        let end = trace.len() - 1;
+        assert!(trace[end].w > 1e-4, "{:?}", trace[end]);
+        let r2 = &trace[(base + end) / 2];
+        let r3 = &trace[end];
+        let moist = (r3.t - r2.t) / (r3.y - r2.y);
+        assert!(r3.y > r2.y + 100.0, "the cloudy parcel keeps rising");
+        assert!(
+            moist > -0.8 * gd,
+            "moist slope {moist} should be well above {}",
+            -gd
+        );
+        println!("step   time      y        T      T0    v(g/kg) w(g/kg)");
+        for (k, r) in trace.iter().enumerate().step_by(10) {
+            println!(
+                "{k:4} {:6.0} {:8.1} {:7.2} {:7.2} {:7.3} {:7.3}",
+                r.time,
+                r.y,
+                r.t,
+                r.t0,
+                r.v * 1e3,
+                r.w * 1e3
+            );
+        }
+        println!("saturation at step {base}, y = {:.0} m", trace[base].y);
+    }
+
+    #[derive(Debug, Clone, Copy)]
+    pub(crate) struct ParcelRow {
+        pub time: f64,
+        pub y: f64,
+        pub t: f64,
+        pub t0: f64,
+        pub v: f64,
+        pub w: f64,
+    }
+
+    /// A single particle starting in the heated layer at the hottest spot of the noise pattern,
+    /// with the section 5 initial state; per step `thermo_step` then the move `y += u_y dt`.
+    /// Returns the trajectory and the first step with cloud (w > 0).
+    pub(crate) fn parcel_trace(
+        cfg: &ShotConfig,
+        dt: f64,
+        steps: usize,
+    ) -> (Vec<ParcelRow>, Option<usize>) {
+        let p0 = ThermoParams::new(cfg, 1, dt, 0.0);
+        // Hottest ground point of the pattern at t = 0 on a 20 m raster.
+        let mut best = (0.0, 0.0, -1.0);
+        for i in 0..(cfg.domain.size[0] / 20.0) as usize {
+            for k in 0..(cfg.domain.size[2] / 20.0) as usize {
+                let (x, z) = (i as f64 * 20.0, k as f64 * 20.0);
+                let f = heat_factor(&p0, x, z, 0.0);
+                if f > best.2 {
+                    best = (x, z, f);
+                }
+            }
+        }
+        let y0 = 0.25 * cfg.physics.heat_height;
+        let init = initial_thermo(&cfg.physics, y0);
+        let mut th = [init[0] as f64, init[1] as f64, 0.0, 0.0];
+        let mut pos = [best.0, y0, best.1];
+        let mut vel = [0.0; 3];
+        let mut trace = Vec::new();
+        let mut base = None;
+        for step in 0..steps {
+            let p = ThermoParams::new(cfg, 1, dt, step as f64 * dt);
+            thermo_step_particle(&p, pos, &mut vel, &mut th);
+            pos[1] += vel[1] * dt;
+            if th[2] > 0.0 && base.is_none() {
+                base = Some(step);
+            }
+            trace.push(ParcelRow {
+                time: (step + 1) as f64 * dt,
+                y: pos[1],
+                t: th[0],
+                t0: environment_temperature(&cfg.physics, pos[1]),
+                v: th[1],
+                w: th[2],
+            });
+        }
+        (trace, base)
+    }
+}

@@ -1,0 +1,179 @@
+//! Temperature smoothing as a constraint (paper section 4.1, eqs. 12-17); see
+//! docs/SMOOTHING.md for what it does and how the isolation diagnostic measures it.
+//!
+//! One Jacobi iteration (shaders/smoothing.wgsl, entry `smooth_temperature`; f64 mirror
+//! `sim::reference::smoothing::smooth_temperature`) reads the temperatures and writes the
+//! smoothed ones into a scratch buffer owned by the stage, which is then copied back into
+//! `thermo`; `physics.smoothing.iterations` such iterations run per substep, none when
+//! `physics.smoothing.enabled` is false. Neighbours come from the cell table (27 cells,
+//! minimum-image displacement); boundary particles take part with their fixed temperature.
+//!
+//! Usage: `let mut stage = SmoothingStage::new(&ctx, &cfg)?;` once, then per substep
+//! `stage.encode(&mut encoder, &SmoothingBuffers { .. }, count)`. The scratch buffer grows to
+//! the largest `count` seen (hence `&mut self`).
+use crate::config::ShotConfig;
+use crate::error::Result;
+use crate::gpu::{self, Context};
+use crate::sim::thermo::{dispatch_size, entry};
+
+const SHADER: &str = "smoothing.wgsl";
+const ENTRY: &str = "smooth_temperature";
+
+/// Uniform of shaders/smoothing.wgsl (same layout).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct SmoothParams {
+    pub count: u32,
+    /// Level-0 kernel radius h0 (m); level l has h0 2^(-l/3).
+    pub h0: f32,
+    /// kappa of eq. 17b.
+    pub kappa: f32,
+    /// epsilon of eq. 13 (m^2).
+    pub epsilon: f32,
+    /// Level-0 particle volume m0 / rho0 = spacing^3 (m^3); level l has volume0 2^-l.
+    pub volume0: f32,
+    pub _pad0: u32,
+    pub _pad1: u32,
+    pub _pad2: u32,
+}
+
+impl SmoothParams {
+    pub fn new(cfg: &ShotConfig, count: u32) -> Self {
+        let s = &cfg.physics.smoothing;
+        Self {
+            count,
+            h0: (cfg.domain.spacing * cfg.domain.kernel_ratio) as f32,
+            kappa: s.kappa as f32,
+            epsilon: s.epsilon as f32,
+            volume0: cfg.domain.spacing.powi(3) as f32,
+            _pad0: 0,
+            _pad1: 0,
+            _pad2: 0,
+        }
+    }
+}
+
+/// The arrays one smoothing iteration reads (particles in cell order, see docs/ARCHITECTURE.md).
+pub struct SmoothingBuffers<'a> {
+    /// `GridParams` uniform (src/sim/grid_params.rs).
+    pub grid: &'a wgpu::Buffer,
+    /// `array<vec4<f32>>` positions.
+    pub pos: &'a wgpu::Buffer,
+    /// `array<vec2<u32>>` (id, level).
+    pub info: &'a wgpu::Buffer,
+    /// `array<vec4<f32>>` (T, v, w, E); T is smoothed in place (through the scratch buffer).
+    pub thermo: &'a wgpu::Buffer,
+    /// `array<u32>`, num_cells + 1 entries.
+    pub cell_start: &'a wgpu::Buffer,
+    /// `array<vec4<f32>>` boundary particles (xyz, w = temperature), in cell order.
+    pub boundary: &'a wgpu::Buffer,
+    /// `array<u32>`, num_cells + 1 entries.
+    pub boundary_cell_start: &'a wgpu::Buffer,
+}
+
+pub struct SmoothingStage {
+    device: wgpu::Device,
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    cfg: ShotConfig,
+    scratch: Option<(wgpu::Buffer, u32)>,
+}
+
+impl SmoothingStage {
+    pub fn new(ctx: &Context, cfg: &ShotConfig) -> Result<Self> {
+        let pipeline = gpu::shaders::compute_pipeline(&ctx.device, SHADER, ENTRY)?;
+        let layout = pipeline.get_bind_group_layout(0);
+        Ok(Self {
+            device: ctx.device.clone(),
+            pipeline,
+            layout,
+            cfg: cfg.clone(),
+            scratch: None,
+        })
+    }
+
+    /// Iterations per substep the config asks for (0 when smoothing is disabled).
+    pub fn iterations(&self) -> u32 {
+        let s = &self.cfg.physics.smoothing;
+        if s.enabled {
+            s.iterations
+        } else {
+            0
+        }
+    }
+
+    /// Records the configured number of iterations for the first `count` particles.
+    pub fn encode(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        bufs: &SmoothingBuffers,
+        count: u32,
+    ) {
+        let params = SmoothParams::new(&self.cfg, count);
+        let iterations = self.iterations();
+        self.encode_params(encoder, bufs, &params, iterations);
+    }
+
+    /// As [`Self::encode`] with explicit parameters and iteration count (used by tests).
+    pub fn encode_params(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        bufs: &SmoothingBuffers,
+        params: &SmoothParams,
+        iterations: u32,
+    ) {
+        let count = params.count;
+        if count == 0 || iterations == 0 {
+            return;
+        }
+        if self.scratch.as_ref().is_none_or(|(_, cap)| *cap < count) {
+            let buf = gpu::buffers::storage_zeroed::<[f32; 4]>(
+                &self.device,
+                "smoothing scratch",
+                count as usize,
+            );
+            self.scratch = Some((buf, count));
+        }
+        let Some((scratch, _)) = &self.scratch else {
+            return;
+        };
+        let uniform = gpu::buffers::uniform_init(&self.device, "smoothing params", params);
+        let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("smoothing"),
+            layout: &self.layout,
+            entries: &[
+                entry(0, bufs.grid),
+                entry(1, &uniform),
+                entry(2, bufs.pos),
+                entry(3, bufs.info),
+                entry(4, bufs.thermo),
+                entry(5, scratch),
+                entry(6, bufs.cell_start),
+                entry(7, bufs.boundary),
+                entry(8, bufs.boundary_cell_start),
+            ],
+        });
+        let bytes = count as u64 * 16;
+        let (x, y) = dispatch_size(count);
+        for _ in 0..iterations {
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("smooth_temperature"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &bind, &[]);
+                pass.dispatch_workgroups(x, y, 1);
+            }
+            encoder.copy_buffer_to_buffer(scratch, 0, bufs.thermo, 0, bytes);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn params_layout_matches_wgsl() {
+        assert_eq!(std::mem::size_of::<super::SmoothParams>(), 32);
+    }
+}

@@ -1,0 +1,232 @@
+//! Cloud thermodynamics stage (paper section 4): one compute pass per substep, run after the
+//! PBF move and the temperature smoothing ([`crate::sim::smoothing`]).
+//!
+//! Per particle, in the paper's order (shaders/thermo.wgsl, entry `thermo_step`; f64 mirror
+//! `sim::reference::thermo::thermo_step`):
+//! 1. ground heating, eq. 5: `T += dt Se n(x, z, t)` for particles below `heat_height`, where
+//!    `n` in [0, 1] is the hash value noise of [`crate::sim::noise`] over the ground, drifting in
+//!    time at `heat_noise_speed` lattice cells per second and stretched by `heat_noise_contrast`;
+//! 2. buoyancy and cloud weight, eq. 6: `u_y += dt (kb (T - T0(y)) / T0(y) - kg w)` with the
+//!    environment `T0(y) = ground_temperature - environment_lapse_rate y`;
+//! 3. adiabatic cooling, eq. 7: `T -= Gamma_d u_y dt` (with u_y after step 2);
+//! 4. phase transition, eqs. 8-10: `w* = clamp(w + f (v - gamma), 0, v + w)`, `v* = (v + w) - w*`
+//!    with `gamma = min(A exp(B / (T + C)), v + w)` and `f = 1 - exp(-alpha dt)` (the exact
+//!    solution of the linear relaxation of eq. 9 over one step, so `f` stays below 1 for any dt;
+//!    for small `alpha dt` it is `alpha dt`). v + w is conserved per particle up to one float
+//!    rounding and neither goes negative;
+//! 5. latent heat, eq. 11: `T += Q (w* - w)` (eq. 11 integrated the same way as eq. 9).
+//!
+//! Usage: `let stage = ThermoStage::new(&ctx, &cfg)?;` once, then per substep
+//! `stage.encode(&mut encoder, &ThermoBuffers { pos, vel, thermo }, count, dt, time)`.
+//! Each call records its own small uniform (dt, time), so several substeps can be recorded
+//! into one encoder. Initial state (section 5): [`initial_thermo`].
+use crate::config::{PhysicsConfig, ShotConfig};
+use crate::error::Result;
+use crate::gpu::{self, Context};
+use crate::sim::noise;
+
+const SHADER: &str = "thermo.wgsl";
+const ENTRY: &str = "thermo_step";
+/// Threads per workgroup of the particle stages in this module and `smoothing`.
+pub const WORKGROUP: u32 = 64;
+
+/// Uniform of shaders/thermo.wgsl (same layout). Build it with [`ThermoParams::new`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ThermoParams {
+    pub dt: f32,
+    pub time: f32,
+    pub count: u32,
+    pub seed: u32,
+    pub ground_temperature: f32,
+    pub environment_lapse_rate: f32,
+    pub adiabatic_lapse_rate: f32,
+    pub heat_source: f32,
+    pub heat_height: f32,
+    pub noise_cell_x: f32,
+    pub noise_cell_z: f32,
+    pub noise_speed: f32,
+    pub noise_period_x: u32,
+    pub noise_period_z: u32,
+    pub noise_contrast: f32,
+    pub buoyancy: f32,
+    pub cloud_weight: f32,
+    /// `1 - exp(-phase_rate dt)`.
+    pub phase_fraction: f32,
+    pub saturation_a: f32,
+    pub saturation_b: f32,
+    pub saturation_c: f32,
+    pub latent_heat: f32,
+    pub _pad0: u32,
+    pub _pad1: u32,
+}
+
+impl ThermoParams {
+    /// Parameters of one substep of length `dt` (s) starting at simulated time `time` (s).
+    pub fn new(cfg: &ShotConfig, count: u32, dt: f64, time: f64) -> Self {
+        let p = &cfg.physics;
+        let (cell_x, period_x) = noise::lattice_for_extent(cfg.domain.size[0], p.heat_noise_scale);
+        let (cell_z, period_z) = noise::lattice_for_extent(cfg.domain.size[2], p.heat_noise_scale);
+        Self {
+            dt: dt as f32,
+            time: time as f32,
+            count,
+            seed: noise::fold_seed(cfg.seed),
+            ground_temperature: p.ground_temperature as f32,
+            environment_lapse_rate: p.environment_lapse_rate as f32,
+            adiabatic_lapse_rate: p.adiabatic_lapse_rate as f32,
+            heat_source: p.heat_source as f32,
+            heat_height: p.heat_height as f32,
+            noise_cell_x: cell_x as f32,
+            noise_cell_z: cell_z as f32,
+            noise_speed: p.heat_noise_speed as f32,
+            noise_period_x: period_x,
+            noise_period_z: period_z,
+            noise_contrast: p.heat_noise_contrast as f32,
+            buoyancy: p.buoyancy as f32,
+            cloud_weight: p.cloud_weight as f32,
+            phase_fraction: (-(-p.phase_rate * dt).exp_m1()) as f32,
+            saturation_a: p.saturation_a as f32,
+            saturation_b: p.saturation_b as f32,
+            saturation_c: p.saturation_c as f32,
+            latent_heat: p.latent_heat as f32,
+            _pad0: 0,
+            _pad1: 0,
+        }
+    }
+}
+
+/// Environment temperature T0(y) (K): linear, warmest at the floor (y = 0).
+pub fn environment_temperature(p: &PhysicsConfig, y: f64) -> f64 {
+    p.ground_temperature - p.environment_lapse_rate * y
+}
+
+/// Saturation vapor content A exp(B / (T + C)) (kg/kg), the first term of eq. 10.
+pub fn saturation(p: &PhysicsConfig, temperature: f64) -> f64 {
+    p.saturation_a * (p.saturation_b / (temperature + p.saturation_c).max(1e-3)).exp()
+}
+
+/// Initial thermo of a particle at height y (section 5): T = T0(y), v = kv A exp(B / (T + C)),
+/// w = 0, shape energy 0.
+pub fn initial_thermo(p: &PhysicsConfig, y: f64) -> [f32; 4] {
+    let t = environment_temperature(p, y);
+    [
+        t as f32,
+        (p.initial_vapor * saturation(p, t)) as f32,
+        0.0,
+        0.0,
+    ]
+}
+
+/// The particle arrays the stage reads and writes (first `count` elements are live).
+pub struct ThermoBuffers<'a> {
+    /// `array<vec4<f32>>`, read.
+    pub pos: &'a wgpu::Buffer,
+    /// `array<vec4<f32>>`, y component updated (eq. 6).
+    pub vel: &'a wgpu::Buffer,
+    /// `array<vec4<f32>>` (T, v, w, E), T, v, w updated.
+    pub thermo: &'a wgpu::Buffer,
+}
+
+/// The thermodynamics pass (eqs. 5-11).
+pub struct ThermoStage {
+    device: wgpu::Device,
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    cfg: ShotConfig,
+}
+
+impl ThermoStage {
+    pub fn new(ctx: &Context, cfg: &ShotConfig) -> Result<Self> {
+        let pipeline = gpu::shaders::compute_pipeline(&ctx.device, SHADER, ENTRY)?;
+        let layout = pipeline.get_bind_group_layout(0);
+        Ok(Self {
+            device: ctx.device.clone(),
+            pipeline,
+            layout,
+            cfg: cfg.clone(),
+        })
+    }
+
+    /// Records one substep of length `dt` (s) at simulated time `time` (s) for the first
+    /// `count` particles.
+    pub fn encode(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        bufs: &ThermoBuffers,
+        count: u32,
+        dt: f64,
+        time: f64,
+    ) {
+        if count == 0 {
+            return;
+        }
+        let params = ThermoParams::new(&self.cfg, count, dt, time);
+        self.encode_params(encoder, bufs, &params);
+    }
+
+    /// As [`Self::encode`] with explicit parameters (tests use it to share them with the mirror).
+    pub fn encode_params(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        bufs: &ThermoBuffers,
+        params: &ThermoParams,
+    ) {
+        if params.count == 0 {
+            return;
+        }
+        // A fresh uniform per call keeps several substeps in one encoder correct.
+        let uniform = gpu::buffers::uniform_init(&self.device, "thermo params", params);
+        let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("thermo"),
+            layout: &self.layout,
+            entries: &[
+                entry(0, &uniform),
+                entry(1, bufs.pos),
+                entry(2, bufs.vel),
+                entry(3, bufs.thermo),
+            ],
+        });
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("thermo_step"),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, &bind, &[]);
+        let (x, y) = dispatch_size(params.count);
+        pass.dispatch_workgroups(x, y, 1);
+    }
+}
+
+pub(crate) fn entry(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
+    wgpu::BindGroupEntry {
+        binding,
+        resource: buffer.as_entire_binding(),
+    }
+}
+
+/// Workgroup grid for `count` particles: x up to 65535 groups, the rest along y (the shaders
+/// compute `i = gid.x + gid.y * num_workgroups.x * 64`).
+pub(crate) fn dispatch_size(count: u32) -> (u32, u32) {
+    let groups = count.div_ceil(WORKGROUP);
+    let x = groups.min(65535);
+    (x, groups.div_ceil(x.max(1)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn params_layout_matches_wgsl() {
+        assert_eq!(std::mem::size_of::<ThermoParams>(), 96);
+    }
+
+    #[test]
+    fn dispatch_covers_every_particle() {
+        for n in [1u32, 63, 64, 65, 65535 * 64, 65535 * 64 + 1, 10_000_000] {
+            let (x, y) = dispatch_size(n);
+            assert!(x <= 65535 && (x * y) as u64 * 64 >= n as u64, "{n}");
+        }
+    }
+}

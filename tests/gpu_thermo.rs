@@ -1,0 +1,457 @@
+//! GPU stages of the cloud physics against their f64 mirrors, on fresh random inputs.
+//!
+//! Tolerances: one `thermo_step` agrees with the mirror to 2e-3 K in T (f32 ulp at 300 K is
+//! 3e-5 K, a handful of operations, and the GPU `exp` may be off by a few ulp), 1e-5 m/s in
+//! u_y, 1e-8 kg/kg in v and w. One `smooth_temperature` iteration agrees to 2e-3 K (f32 sums
+//! over ~30 neighbours of coefficients around 1e-2 K per K).
+use nimbus::config::{GpuConfig, ShotConfig};
+use nimbus::gpu::{buffers, Context};
+use nimbus::sim::grid_params::GridParams;
+use nimbus::sim::reference::grid::build_cell_table;
+use nimbus::sim::reference::smoothing::{smooth_temperature, temperature_laplacian, SmoothInput};
+use nimbus::sim::reference::thermo::thermo_step;
+use nimbus::sim::smoothing::{SmoothParams, SmoothingBuffers, SmoothingStage};
+use nimbus::sim::thermo::{initial_thermo, ThermoBuffers, ThermoParams, ThermoStage};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn context() -> Context {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        std::env::set_var("XDG_RUNTIME_DIR", "/tmp/xdg");
+    }
+    Context::new(&GpuConfig::default()).expect("a GPU adapter (lavapipe on CI)")
+}
+
+fn shot() -> ShotConfig {
+    serde_saphyr::from_str(
+        "shot: t\noutput: {frames: {start: 1, end: 2}}\n\
+         domain: {size: [2000.0, 3000.0, 1600.0], spacing: 40.0}\n",
+    )
+    .unwrap()
+}
+
+fn vec4(v: &[[f64; 3]]) -> Vec<[f32; 4]> {
+    v.iter()
+        .map(|p| [p[0] as f32, p[1] as f32, p[2] as f32, 0.0])
+        .collect()
+}
+
+/// (pos, vel, thermo) arrays.
+type State = (Vec<[f32; 4]>, Vec<[f32; 4]>, Vec<[f32; 4]>);
+
+struct ThermoRun {
+    vel: Vec<[f32; 4]>,
+    thermo: Vec<[f32; 4]>,
+}
+
+/// Runs `steps` GPU thermo steps (one submit) from the given state.
+fn gpu_thermo(
+    ctx: &Context,
+    stage: &ThermoStage,
+    params: &[ThermoParams],
+    pos: &[[f32; 4]],
+    vel: &[[f32; 4]],
+    thermo: &[[f32; 4]],
+) -> ThermoRun {
+    let d = &ctx.device;
+    let pos_b = buffers::storage_init(d, "pos", pos);
+    let vel_b = buffers::storage_init(d, "vel", vel);
+    let th_b = buffers::storage_init(d, "thermo", thermo);
+    let mut enc = d.create_command_encoder(&Default::default());
+    let bufs = ThermoBuffers {
+        pos: &pos_b,
+        vel: &vel_b,
+        thermo: &th_b,
+    };
+    for p in params {
+        stage.encode_params(&mut enc, &bufs, p);
+    }
+    ctx.queue.submit([enc.finish()]);
+    ThermoRun {
+        vel: buffers::read_back(d, &ctx.queue, &vel_b, pos.len()).unwrap(),
+        thermo: buffers::read_back(d, &ctx.queue, &th_b, pos.len()).unwrap(),
+    }
+}
+
+fn random_thermo_state(n: usize, seed: u64, cfg: &ShotConfig) -> State {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let s = cfg.domain.size;
+    let mut pos = Vec::new();
+    let mut vel = Vec::new();
+    let mut th = Vec::new();
+    for _ in 0..n {
+        // A third of the particles inside the heated layer.
+        let y = if rng.random_bool(0.33) {
+            rng.random_range(0.0..cfg.physics.heat_height)
+        } else {
+            rng.random_range(0.0..s[1])
+        };
+        pos.push([
+            rng.random_range(0.0..s[0]) as f32,
+            y as f32,
+            rng.random_range(0.0..s[2]) as f32,
+            0.0,
+        ]);
+        vel.push([
+            rng.random_range(-1.0..1.0f32),
+            rng.random_range(-6.0..6.0f32),
+            rng.random_range(-1.0..1.0f32),
+            0.0,
+        ]);
+        let base = initial_thermo(&cfg.physics, y);
+        // Temperatures around the environment, vapor from 0.2 to 2.5 times the initial value,
+        // cloud in half of them: both condensation and evaporation happen.
+        let cloud = if rng.random_bool(0.5) {
+            rng.random_range(0.0..0.004f32)
+        } else {
+            0.0
+        };
+        th.push([
+            base[0] + rng.random_range(-4.0..4.0f32),
+            base[1] * rng.random_range(0.2..2.5f32),
+            cloud,
+            rng.random_range(0.0..1.0f32),
+        ]);
+    }
+    (pos, vel, th)
+}
+
+#[test]
+fn thermo_step_matches_mirror() {
+    let ctx = context();
+    let cfg = shot();
+    let stage = ThermoStage::new(&ctx, &cfg).unwrap();
+    let n = 3000;
+    let (pos, vel, th) = random_thermo_state(n, 42, &cfg);
+    let params = ThermoParams::new(&cfg, n as u32, 2.0, 137.0);
+    let out = gpu_thermo(&ctx, &stage, &[params], &pos, &vel, &th);
+
+    let pos64: Vec<[f64; 3]> = pos
+        .iter()
+        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
+        .collect();
+    let mut vel64: Vec<[f64; 3]> = vel
+        .iter()
+        .map(|v| [v[0] as f64, v[1] as f64, v[2] as f64])
+        .collect();
+    let mut th64: Vec<[f64; 4]> = th.iter().map(|t| t.map(|v| v as f64)).collect();
+    thermo_step(&params, &pos64, &mut vel64, &mut th64);
+
+    let (mut heated, mut condensed, mut evaporated) = (0, 0, 0);
+    for i in 0..n {
+        let (g, m) = (out.thermo[i], th64[i]);
+        assert!(
+            (g[0] as f64 - m[0]).abs() < 2e-3,
+            "T {i}: {} vs {}",
+            g[0],
+            m[0]
+        );
+        assert!(
+            (g[1] as f64 - m[1]).abs() < 1e-8,
+            "v {i}: {} vs {}",
+            g[1],
+            m[1]
+        );
+        assert!(
+            (g[2] as f64 - m[2]).abs() < 1e-8,
+            "w {i}: {} vs {}",
+            g[2],
+            m[2]
+        );
+        assert_eq!(g[3], th[i][3], "shape energy is not ours to change");
+        assert!((out.vel[i][1] as f64 - vel64[i][1]).abs() < 1e-5, "u_y {i}");
+        assert_eq!([out.vel[i][0], out.vel[i][2]], [vel[i][0], vel[i][2]]);
+        heated += (pos[i][1] < cfg.physics.heat_height as f32) as usize;
+        condensed += (m[2] > th[i][2] as f64) as usize;
+        evaporated += (m[2] < th[i][2] as f64) as usize;
+    }
+    assert!(
+        heated > 100 && condensed > 100 && evaporated > 100,
+        "{heated} {condensed} {evaporated}"
+    );
+}
+
+/// Fifty steps on the GPU: v + w per particle kept to f32 rounding, never negative, and the
+/// run is bit-reproducible.
+#[test]
+#[allow(clippy::needless_range_loop)] // parallel arrays indexed together
+fn gpu_phase_transition_conserves_water_and_is_deterministic() {
+    let ctx = context();
+    let mut cfg = shot();
+    cfg.physics.phase_rate = 1.0;
+    let stage = ThermoStage::new(&ctx, &cfg).unwrap();
+    let n = 2000;
+    let (pos, vel, th) = random_thermo_state(n, 7, &cfg);
+    let params: Vec<ThermoParams> = (0..50)
+        .map(|k| ThermoParams::new(&cfg, n as u32, 2.0, k as f64 * 2.0))
+        .collect();
+    let a = gpu_thermo(&ctx, &stage, &params, &pos, &vel, &th);
+    let b = gpu_thermo(&ctx, &stage, &params, &pos, &vel, &th);
+    assert_eq!(
+        bytemuck::cast_slice::<_, u8>(&a.thermo),
+        bytemuck::cast_slice::<_, u8>(&b.thermo)
+    );
+    assert_eq!(
+        bytemuck::cast_slice::<_, u8>(&a.vel),
+        bytemuck::cast_slice::<_, u8>(&b.vel)
+    );
+    let (mut total0, mut total1) = (0.0f64, 0.0f64);
+    for i in 0..n {
+        let s0 = th[i][1] + th[i][2];
+        let s1 = a.thermo[i][1] + a.thermo[i][2];
+        // Each step may round v + w by half an ulp: 50 steps, a few ulp at most.
+        assert!(
+            (s1 - s0).abs() <= 50.0 * f32::EPSILON * s0,
+            "{i}: {s0} -> {s1}"
+        );
+        assert!(a.thermo[i][1] >= 0.0 && a.thermo[i][2] >= 0.0);
+        total0 += s0 as f64;
+        total1 += s1 as f64;
+    }
+    assert!((total1 - total0).abs() < 1e-5 * total0);
+}
+
+/// Heating off, particles at rest in the sub-saturated initial state: no cloud appears.
+#[test]
+#[allow(clippy::needless_range_loop)] // parallel arrays indexed together
+fn gpu_nothing_condenses_without_heating() {
+    let ctx = context();
+    let mut cfg = shot();
+    cfg.physics.heat_source = 0.0;
+    let stage = ThermoStage::new(&ctx, &cfg).unwrap();
+    let n = 1000;
+    let pos: Vec<[f32; 4]> = (0..n)
+        .map(|k| {
+            [
+                (k * 37 % 2000) as f32,
+                (k * 3) as f32,
+                (k * 53 % 1600) as f32,
+                0.0,
+            ]
+        })
+        .collect();
+    let th: Vec<[f32; 4]> = pos
+        .iter()
+        .map(|p| initial_thermo(&cfg.physics, p[1] as f64))
+        .collect();
+    let vel = vec![[0.0f32; 4]; n];
+    let params: Vec<ThermoParams> = (0..100)
+        .map(|k| ThermoParams::new(&cfg, n as u32, 2.0, k as f64 * 2.0))
+        .collect();
+    let out = gpu_thermo(&ctx, &stage, &params, &pos, &vel, &th);
+    for i in 0..n {
+        assert_eq!(out.thermo[i][2], 0.0, "cloud appeared at {i}");
+        assert_eq!(out.thermo[i][1], th[i][1]);
+        // T0(y) rounded to f32 gives a 1e-5 K excess at most: negligible buoyancy.
+        assert!((out.thermo[i][0] - th[i][0]).abs() < 1e-3);
+        assert!(out.vel[i][1].abs() < 1e-3);
+    }
+}
+
+/// Random cell-ordered particles (mixed levels) in a periodic box with boundary layers.
+struct Scene {
+    grid: GridParams,
+    pos: Vec<[f64; 3]>,
+    level: Vec<u32>,
+    temp: Vec<f64>,
+    cell_start: Vec<u32>,
+    boundary: Vec<[f64; 4]>,
+    boundary_cell_start: Vec<u32>,
+}
+
+fn scene(seed: u64) -> Scene {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let d = 10.0; // spacing, h0 = 20
+    let size = [120.0, 100.0, 80.0];
+    let grid = GridParams::new(size, 2.0 * d, true, true);
+    let mut pos = Vec::new();
+    let mut level = Vec::new();
+    let mut temp = Vec::new();
+    let dims = size.map(|s| (s / d) as usize);
+    for i in 0..dims[0] {
+        for j in 0..dims[1] {
+            for k in 0..dims[2] {
+                let p = [i, j, k].map(|v| (v as f64 + 0.5) * d);
+                let jit = [0, 1, 2].map(|_| rng.random_range(-0.3..0.3) * d);
+                // Wrap jittered x and z into the periodic box.
+                // Rounded to f32 first, so the CPU cell table matches the positions the GPU reads.
+                let q = [
+                    (p[0] + jit[0]).rem_euclid(size[0]),
+                    p[1] + jit[1],
+                    (p[2] + jit[2]).rem_euclid(size[2]),
+                ];
+                pos.push(q.map(|v| v as f32 as f64));
+                level.push(rng.random_range(0..3u32));
+                temp.push(rng.random_range(280.0..300.0));
+            }
+        }
+    }
+    let mut bpos = Vec::new();
+    for i in 0..dims[0] {
+        for k in 0..dims[2] {
+            for (y, t) in [
+                (-0.5 * d, 297.0),
+                (-1.5 * d, 297.0),
+                (size[1] + 0.5 * d, 283.0),
+                (size[1] + 1.5 * d, 283.0),
+            ] {
+                bpos.push([(i as f64 + 0.5) * d, y, (k as f64 + 0.5) * d, t]);
+            }
+        }
+    }
+    let (order, cell_start) = build_cell_table(&grid, &pos);
+    let b3: Vec<[f64; 3]> = bpos.iter().map(|b| [b[0], b[1], b[2]]).collect();
+    let (border, boundary_cell_start) = build_cell_table(&grid, &b3);
+    Scene {
+        grid,
+        pos: order.iter().map(|&o| pos[o as usize]).collect(),
+        level: order.iter().map(|&o| level[o as usize]).collect(),
+        temp: order.iter().map(|&o| temp[o as usize]).collect(),
+        cell_start,
+        boundary: border.iter().map(|&o| bpos[o as usize]).collect(),
+        boundary_cell_start,
+    }
+}
+
+fn smooth_params(s: &Scene, kappa: f32) -> SmoothParams {
+    SmoothParams {
+        count: s.pos.len() as u32,
+        h0: 20.0,
+        kappa,
+        epsilon: 1e-2,
+        volume0: 1000.0,
+        _pad0: 0,
+        _pad1: 0,
+        _pad2: 0,
+    }
+}
+
+/// Runs `iterations` GPU smoothing iterations on the scene; returns the thermo array.
+fn gpu_smooth(
+    ctx: &Context,
+    s: &Scene,
+    p: &SmoothParams,
+    iterations: u32,
+    thermo: &[[f32; 4]],
+) -> Vec<[f32; 4]> {
+    let d = &ctx.device;
+    let cfg = shot();
+    let mut stage = SmoothingStage::new(ctx, &cfg).unwrap();
+    let mut grid = s.grid;
+    grid.n_particles = s.pos.len() as u32;
+    grid.n_boundary = s.boundary.len() as u32;
+    let grid_b = buffers::uniform_init(d, "grid", &grid);
+    let pos_b = buffers::storage_init(d, "pos", &vec4(&s.pos));
+    let info: Vec<[u32; 2]> = s
+        .level
+        .iter()
+        .enumerate()
+        .map(|(i, &l)| [i as u32, l])
+        .collect();
+    let info_b = buffers::storage_init(d, "info", &info);
+    let th_b = buffers::storage_init(d, "thermo", thermo);
+    let cs_b = buffers::storage_init(d, "cell_start", &s.cell_start);
+    let bnd: Vec<[f32; 4]> = s.boundary.iter().map(|b| b.map(|v| v as f32)).collect();
+    let bnd_b = buffers::storage_init(d, "boundary", &bnd);
+    let bcs_b = buffers::storage_init(d, "boundary_cell_start", &s.boundary_cell_start);
+    let mut enc = d.create_command_encoder(&Default::default());
+    stage.encode_params(
+        &mut enc,
+        &SmoothingBuffers {
+            grid: &grid_b,
+            pos: &pos_b,
+            info: &info_b,
+            thermo: &th_b,
+            cell_start: &cs_b,
+            boundary: &bnd_b,
+            boundary_cell_start: &bcs_b,
+        },
+        p,
+        iterations,
+    );
+    ctx.queue.submit([enc.finish()]);
+    buffers::read_back(d, &ctx.queue, &th_b, s.pos.len()).unwrap()
+}
+
+fn mirror_input<'a>(
+    s: &'a Scene,
+    p: &'a SmoothParams,
+    pos: &'a [[f64; 3]],
+    t: &'a [f64],
+) -> SmoothInput<'a> {
+    SmoothInput {
+        grid: &s.grid,
+        params: p,
+        pos,
+        level: &s.level,
+        temperature: t,
+        cell_start: &s.cell_start,
+        boundary: &s.boundary,
+        boundary_cell_start: &s.boundary_cell_start,
+    }
+}
+
+#[test]
+fn smooth_temperature_matches_mirror() {
+    let ctx = context();
+    for (seed, kappa, iterations) in [(5, 0.1f32, 1u32), (6, 1.0, 1), (8, 0.1, 3)] {
+        let s = scene(seed);
+        let p = smooth_params(&s, kappa);
+        let thermo: Vec<[f32; 4]> = s
+            .temp
+            .iter()
+            .map(|&t| [t as f32, 0.01, 0.002, 0.5])
+            .collect();
+        let gpu = gpu_smooth(&ctx, &s, &p, iterations, &thermo);
+        // The mirror starts from the same f32 inputs.
+        let mut t: Vec<f64> = thermo.iter().map(|v| v[0] as f64).collect();
+        for _ in 0..iterations {
+            t = smooth_temperature(&mirror_input(&s, &p, &s.pos, &t));
+        }
+        let mut max_change = 0.0f64;
+        for i in 0..s.pos.len() {
+            assert!(
+                (gpu[i][0] as f64 - t[i]).abs() < 2e-3,
+                "seed {seed} particle {i}: {} vs {}",
+                gpu[i][0],
+                t[i]
+            );
+            assert_eq!(&gpu[i][1..], &thermo[i][1..], "only T changes");
+            max_change = max_change.max((t[i] - s.temp[i]).abs());
+        }
+        assert!(
+            max_change > 0.5,
+            "the test must smooth something: {max_change}"
+        );
+    }
+}
+
+/// On the GPU too: sum (lap T)^2 drops every iteration, and a run is bit-reproducible.
+#[test]
+fn gpu_smoothing_lowers_laplacian_norm_and_is_deterministic() {
+    let ctx = context();
+    let s = scene(12);
+    let p = smooth_params(&s, 0.1);
+    let mut thermo: Vec<[f32; 4]> = s.temp.iter().map(|&t| [t as f32, 0.0, 0.0, 0.0]).collect();
+    let norm = |th: &[[f32; 4]]| {
+        let t: Vec<f64> = th.iter().map(|v| v[0] as f64).collect();
+        temperature_laplacian(&mirror_input(&s, &p, &s.pos, &t))
+            .iter()
+            .map(|c| c * c)
+            .sum::<f64>()
+    };
+    let mut prev = norm(&thermo);
+    for it in 0..5 {
+        let next = gpu_smooth(&ctx, &s, &p, 1, &thermo);
+        let now = norm(&next);
+        assert!(now < prev, "iteration {it}: {prev} -> {now}");
+        prev = now;
+        thermo = next;
+    }
+    let a = gpu_smooth(&ctx, &s, &p, 4, &thermo);
+    let b = gpu_smooth(&ctx, &s, &p, 4, &thermo);
+    assert_eq!(
+        bytemuck::cast_slice::<_, u8>(&a),
+        bytemuck::cast_slice::<_, u8>(&b)
+    );
+}
