@@ -1,2 +1,5 @@
 //! Files: atomic writes, frame naming, VDB and EXR writers, checkpoint format.
 pub mod atomic;
+pub mod exr;
+pub mod inspect;
+pub mod vdb;

@@ -1,0 +1,2 @@
+//! Measurement commands (`nimbus bench ...`): timings go here, never into tests.
+pub mod vdb;
