@@ -4,7 +4,10 @@ use nimbus::config::Compression;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let n = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(4_020_000);
+    let n = args
+        .get(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(4_020_000);
     let c = match args.get(2).map(String::as_str) {
         Some("none") => Compression::None,
         Some("zip") => Compression::Zip,

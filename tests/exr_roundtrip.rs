@@ -45,7 +45,10 @@ fn blob() -> BTreeMap<[i32; 3], f32> {
 }
 
 fn attr<'a>(layer: &'a exr::meta::header::LayerAttributes, k: &str) -> &'a AttributeValue {
-    layer.other.get(&Text::from(k)).unwrap_or_else(|| panic!("attribute {k} missing"))
+    layer
+        .other
+        .get(&Text::from(k))
+        .unwrap_or_else(|| panic!("attribute {k} missing"))
 }
 
 #[test]
@@ -63,7 +66,10 @@ fn atlas_reads_back_with_pixels_and_attributes() {
         let (cols, rows) = atlas_layout(size);
         assert_eq!((cols, rows), (3, 3));
         assert_eq!(layer.size, Vec2(cols * 15, rows * 11));
-        assert_eq!(layer.encoding.compression, exr::compression::Compression::ZIP16);
+        assert_eq!(
+            layer.encoding.compression,
+            exr::compression::Compression::ZIP16
+        );
         assert_eq!(layer.encoding.line_order, LineOrder::Increasing);
         let a = &layer.attributes;
         assert_eq!(attr(a, "slices"), &AttributeValue::I32(7));
@@ -71,7 +77,10 @@ fn atlas_reads_back_with_pixels_and_attributes() {
         assert_eq!(attr(a, "gridSize"), &AttributeValue::IntVec3((15, 11, 7)));
         assert_eq!(attr(a, "bboxMin"), &AttributeValue::IntVec3((-6, 2, -3)));
         assert_eq!(attr(a, "voxelSize"), &AttributeValue::F64(20.0));
-        assert_eq!(attr(a, "origin"), &AttributeValue::FloatVec3((-500.0, 10.0, 250.0)));
+        assert_eq!(
+            attr(a, "origin"),
+            &AttributeValue::FloatVec3((-500.0, 10.0, 250.0))
+        );
         let ch = &layer.channel_data.list[0];
         assert_eq!(ch.name, Text::from("density"));
         let w = cols * 15;
@@ -87,13 +96,20 @@ fn atlas_reads_back_with_pixels_and_attributes() {
         }
         let mut sum = 0.0f64;
         for (&p, &val) in &v {
-            let want = if half { f16::from_f32(val).to_f32() } else { val };
+            let want = if half {
+                f16::from_f32(val).to_f32()
+            } else {
+                val
+            };
             assert_eq!(px(p[0], p[1], p[2]), want, "{p:?}");
             sum += want as f64;
         }
         assert!((sum - sum_img).abs() < 1e-3, "inactive pixels are zero");
         // Deterministic bytes (custom attributes are sorted, not in hash order).
-        assert_eq!(encode_density_atlas(&g, half).unwrap(), std::fs::read(&p).unwrap());
+        assert_eq!(
+            encode_density_atlas(&g, half).unwrap(),
+            std::fs::read(&p).unwrap()
+        );
     }
 }
 
@@ -107,7 +123,10 @@ fn empty_grid_gives_a_tiny_valid_image() {
     let layer = &img.layer_data[0];
     assert_eq!(layer.size, Vec2(1, 1));
     assert_eq!(attr(&layer.attributes, "slices"), &AttributeValue::I32(0));
-    assert_eq!(attr(&layer.attributes, "gridSize"), &AttributeValue::IntVec3((0, 0, 0)));
+    assert_eq!(
+        attr(&layer.attributes, "gridSize"),
+        &AttributeValue::IntVec3((0, 0, 0))
+    );
 }
 
 #[test]
@@ -122,8 +141,20 @@ fn exrheader_reads_the_atlas() {
     let out = Command::new("exrheader").arg(&p).output().unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{text}");
-    for want in ["density, 16-bit floating-point", "zip", "increasing y", "slices", "gridSize", "voxelSize", "origin", "atlasColumns"] {
-        assert!(text.contains(want), "exrheader output lacks {want:?}:\n{text}");
+    for want in [
+        "density, 16-bit floating-point",
+        "zip",
+        "increasing y",
+        "slices",
+        "gridSize",
+        "voxelSize",
+        "origin",
+        "atlasColumns",
+    ] {
+        assert!(
+            text.contains(want),
+            "exrheader output lacks {want:?}:\n{text}"
+        );
     }
 }
 

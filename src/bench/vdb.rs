@@ -58,7 +58,11 @@ pub fn cloud_grid(active_voxels: usize) -> SparseGrid<f32> {
             let mut values = Box::new([0f32; LEAF_VOXELS]);
             let mut mask = [0u64; 8];
             for v in 0..LEAF_VOXELS {
-                let p = [o[0] + (v >> 6) as i32, o[1] + ((v >> 3) & 7) as i32, o[2] + (v & 7) as i32];
+                let p = [
+                    o[0] + (v >> 6) as i32,
+                    o[1] + ((v >> 3) & 7) as i32,
+                    o[2] + (v & 7) as i32,
+                ];
                 let d = ((p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) as f32).sqrt();
                 let edge = r * (0.8 + 0.4 * noise(p, 16));
                 if d < edge {

@@ -41,8 +41,17 @@ pub fn stats<T: Copy>(g: &SparseGrid<T>, scalar: impl Fn(&T) -> f64) -> Stats {
 fn describe_grid<T: Copy>(out: &mut String, g: &SparseGrid<T>, f: impl Fn(&T) -> f64, what: &str) {
     let s = stats(g, f);
     let t = g.transform;
-    let _ = writeln!(out, "  voxel size: {}  origin: {:?}", t.voxel_size, t.origin);
-    let _ = writeln!(out, "  leaves: {}  active voxels: {}", g.leaves.len(), s.active);
+    let _ = writeln!(
+        out,
+        "  voxel size: {}  origin: {:?}",
+        t.voxel_size, t.origin
+    );
+    let _ = writeln!(
+        out,
+        "  leaves: {}  active voxels: {}",
+        g.leaves.len(),
+        s.active
+    );
     match g.active_bbox() {
         Some((lo, hi)) => {
             let _ = writeln!(out, "  bbox: {lo:?} .. {hi:?}");
@@ -82,13 +91,22 @@ fn describe_vdb(path: &Path) -> Result<String> {
         if let Some(p) = &g.instance_parent {
             let _ = write!(out, " (instance of '{p}')");
         }
-        let _ = writeln!(out, " compression '{}'", vdb::write::compression_name(g.compression));
+        let _ = writeln!(
+            out,
+            " compression '{}'",
+            vdb::write::compression_name(g.compression)
+        );
         match &g.data {
             GridData::Float(s) => describe_grid(&mut out, s, |v| *v as f64, "value"),
             GridData::Vec3(s) => describe_grid(
                 &mut out,
                 s,
-                |v| v.iter().map(|&c| (c as f64) * (c as f64)).sum::<f64>().sqrt(),
+                |v| {
+                    v.iter()
+                        .map(|&c| (c as f64) * (c as f64))
+                        .sum::<f64>()
+                        .sqrt()
+                },
                 "|value|",
             ),
         }
@@ -100,7 +118,12 @@ fn describe_exr(path: &Path) -> Result<String> {
     let meta = exr::meta::MetaData::read_from_file(path, false)
         .map_err(|e| Error::InvalidInput(format!("{}: not a readable EXR: {e}", path.display())))?;
     let mut out = String::new();
-    let _ = writeln!(out, "{}: OpenEXR, {} part(s)", path.display(), meta.headers.len());
+    let _ = writeln!(
+        out,
+        "{}: OpenEXR, {} part(s)",
+        path.display(),
+        meta.headers.len()
+    );
     for h in meta.headers.iter() {
         let _ = writeln!(
             out,
@@ -110,9 +133,19 @@ fn describe_exr(path: &Path) -> Result<String> {
             h.compression,
             h.line_order
         );
-        let names: Vec<String> = h.channels.list.iter().map(|c| format!("{} ({:?})", c.name, c.sample_type)).collect();
+        let names: Vec<String> = h
+            .channels
+            .list
+            .iter()
+            .map(|c| format!("{} ({:?})", c.name, c.sample_type))
+            .collect();
         let _ = writeln!(out, "  channels: {}", names.join(", "));
-        let mut attrs: Vec<_> = h.own_attributes.other.iter().chain(h.shared_attributes.other.iter()).collect();
+        let mut attrs: Vec<_> = h
+            .own_attributes
+            .other
+            .iter()
+            .chain(h.shared_attributes.other.iter())
+            .collect();
         attrs.sort_by(|a, b| a.0.to_string().cmp(&b.0.to_string()));
         for (k, v) in attrs {
             let _ = writeln!(out, "  {k}: {v:?}");

@@ -70,7 +70,11 @@ fn header(flags: u8, typesize: usize, nbytes: usize, blocksize: usize, cbytes: u
 fn push_memcpy(out: &mut Vec<u8>, typesize: usize, src: &[u8]) {
     let n = src.len();
     // c-blosc's block size for tiny inputs: 1 below one element, else whole elements.
-    let bs = if n < typesize { 1 } else { n / typesize * typesize };
+    let bs = if n < typesize {
+        1
+    } else {
+        n / typesize * typesize
+    };
     let flags = FLAG_SHUFFLE | FLAG_MEMCPYED | FLAG_NOSPLIT | CODEC_LZ4;
     out.extend_from_slice(&header(flags, typesize, n, bs, n + HEADER));
     out.extend_from_slice(src);

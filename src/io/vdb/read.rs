@@ -131,14 +131,17 @@ fn read_metadata(c: &mut Cur) -> Result<Vec<(String, MetaValue)>> {
             if size == n {
                 Ok(())
             } else {
-                Err(bad(format!("metadata '{name}' of type {ty} has {size} bytes")))
+                Err(bad(format!(
+                    "metadata '{name}' of type {ty} has {size} bytes"
+                )))
             }
         };
         let v = match ty.as_str() {
             "string" => MetaValue::String(String::from_utf8_lossy(b).into_owned()),
             "int32" => want(4).map(|_| MetaValue::Int32(i32_at(0)))?,
-            "int64" => want(8)
-                .map(|_| MetaValue::Int64(i64::from_le_bytes(b.try_into().unwrap())))?,
+            "int64" => {
+                want(8).map(|_| MetaValue::Int64(i64::from_le_bytes(b.try_into().unwrap())))?
+            }
             "float" => want(4).map(|_| MetaValue::Float(f32_at(0)))?,
             "double" => want(8).map(|_| MetaValue::Double(f64_at(0)))?,
             "bool" => want(1).map(|_| MetaValue::Bool(b[0] != 0))?,
@@ -168,7 +171,9 @@ fn read_transform(c: &mut Cur) -> Result<GridTransform> {
     }
     let s = scale[0];
     if !(s.is_finite() && s > 0.0) || scale.iter().any(|&x| x != s) {
-        return Err(bad(format!("voxel size {scale:?} is not uniform and positive")));
+        return Err(bad(format!(
+            "voxel size {scale:?} is not uniform and positive"
+        )));
     }
     if translate.iter().any(|x| !x.is_finite()) {
         return Err(bad("transform translation is not finite"));
@@ -208,7 +213,10 @@ fn read_data(c: &mut Cur, nbytes: usize, flags: u32) -> Result<Vec<u8>> {
     let n = c.i64()?;
     if n <= 0 {
         if n.unsigned_abs() as usize != nbytes {
-            return Err(bad(format!("stored block of {} bytes, expected {nbytes}", -n)));
+            return Err(bad(format!(
+                "stored block of {} bytes, expected {nbytes}",
+                -n
+            )));
         }
         return Ok(c.take(nbytes)?.to_vec());
     }
@@ -279,7 +287,12 @@ fn read_values<T: VdbValue>(
     Ok(out)
 }
 
-fn read_tree<T: VdbValue>(c: &mut Cur, flags: u32, half: bool, name: &str) -> Result<SparseGrid<T>> {
+fn read_tree<T: VdbValue>(
+    c: &mut Cur,
+    flags: u32,
+    half: bool,
+    name: &str,
+) -> Result<SparseGrid<T>> {
     if c.u32()? != 1 {
         return Err(bad("buffer count other than 1"));
     }
@@ -369,7 +382,9 @@ pub fn read_bytes(bytes: &[u8]) -> Result<ReadFile> {
     }
     let version = c.u32()?;
     if version != FILE_VERSION {
-        return Err(bad(format!("file format {version} (nimbus reads {FILE_VERSION})")));
+        return Err(bad(format!(
+            "file format {version} (nimbus reads {FILE_VERSION})"
+        )));
     }
     let library = (c.u32()?, c.u32()?);
     if c.u8()? != 1 {
@@ -420,7 +435,11 @@ pub fn read_bytes(bytes: &[u8]) -> Result<ReadFile> {
                 "Tree_vec3s_5_4_3" => {
                     GridData::Vec3(read_tree::<[f32; 3]>(&mut c, compression, half, &name)?)
                 }
-                other => return Err(bad(format!("grid '{name}': type '{other}' is not supported"))),
+                other => {
+                    return Err(bad(format!(
+                        "grid '{name}': type '{other}' is not supported"
+                    )))
+                }
             }
         };
         let mut data = data;
@@ -429,7 +448,9 @@ pub fn read_bytes(bytes: &[u8]) -> Result<ReadFile> {
             GridData::Vec3(g) => g.transform = transform,
         }
         if c.p != ep {
-            return Err(bad(format!("grid '{name}': end offset does not match the data")));
+            return Err(bad(format!(
+                "grid '{name}': end offset does not match the data"
+            )));
         }
         grids.push(ReadGrid {
             name,

@@ -185,7 +185,11 @@ fn tree_key(o: [i32; 3]) -> ([i32; 3], u32, u32) {
 
 /// Leaf indices in tree order; rejects origins off the 8-grid and duplicate leaves.
 fn tree_order<T: VdbValue>(g: &SparseGrid<T>) -> Result<Vec<usize>> {
-    if let Some(l) = g.leaves.iter().find(|l| l.origin.iter().any(|c| c & 7 != 0)) {
+    if let Some(l) = g
+        .leaves
+        .iter()
+        .find(|l| l.origin.iter().any(|c| c & 7 != 0))
+    {
         return Err(Error::InvalidInput(format!(
             "grid '{}': leaf origin {:?} is not a multiple of 8",
             g.name, l.origin
@@ -211,7 +215,10 @@ fn put_data(out: &mut Vec<u8>, bytes: &[u8], typesize: usize, comp: Compression)
         Compression::Zip => {
             // zipToStream: i64 size + zlib stream, or -size + raw bytes when it does not shrink.
             let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
-            let zipped = z.write_all(bytes).and_then(|_| z.finish()).unwrap_or_default();
+            let zipped = z
+                .write_all(bytes)
+                .and_then(|_| z.finish())
+                .unwrap_or_default();
             if !zipped.is_empty() && zipped.len() < bytes.len() {
                 put_i64(out, zipped.len() as i64);
                 out.extend_from_slice(&zipped);
@@ -251,7 +258,12 @@ fn leaf_block<T: VdbValue>(leaf: &Leaf<T>, opts: &VdbOptions) -> Vec<u8> {
     let mut out = Vec::with_capacity(64 + 1 + 8 + 16 + 4 * 4 + vals.len() + vals.len() / 8);
     put_mask(&mut out, &leaf.mask);
     out.push(0);
-    put_data(&mut out, &vals, if opts.half { 2 } else { 4 }, opts.compression);
+    put_data(
+        &mut out,
+        &vals,
+        if opts.half { 2 } else { 4 },
+        opts.compression,
+    );
     out
 }
 
@@ -318,7 +330,10 @@ fn encode_grid<T: VdbValue>(
         g.background
     };
     put_value(&bg, false, &mut topo);
-    let keys: Vec<_> = order.iter().map(|&i| tree_key(g.leaves[i].origin)).collect();
+    let keys: Vec<_> = order
+        .iter()
+        .map(|&i| tree_key(g.leaves[i].origin))
+        .collect();
     let mut roots: Vec<usize> = Vec::new(); // start index (in `order`) of each root child
     let mut n5_count = 0;
     let mut n4_count = 0;
@@ -332,7 +347,8 @@ fn encode_grid<T: VdbValue>(
     for (r, &start) in roots.iter().enumerate() {
         let end = roots.get(r + 1).copied().unwrap_or(keys.len());
         let root = keys[start].0;
-        root.iter().for_each(|c| topo.extend_from_slice(&c.to_le_bytes()));
+        root.iter()
+            .for_each(|c| topo.extend_from_slice(&c.to_le_bytes()));
         n5_count += 1;
         let mut child5 = vec![0u64; 512];
         for k in &keys[start..end] {
@@ -368,9 +384,7 @@ fn encode_grid<T: VdbValue>(
 
     let (stats, count) = {
         let count = g.active_voxel_count() as i64;
-        let (lo, hi) = g
-            .active_bbox()
-            .unwrap_or(([i32::MAX; 3], [i32::MIN; 3]));
+        let (lo, hi) = g.active_bbox().unwrap_or(([i32::MAX; 3], [i32::MIN; 3]));
         (
             vec![
                 ("file_bbox_min".to_string(), MetaValue::Vec3i(lo)),
