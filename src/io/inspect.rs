@@ -146,7 +146,7 @@ fn describe_exr(path: &Path) -> Result<String> {
             .iter()
             .chain(h.shared_attributes.other.iter())
             .collect();
-        attrs.sort_by(|a, b| a.0.to_string().cmp(&b.0.to_string()));
+        attrs.sort_by_key(|a| a.0.to_string());
         for (k, v) in attrs {
             let _ = writeln!(out, "  {k}: {v:?}");
         }

@@ -86,7 +86,7 @@ fn push_memcpy(out: &mut Vec<u8>, typesize: usize, src: &[u8]) {
 pub fn compress(src: &[u8], typesize: usize, out: &mut Vec<u8>) -> usize {
     let start = out.len();
     let n = src.len();
-    if n < MIN_BUFFERSIZE || typesize == 0 || n % typesize != 0 {
+    if n < MIN_BUFFERSIZE || typesize == 0 || !n.is_multiple_of(typesize) {
         push_memcpy(out, typesize.max(1), src);
         return out.len() - start;
     }
@@ -179,7 +179,7 @@ pub fn decompress(frame: &[u8], expected: usize) -> Result<Vec<u8>> {
         let lo = b * blocksize;
         let bsize = blocksize.min(nbytes - lo);
         let leftover = bsize < blocksize;
-        let nsplits = if flags & FLAG_NOSPLIT == 0 && !leftover && bsize % typesize == 0 {
+        let nsplits = if flags & FLAG_NOSPLIT == 0 && !leftover && bsize.is_multiple_of(typesize) {
             typesize
         } else {
             1
