@@ -2,6 +2,7 @@
 pub mod checkpoint;
 pub mod preview;
 pub mod splat;
+pub mod vdb;
 
 /// CPU seconds (user + system) this process has used so far, from `/proc/self/stat` (Linux,
 /// USER_HZ = 100); `None` elsewhere. On a shared machine, figures per CPU second are steadier
