@@ -1,5 +1,6 @@
 //! nimbus: particle clouds (Position Based Fluids + cloud thermodynamics, adaptive particles)
 //! simulated on the GPU with wgpu, splatted on the CPU, written as OpenVDB / OpenEXR sequences.
+pub mod bench;
 pub mod config;
 pub mod error;
 pub mod gpu;

@@ -8,7 +8,12 @@
 //! - level l gives h = h0 * 2^(-l/3) and m = m0 * 2^(-l);
 //! - boundary particles (floor and ceiling walls) live in their own static arrays.
 pub mod grid_params;
+pub mod init;
+pub mod pbf;
 pub mod reference;
+mod simulation;
+
+pub use simulation::{density_error, Buf, FrameReport, SimClock, Simulation, Stage};
 
 /// Host copy of all per-particle state: what checkpoints store and what the splat reads.
 #[derive(Debug, Clone, Default, PartialEq)]
