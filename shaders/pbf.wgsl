@@ -24,6 +24,9 @@ struct PbfParams {
     _p0: f32,
     _p1: f32,
     _p2: f32,
+    // per level l: (h_l, poly6 factor 315/(64 pi h^9), spiky factor -45/(pi h^6), m_l): no pow or
+    // exp2 per neighbour pair (the dominant cost on CPU Vulkan)
+    lv: array<vec4<f32>, 8>,
 }
 
 @group(0) @binding(0) var<uniform> grid: GridParams;
@@ -47,11 +50,36 @@ fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
     return gid.y * nwg.x * 64u + gid.x;
 }
 
+fn level_of(i: u32) -> u32 {
+    return min(info[i].y, 7u);
+}
 fn radius_of(i: u32) -> f32 {
-    return prm.h0 * exp2(-f32(info[i].y) / 3.0);
+    return prm.lv[level_of(i)].x;
 }
 fn mass_of(i: u32) -> f32 {
-    return prm.m0 * exp2(-f32(info[i].y));
+    return prm.lv[level_of(i)].w;
+}
+// poly6 and spiky gradient of level l from the table (same values as common.wgsl's poly6/spiky_grad)
+fn w_l(r2: f32, l: u32) -> f32 {
+    let h = prm.lv[l].x;
+    let d = h * h - r2;
+    if (d <= 0.0) { return 0.0; }
+    return prm.lv[l].y * d * d * d;
+}
+fn gw_l(xij: vec3<f32>, r: f32, l: u32) -> vec3<f32> {
+    let h = prm.lv[l].x;
+    if (r >= h || r <= 1e-9 * h) { return vec3<f32>(0.0); }
+    let d = h - r;
+    return (prm.lv[l].z * d * d / r) * xij;
+}
+// eq. 19 by level
+fn wsym(r2: f32, li: u32, lj: u32) -> f32 {
+    if (li == lj) { return w_l(r2, li); }
+    return 0.5 * (w_l(r2, li) + w_l(r2, lj));
+}
+fn gsym(xij: vec3<f32>, r: f32, li: u32, lj: u32) -> vec3<f32> {
+    if (li == lj) { return gw_l(xij, r, li); }
+    return 0.5 * (gw_l(xij, r, li) + gw_l(xij, r, lj));
 }
 
 // Periodic wrap in x/z (velocity untouched) and the walls at y = 0 and y = size.
@@ -92,12 +120,15 @@ fn predict(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
 
 // Artificial pressure s_corr = -k (W / W(dq h))^n h_i h_j (k dimensionless; h_i h_j gives lambda's
 // units, m^2, so the term is scale free).
-fn scorr(r2: f32, hi: f32, hj: f32) -> f32 {
+fn scorr(r2: f32, li: u32, lj: u32) -> f32 {
     if (prm.scorr_k == 0.0) { return 0.0; }
+    let hi = prm.lv[li].x;
+    let hj = prm.lv[lj].x;
     let hb = prm.scorr_dq * 0.5 * (hi + hj);
-    let wdq = poly6_sym(hb * hb, hi, hj);
-    let w = poly6_sym(r2, hi, hj);
-    return -prm.scorr_k * pow(w / wdq, prm.scorr_n) * hi * hj;
+    let x = wsym(r2, li, lj) / wsym(hb * hb, li, lj);
+    var t = 1.0;
+    for (var k = 0u; k < u32(prm.scorr_n); k++) { t = t * x; }
+    return -prm.scorr_k * t * hi * hj;
 }
 
 @compute @workgroup_size(64)
@@ -105,6 +136,7 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
     let i = linear_id(gid, nwg);
     if (i >= grid.n_particles) { return; }
     let p = pred[i].xyz;
+    let li = level_of(i);
     let hi = radius_of(i);
     let mi = mass_of(i);
     let inv_rho0 = 1.0 / prm.rest_density;
@@ -120,12 +152,13 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
                 for (var j = cell_start[n]; j < cell_start[n + 1]; j++) {
                     let xij = min_image(p - pred[j].xyz, grid);
                     let r2 = dot(xij, xij);
+                    let lj = level_of(j);
                     let hj = radius_of(j);
                     let hm = max(hi, hj);
                     if (r2 >= hm * hm) { continue; }
                     let mj = mass_of(j);
-                    rho += mj * poly6_sym(r2, hi, hj);
-                    let g = spiky_grad_sym(xij, sqrt(r2), hi, hj) * (mj * inv_rho0);
+                    rho += mj * wsym(r2, li, lj);
+                    let g = gsym(xij, sqrt(r2), li, lj) * (mj * inv_rho0);
                     grad_i += g;
                     sum_grad2 += dot(g, g);
                 }
@@ -134,8 +167,8 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
                     let r2 = dot(xik, xik);
                     let hm = max(hi, prm.h0);
                     if (r2 >= hm * hm) { continue; }
-                    rho += mi * poly6_sym(r2, hi, prm.h0);
-                    grad_i += spiky_grad_sym(xik, sqrt(r2), hi, prm.h0) * (mi * inv_rho0);
+                    rho += mi * wsym(r2, li, 0u);
+                    grad_i += gsym(xik, sqrt(r2), li, 0u) * (mi * inv_rho0);
                 }
             }
         }
@@ -150,9 +183,10 @@ fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
     let i = linear_id(gid, nwg);
     if (i >= grid.n_particles) { return; }
     let p = pred[i].xyz;
+    let li = level_of(i);
     let hi = radius_of(i);
     let mi = mass_of(i);
-    let li = lambda[i];
+    let lam_i = lambda[i];
     var dp = vec3<f32>(0.0);
     let c = cell_coord(p, grid);
     for (var dz = -1; dz <= 1; dz++) {
@@ -163,20 +197,21 @@ fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
                 for (var j = cell_start[n]; j < cell_start[n + 1]; j++) {
                     let xij = min_image(p - pred[j].xyz, grid);
                     let r2 = dot(xij, xij);
+                    let lj = level_of(j);
                     let hj = radius_of(j);
                     let hm = max(hi, hj);
                     if (r2 >= hm * hm) { continue; }
                     let mj = mass_of(j);
-                    let s = li * mj + lambda[j] * mi + scorr(r2, hi, hj) * mj;
-                    dp += s * spiky_grad_sym(xij, sqrt(r2), hi, hj);
+                    let s = lam_i * mj + lambda[j] * mi + scorr(r2, li, lj) * mj;
+                    dp += s * gsym(xij, sqrt(r2), li, lj);
                 }
                 for (var k = bcell_start[n]; k < bcell_start[n + 1]; k++) {
                     let xik = min_image(p - bpos[k].xyz, grid);
                     let r2 = dot(xik, xik);
                     let hm = max(hi, prm.h0);
                     if (r2 >= hm * hm) { continue; }
-                    let s = (li + scorr(r2, hi, prm.h0)) * mi;
-                    dp += s * spiky_grad_sym(xik, sqrt(r2), hi, prm.h0);
+                    let s = (lam_i + scorr(r2, li, 0u)) * mi;
+                    dp += s * gsym(xik, sqrt(r2), li, 0u);
                 }
             }
         }
@@ -198,6 +233,7 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     if (i >= grid.n_particles) { return; }
     let p = pred[i].xyz;
     let vi = vel[i].xyz;
+    let li = level_of(i);
     let hi = radius_of(i);
     var w = vec3<f32>(0.0);
     let c = cell_coord(p, grid);
@@ -209,11 +245,12 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
                 for (var j = cell_start[n]; j < cell_start[n + 1]; j++) {
                     let xij = min_image(p - pred[j].xyz, grid);
                     let r2 = dot(xij, xij);
+                    let lj = level_of(j);
                     let hj = radius_of(j);
                     let hm = max(hi, hj);
                     if (r2 >= hm * hm) { continue; }
                     let vj = mass_of(j) / density[j];
-                    w += vj * cross(vi - vel[j].xyz, spiky_grad_sym(xij, sqrt(r2), hi, hj));
+                    w += vj * cross(vi - vel[j].xyz, gsym(xij, sqrt(r2), li, lj));
                 }
             }
         }
@@ -230,6 +267,7 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     if (i >= grid.n_particles) { return; }
     let p = pred[i].xyz;
     let vi = vel[i].xyz;
+    let li = level_of(i);
     let hi = radius_of(i);
     let use_vort = prm.vorticity > 0.0;
     let rho_i = density[i];
@@ -246,15 +284,16 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
                 for (var j = cell_start[n]; j < cell_start[n + 1]; j++) {
                     let xij = min_image(p - pred[j].xyz, grid);
                     let r2 = dot(xij, xij);
+                    let lj = level_of(j);
                     let hj = radius_of(j);
                     let hm = max(hi, hj);
                     if (r2 >= hm * hm) { continue; }
                     let vj = mass_of(j) / density[j];
                     // 2 m_j / (rho_i + rho_j): pairwise symmetric, so XSPH conserves momentum
                     let vs = 2.0 * mass_of(j) / (rho_i + density[j]);
-                    acc += vs * poly6_sym(r2, hi, hj) * (vel[j].xyz - vi);
+                    acc += vs * wsym(r2, li, lj) * (vel[j].xyz - vi);
                     if (use_vort) {
-                        eta += vj * (pos[j].w - wi) * spiky_grad_sym(xij, sqrt(r2), hi, hj);
+                        eta += vj * (pos[j].w - wi) * gsym(xij, sqrt(r2), li, lj);
                     }
                 }
             }

@@ -280,8 +280,14 @@ fn no_momentum_drift_in_a_periodic_box_without_gravity() {
     let scale: f64 = s.vel.iter().map(|v| ((v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) as f64).sqrt()).sum();
     for _ in 0..10 {
         sim.step_frame().unwrap();
+        let st = sim.state().unwrap();
+        let p: Vec<f64> = (0..3).map(|a| st.vel.iter().map(|v| v[a] as f64).sum::<f64>()).collect();
+        eprintln!("momentum {p:?}");
     }
     let st = sim.state().unwrap();
+    let mut ids: Vec<u32> = st.info.iter().map(|i| i[0]).collect();
+    ids.sort();
+    assert!(ids.iter().enumerate().all(|(k, &i)| i == k as u32), "ids are not a permutation");
     let p: Vec<f64> = (0..3).map(|a| st.vel.iter().map(|v| v[a] as f64).sum::<f64>()).collect();
     eprintln!("momentum after 10 frames / sum |v|: {:?}", p.iter().map(|x| x / scale).collect::<Vec<_>>());
     // x and z are periodic: conserved up to the walls' tangential push and f32 rounding

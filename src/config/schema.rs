@@ -198,7 +198,7 @@ impl Default for SolverConfig {
         Self {
             iterations: 4,
             rest_density: 1.0,
-            relaxation: 1.0e-2,
+            relaxation: 1.0e-1,
             scorr_k: 1.0e-4,
             scorr_n: 4,
             scorr_dq: 0.2,

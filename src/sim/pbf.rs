@@ -19,6 +19,8 @@ pub struct PbfParams {
     pub gravity: f32,
     pub max_speed: f32,
     pub _pad: [f32; 3],
+    /// Per level l (0..8): (h_l, 315 / (64 pi h_l^9), -45 / (pi h_l^6), m_l).
+    pub levels: [[f32; 4]; 8],
 }
 
 impl PbfParams {
@@ -41,6 +43,16 @@ impl PbfParams {
             gravity: s.gravity as f32,
             max_speed: s.max_speed as f32,
             _pad: [0.0; 3],
+            levels: std::array::from_fn(|l| {
+                let h = h0 * (-(l as f64) / 3.0).exp2();
+                let pi = std::f64::consts::PI;
+                [
+                    h as f32,
+                    (315.0 / (64.0 * pi * h.powi(9))) as f32,
+                    (-45.0 / (pi * h.powi(6))) as f32,
+                    (crate::sim::init::particle_mass(cfg) * (-(l as f64)).exp2()) as f32,
+                ]
+            }),
         }
     }
 }
