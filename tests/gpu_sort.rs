@@ -6,10 +6,18 @@ use rand::{Rng, SeedableRng};
 #[test]
 fn radix_sort_is_a_stable_sort() {
     let ctx = nimbus::gpu::Context::new(&GpuConfig::default()).unwrap();
-    let seed = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos() as u64;
+    let seed = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64;
     eprintln!("seed {seed}");
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    for (n, max_key) in [(1usize, 5u32), (255, 3), (10_007, 1000), (70_001, (1 << 20) - 1)] {
+    for (n, max_key) in [
+        (1usize, 5u32),
+        (255, 3),
+        (10_007, 1000),
+        (70_001, (1 << 20) - 1),
+    ] {
         let cap = n.next_multiple_of(64);
         let keys: Vec<u32> = (0..n).map(|_| rng.random_range(0..=max_key)).collect();
         let vals: Vec<u32> = (0..n as u32).collect();
@@ -25,7 +33,8 @@ fn radix_sort_is_a_stable_sort() {
             sort.encode(&mut pass);
         }
         ctx.queue.submit([enc.finish()]);
-        let all: Vec<u32> = nimbus::gpu::buffers::read_back(&ctx.device, &ctx.queue, &buf, 4 * cap).unwrap();
+        let all: Vec<u32> =
+            nimbus::gpu::buffers::read_back(&ctx.device, &ctx.queue, &buf, 4 * cap).unwrap();
         let (ko, vo) = sort.result_offsets();
         let gk = &all[ko as usize / 4..ko as usize / 4 + n];
         let gv = &all[vo as usize / 4..vo as usize / 4 + n];

@@ -16,7 +16,12 @@ pub struct Kernel {
 }
 
 impl Kernel {
-    pub fn new(device: &wgpu::Device, shader: &str, binds: &[Bind], entries: &[&str]) -> Result<Self> {
+    pub fn new(
+        device: &wgpu::Device,
+        shader: &str,
+        binds: &[Bind],
+        entries: &[&str],
+    ) -> Result<Self> {
         let layout_entries: Vec<wgpu::BindGroupLayoutEntry> = binds
             .iter()
             .enumerate()

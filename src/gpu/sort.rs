@@ -55,7 +55,12 @@ impl PrefixScan {
             let params = uniform_init(
                 device,
                 "scan params",
-                &Params4 { a: len, b: 0, c: 0, d: 0 },
+                &Params4 {
+                    a: len,
+                    b: 0,
+                    c: 0,
+                    d: 0,
+                },
             );
             let src = if k == 0 { data } else { &sums[k - 1] };
             let bind = kernel.bind(
@@ -66,9 +71,18 @@ impl PrefixScan {
                     sums[k].as_entire_binding(),
                 ],
             );
-            levels.push(ScanLevel { params, bind, max_len: len, len });
+            levels.push(ScanLevel {
+                params,
+                bind,
+                max_len: len,
+                len,
+            });
         }
-        Ok(Self { kernel, levels, sums })
+        Ok(Self {
+            kernel,
+            levels,
+            sums,
+        })
     }
 
     /// Sets how many values the next `encode` scans (at most the `max_len` given at creation).
@@ -77,17 +91,28 @@ impl PrefixScan {
         for lv in &mut self.levels {
             debug_assert!(len <= lv.max_len);
             lv.len = len;
-            queue.write_buffer(&lv.params, 0, bytemuck::bytes_of(&Params4 { a: len, b: 0, c: 0, d: 0 }));
+            queue.write_buffer(
+                &lv.params,
+                0,
+                bytemuck::bytes_of(&Params4 {
+                    a: len,
+                    b: 0,
+                    c: 0,
+                    d: 0,
+                }),
+            );
             len = len.div_ceil(BLOCK);
         }
     }
 
     pub fn encode(&self, pass: &mut wgpu::ComputePass) {
         for lv in &self.levels {
-            self.kernel.dispatch(pass, "scan_blocks", &lv.bind, lv.len, BLOCK);
+            self.kernel
+                .dispatch(pass, "scan_blocks", &lv.bind, lv.len, BLOCK);
         }
         for lv in self.levels.iter().rev().skip(1) {
-            self.kernel.dispatch(pass, "scan_add", &lv.bind, lv.len, BLOCK);
+            self.kernel
+                .dispatch(pass, "scan_add", &lv.bind, lv.len, BLOCK);
         }
     }
 
@@ -111,12 +136,27 @@ pub struct RadixSort {
 }
 
 impl RadixSort {
-    pub fn new(device: &wgpu::Device, pairs: &wgpu::Buffer, capacity: u32, key_bits: u32) -> Result<Self> {
-        assert!(capacity % 64 == 0, "radix sort capacity must be a multiple of 64");
+    pub fn new(
+        device: &wgpu::Device,
+        pairs: &wgpu::Buffer,
+        capacity: u32,
+        key_bits: u32,
+    ) -> Result<Self> {
+        assert!(
+            capacity.is_multiple_of(64),
+            "radix sort capacity must be a multiple of 64"
+        );
         let kernel = Kernel::new(
             device,
             "radix_sort.wgsl",
-            &[Bind::Uniform, Bind::Storage, Bind::Storage, Bind::Storage, Bind::Storage, Bind::Storage],
+            &[
+                Bind::Uniform,
+                Bind::Storage,
+                Bind::Storage,
+                Bind::Storage,
+                Bind::Storage,
+                Bind::Storage,
+            ],
             &["radix_count", "radix_scatter"],
         )?;
         let passes = key_bits.max(1).div_ceil(4);
@@ -127,8 +167,21 @@ impl RadixSort {
         let mut params = Vec::new();
         let mut binds = Vec::new();
         for p in 0..passes {
-            let pb = uniform_init(device, "radix params", &Params4 { a: 0, b: 4 * p, c: 1, d: 0 });
-            let (src, dst) = if p % 2 == 0 { (0, 2 * arr) } else { (2 * arr, 0) };
+            let pb = uniform_init(
+                device,
+                "radix params",
+                &Params4 {
+                    a: 0,
+                    b: 4 * p,
+                    c: 1,
+                    d: 0,
+                },
+            );
+            let (src, dst) = if p % 2 == 0 {
+                (0, 2 * arr)
+            } else {
+                (2 * arr, 0)
+            };
             binds.push(kernel.bind(
                 device,
                 &[
@@ -142,7 +195,15 @@ impl RadixSort {
             ));
             params.push(pb);
         }
-        Ok(Self { kernel, hist, params, binds, scan, capacity, n: 0 })
+        Ok(Self {
+            kernel,
+            hist,
+            params,
+            binds,
+            scan,
+            capacity,
+            n: 0,
+        })
     }
 
     /// Number of pairs the next `encode` sorts.
@@ -151,7 +212,12 @@ impl RadixSort {
         self.n = n;
         let tiles = n.div_ceil(BLOCK).max(1);
         for (p, pb) in self.params.iter().enumerate() {
-            let v = Params4 { a: n, b: 4 * p as u32, c: tiles, d: 0 };
+            let v = Params4 {
+                a: n,
+                b: 4 * p as u32,
+                c: tiles,
+                d: 0,
+            };
             queue.write_buffer(pb, 0, bytemuck::bytes_of(&v));
         }
         self.scan.set_len(queue, 16 * tiles);
@@ -160,9 +226,11 @@ impl RadixSort {
     pub fn encode(&self, pass: &mut wgpu::ComputePass) {
         let threads = self.n.div_ceil(BLOCK).max(1) * BLOCK;
         for bg in &self.binds {
-            self.kernel.dispatch(pass, "radix_count", bg, threads, BLOCK);
+            self.kernel
+                .dispatch(pass, "radix_count", bg, threads, BLOCK);
             self.scan.encode(pass);
-            self.kernel.dispatch(pass, "radix_scatter", bg, threads, BLOCK);
+            self.kernel
+                .dispatch(pass, "radix_scatter", bg, threads, BLOCK);
         }
     }
 

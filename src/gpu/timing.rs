@@ -45,7 +45,11 @@ impl GpuTimer {
     }
 
     /// Begins a compute pass timed under `label` (untimed once the query set is full).
-    pub fn pass<'e>(&mut self, enc: &'e mut wgpu::CommandEncoder, label: &str) -> wgpu::ComputePass<'e> {
+    pub fn pass<'e>(
+        &mut self,
+        enc: &'e mut wgpu::CommandEncoder,
+        label: &str,
+    ) -> wgpu::ComputePass<'e> {
         let k = self.labels.len() as u32;
         let timestamp_writes = if 2 * k + 2 <= MAX_QUERIES {
             self.labels.push(label.to_string());

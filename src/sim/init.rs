@@ -86,12 +86,20 @@ pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
         for j in 0..n[1] {
             for i in 0..n[0] {
                 let idx = s.pos.len() as u64;
-                let p = [(i as f64 + 0.5) * d[0], (j as f64 + 0.5) * d[1], (k as f64 + 0.5) * d[2]];
+                let p = [
+                    (i as f64 + 0.5) * d[0],
+                    (j as f64 + 0.5) * d[1],
+                    (k as f64 + 0.5) * d[2],
+                ];
                 let cos_t = 2.0 * hash_uniform(cfg.seed, idx, 0) - 1.0;
                 let phi = 2.0 * std::f64::consts::PI * hash_uniform(cfg.seed, idx, 1);
                 let speed = cfg.physics.initial_speed * hash_uniform(cfg.seed, idx, 2);
                 let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-                let v = [speed * sin_t * phi.cos(), speed * cos_t, speed * sin_t * phi.sin()];
+                let v = [
+                    speed * sin_t * phi.cos(),
+                    speed * cos_t,
+                    speed * sin_t * phi.sin(),
+                ];
                 let t = environment_temperature(cfg, p[1]);
                 let vapor = cfg.physics.initial_vapor * saturation(cfg, t);
                 s.pos.push([p[0] as f32, p[1] as f32, p[2] as f32, 0.0]);

@@ -147,18 +147,34 @@ impl Simulation {
     ) -> Result<Self> {
         let n = state.len();
         if n == 0 {
-            return Err(Error::InvalidInput("the shot has no particles (domain smaller than the spacing?)".into()));
+            return Err(Error::InvalidInput(
+                "the shot has no particles (domain smaller than the spacing?)".into(),
+            ));
         }
-        if state.vel.len() != n || state.thermo.len() != n || state.info.len() != n || state.density.len() != n {
-            return Err(Error::InvalidInput("particle state arrays have different lengths".into()));
+        if state.vel.len() != n
+            || state.thermo.len() != n
+            || state.info.len() != n
+            || state.density.len() != n
+        {
+            return Err(Error::InvalidInput(
+                "particle state arrays have different lengths".into(),
+            ));
         }
-        if cfg.output.substeps == 0 || !(cfg.output.frame_seconds > 0.0) {
-            return Err(Error::Config("output.substeps and output.frame_seconds must be positive".into()));
+        if cfg.output.substeps == 0 || cfg.output.frame_seconds.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            return Err(Error::Config(
+                "output.substeps and output.frame_seconds must be positive".into(),
+            ));
         }
-        let factor = if cfg.adaptive.enabled { cfg.adaptive.capacity_factor.max(1.0) } else { 1.0 };
+        let factor = if cfg.adaptive.enabled {
+            cfg.adaptive.capacity_factor.max(1.0)
+        } else {
+            1.0
+        };
         let capacity = (((n as f64 * factor).ceil() as u64).max(n as u64)).next_multiple_of(64);
         let limits = ctx.device.limits();
-        let max_binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size as u64);
+        let max_binding = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
         if capacity * 16 > max_binding || capacity > u32::MAX as u64 / 2 {
             return Err(Error::InvalidInput(format!(
                 "{n} particles (capacity {capacity}) exceed the GPU's largest storage buffer ({max_binding} bytes); use a larger spacing"
@@ -186,9 +202,11 @@ impl Simulation {
             buf
         };
         let info = storage_zeroed::<[u32; 2]>(dev, "info", cap);
-        ctx.queue.write_buffer(&info, 0, bytemuck::cast_slice(&state.info));
+        ctx.queue
+            .write_buffer(&info, 0, bytemuck::cast_slice(&state.info));
         let density = storage_zeroed::<f32>(dev, "density", cap);
-        ctx.queue.write_buffer(&density, 0, bytemuck::cast_slice(&state.density));
+        ctx.queue
+            .write_buffer(&density, 0, bytemuck::cast_slice(&state.density));
         let b = Buffers {
             pos: upload4("pos", &state.pos),
             vel: upload4("vel", &state.vel),
@@ -207,13 +225,41 @@ impl Simulation {
         };
         let s4 = Bind::Storage;
         let k = Kernels {
-            grid: Kernel::new(dev, "grid.wgsl", &[Bind::Uniform, s4, s4, s4, s4], &["cell_keys", "cell_table"])?,
-            perm4: Kernel::new(dev, "permute4.wgsl", &[Bind::Uniform, s4, s4, s4], &["permute4", "copy4"])?,
-            perm2: Kernel::new(dev, "permute2.wgsl", &[Bind::Uniform, s4, s4, s4], &["permute2", "copy2"])?,
+            grid: Kernel::new(
+                dev,
+                "grid.wgsl",
+                &[Bind::Uniform, s4, s4, s4, s4],
+                &["cell_keys", "cell_table"],
+            )?,
+            perm4: Kernel::new(
+                dev,
+                "permute4.wgsl",
+                &[Bind::Uniform, s4, s4, s4],
+                &["permute4", "copy4"],
+            )?,
+            perm2: Kernel::new(
+                dev,
+                "permute2.wgsl",
+                &[Bind::Uniform, s4, s4, s4],
+                &["permute2", "copy2"],
+            )?,
             pbf: Kernel::new(
                 dev,
                 "pbf.wgsl",
-                &[Bind::Uniform, Bind::Uniform, s4, s4, s4, s4, s4, s4, s4, s4, s4, s4],
+                &[
+                    Bind::Uniform,
+                    Bind::Uniform,
+                    s4,
+                    s4,
+                    s4,
+                    s4,
+                    s4,
+                    s4,
+                    s4,
+                    s4,
+                    s4,
+                    s4,
+                ],
                 &[
                     "predict",
                     "compute_lambda",
@@ -237,15 +283,35 @@ impl Simulation {
         };
         let order = || range(&b.pairs, vo, arr);
         let g = Binds {
-            keys: k.grid.bind(dev, &[e(&b.grid_u), e(&b.pred), range(&b.pairs, 0, arr), range(&b.pairs, arr, arr), e(&b.cell_start)]),
-            table: k.grid.bind(dev, &[e(&b.grid_u), e(&b.pred), range(&b.pairs, ko, arr), order(), e(&b.cell_start)]),
+            keys: k.grid.bind(
+                dev,
+                &[
+                    e(&b.grid_u),
+                    e(&b.pred),
+                    range(&b.pairs, 0, arr),
+                    range(&b.pairs, arr, arr),
+                    e(&b.cell_start),
+                ],
+            ),
+            table: k.grid.bind(
+                dev,
+                &[
+                    e(&b.grid_u),
+                    e(&b.pred),
+                    range(&b.pairs, ko, arr),
+                    order(),
+                    e(&b.cell_start),
+                ],
+            ),
             perm4: [&b.pos, &b.pred, &b.thermo]
                 .iter()
-                .map(|a| (p4(*a, &b.vel, order()), p4(&b.vel, *a, order())))
+                .map(|a| (p4(a, &b.vel, order()), p4(&b.vel, a, order())))
                 .collect(),
             perm2: (
-                k.perm2.bind(dev, &[e(&b.count_u), order(), e(&b.info), e(&b.vel)]),
-                k.perm2.bind(dev, &[e(&b.count_u), order(), e(&b.vel), e(&b.info)]),
+                k.perm2
+                    .bind(dev, &[e(&b.count_u), order(), e(&b.info), e(&b.vel)]),
+                k.perm2
+                    .bind(dev, &[e(&b.count_u), order(), e(&b.vel), e(&b.info)]),
             ),
             pbf: k.pbf.bind(
                 dev,
@@ -316,8 +382,20 @@ impl Simulation {
     pub fn device_bytes(&self) -> u64 {
         let b = &self.b;
         [
-            &b.pos, &b.vel, &b.thermo, &b.info, &b.pred, &b.pairs, &b.lambda, &b.density,
-            &b.cell_start, &b.bpos, &b.bcell_start, &b.grid_u, &b.params_u, &b.count_u,
+            &b.pos,
+            &b.vel,
+            &b.thermo,
+            &b.info,
+            &b.pred,
+            &b.pairs,
+            &b.lambda,
+            &b.density,
+            &b.cell_start,
+            &b.bpos,
+            &b.bcell_start,
+            &b.grid_u,
+            &b.params_u,
+            &b.count_u,
         ]
         .iter()
         .map(|x| x.size())
@@ -330,7 +408,9 @@ impl Simulation {
     }
 
     fn encode_predict(&self, pass: &mut wgpu::ComputePass) {
-        self.k.pbf.dispatch(pass, "predict", &self.g.pbf, self.threads(), WG);
+        self.k
+            .pbf
+            .dispatch(pass, "predict", &self.g.pbf, self.threads(), WG);
     }
 
     fn encode_grid(&self, pass: &mut wgpu::ComputePass) {
@@ -349,9 +429,15 @@ impl Simulation {
 
     fn encode_iteration(&self, pass: &mut wgpu::ComputePass) {
         let n = self.threads();
-        self.k.pbf.dispatch(pass, "compute_lambda", &self.g.pbf, n, WG);
-        self.k.pbf.dispatch(pass, "compute_delta", &self.g.pbf, n, WG);
-        self.k.perm4.dispatch(pass, "copy4", &self.g.scratch_to_pred, n, WG);
+        self.k
+            .pbf
+            .dispatch(pass, "compute_lambda", &self.g.pbf, n, WG);
+        self.k
+            .pbf
+            .dispatch(pass, "compute_delta", &self.g.pbf, n, WG);
+        self.k
+            .perm4
+            .dispatch(pass, "copy4", &self.g.scratch_to_pred, n, WG);
     }
 
     fn encode_velocity(&self, pass: &mut wgpu::ComputePass) {
@@ -367,8 +453,12 @@ impl Simulation {
 
     fn encode_finish(&self, pass: &mut wgpu::ComputePass) {
         let n = self.threads();
-        self.k.perm4.dispatch(pass, "copy4", &self.g.scratch_to_vel, n, WG);
-        self.k.perm4.dispatch(pass, "copy4", &self.g.pred_to_pos, n, WG);
+        self.k
+            .perm4
+            .dispatch(pass, "copy4", &self.g.scratch_to_vel, n, WG);
+        self.k
+            .perm4
+            .dispatch(pass, "copy4", &self.g.pred_to_pos, n, WG);
     }
 
     fn encode_phase(&self, phase: &str, pass: &mut wgpu::ComputePass) {
@@ -395,8 +485,12 @@ impl Simulation {
     /// Advances one frame: `output.substeps` substeps of dt = frame_seconds / substeps.
     pub fn step_frame(&mut self) -> Result<FrameReport> {
         // (phase, timing label)
-        const PHASES: [(&str, &str); 4] =
-            [("predict", "pbf"), ("grid", "grid"), ("solve", "pbf"), ("velocity", "velocity")];
+        const PHASES: [(&str, &str); 4] = [
+            ("predict", "pbf"),
+            ("grid", "grid"),
+            ("solve", "pbf"),
+            ("velocity", "velocity"),
+        ];
         let mut report = FrameReport::default();
         let dev = &self.ctx.device;
         for _ in 0..self.substeps {
@@ -432,11 +526,14 @@ impl Simulation {
             report.phase_ms = timer.collect(dev)?;
         }
         self.clock.frame += 1;
-        let density: Vec<f32> = read_back(dev, &self.ctx.queue, &self.b.density, self.count as usize)?;
+        let density: Vec<f32> =
+            read_back(dev, &self.ctx.queue, &self.b.density, self.count as usize)?;
         let (mean, max) = density_error(&density, self.params.rest_density as f64);
         report.diagnostics.insert("density_error_mean".into(), mean);
         report.diagnostics.insert("density_error_max".into(), max);
-        report.diagnostics.insert("particles".into(), self.count as f64);
+        report
+            .diagnostics
+            .insert("particles".into(), self.count as f64);
         Ok(report)
     }
 
@@ -489,11 +586,21 @@ impl Simulation {
 
     #[doc(hidden)]
     pub fn read_vec4(&self, which: Buf) -> Result<Vec<[f32; 4]>> {
-        read_back(&self.ctx.device, &self.ctx.queue, self.buffer(which), self.count as usize)
+        read_back(
+            &self.ctx.device,
+            &self.ctx.queue,
+            self.buffer(which),
+            self.count as usize,
+        )
     }
     #[doc(hidden)]
     pub fn read_f32(&self, which: Buf) -> Result<Vec<f32>> {
-        read_back(&self.ctx.device, &self.ctx.queue, self.buffer(which), self.count as usize)
+        read_back(
+            &self.ctx.device,
+            &self.ctx.queue,
+            self.buffer(which),
+            self.count as usize,
+        )
     }
     #[doc(hidden)]
     pub fn read_u32(&self, which: Buf, len: usize) -> Result<Vec<u32>> {
@@ -502,7 +609,9 @@ impl Simulation {
     /// Overwrites the first entries of a buffer (tests seed fresh random inputs this way).
     #[doc(hidden)]
     pub fn write<T: bytemuck::Pod>(&self, which: Buf, data: &[T]) {
-        self.ctx.queue.write_buffer(self.buffer(which), 0, bytemuck::cast_slice(data));
+        self.ctx
+            .queue
+            .write_buffer(self.buffer(which), 0, bytemuck::cast_slice(data));
     }
 }
 

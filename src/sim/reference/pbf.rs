@@ -129,7 +129,10 @@ pub fn compute_lambda(sc: &Scene, pred: &[V3]) -> (Vec<f64>, Vec<f64>) {
                 return;
             }
             rho += mi * poly6_sym(r2, hi, h0);
-            grad_i = add(grad_i, scale(spiky_grad_sym(xik, r2.sqrt(), hi, h0), mi / rho0));
+            grad_i = add(
+                grad_i,
+                scale(spiky_grad_sym(xik, r2.sqrt(), hi, h0), mi / rho0),
+            );
         });
         let c = rho / rho0 - 1.0;
         lam.push(-c / (sum2 + dot(grad_i, grad_i) + sc.prm.eps as f64));

@@ -48,7 +48,12 @@ pub fn radix_count(keys: &[u32], shift: u32) -> Vec<u32> {
 }
 
 /// Stable scatter of one pass given the scanned histogram.
-pub fn radix_scatter(keys: &[u32], vals: &[u32], shift: u32, scanned: &[u32]) -> (Vec<u32>, Vec<u32>) {
+pub fn radix_scatter(
+    keys: &[u32],
+    vals: &[u32],
+    shift: u32,
+    scanned: &[u32],
+) -> (Vec<u32>, Vec<u32>) {
     let tiles = keys.len().div_ceil(BLOCK).max(1);
     let mut ko = vec![0u32; keys.len()];
     let mut vo = vec![0u32; keys.len()];
@@ -82,7 +87,9 @@ mod tests {
 
     #[test]
     fn mirror_sort_is_a_stable_sort() {
-        let keys: Vec<u32> = (0..5000u32).map(|i| (i.wrapping_mul(2654435761) >> 7) % 300).collect();
+        let keys: Vec<u32> = (0..5000u32)
+            .map(|i| (i.wrapping_mul(2654435761) >> 7) % 300)
+            .collect();
         let vals: Vec<u32> = (0..5000).collect();
         let (k, v) = radix_sort(&keys, &vals, 9);
         let mut expect: Vec<u32> = vals.clone();
