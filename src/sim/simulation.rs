@@ -160,7 +160,9 @@ impl Simulation {
                 "particle state arrays have different lengths".into(),
             ));
         }
-        if cfg.output.substeps == 0 || cfg.output.frame_seconds.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        if cfg.output.substeps == 0
+            || cfg.output.frame_seconds.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
+        {
             return Err(Error::Config(
                 "output.substeps and output.frame_seconds must be positive".into(),
             ));
