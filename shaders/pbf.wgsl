@@ -149,7 +149,8 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
             for (var dx = -1; dx <= 1; dx++) {
                 let n = neighbor_cell(c, vec3<i32>(dx, dy, dz), grid);
                 if (n < 0) { continue; }
-                for (var j = cell_start[n]; j < cell_start[n + 1]; j++) {
+                let j_end = cell_start[n + 1];
+                for (var j = cell_start[n]; j < j_end; j++) {
                     let xij = min_image(p - pred[j].xyz, grid);
                     let r2 = dot(xij, xij);
                     let lj = level_of(j);
@@ -162,7 +163,8 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
                     grad_i += g;
                     sum_grad2 += dot(g, g);
                 }
-                for (var k = bcell_start[n]; k < bcell_start[n + 1]; k++) {
+                let k_end = bcell_start[n + 1];
+                for (var k = bcell_start[n]; k < k_end; k++) {
                     let xik = min_image(p - bpos[k].xyz, grid);
                     let r2 = dot(xik, xik);
                     let hm = max(hi, prm.h0);
@@ -194,7 +196,8 @@ fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
             for (var dx = -1; dx <= 1; dx++) {
                 let n = neighbor_cell(c, vec3<i32>(dx, dy, dz), grid);
                 if (n < 0) { continue; }
-                for (var j = cell_start[n]; j < cell_start[n + 1]; j++) {
+                let j_end = cell_start[n + 1];
+                for (var j = cell_start[n]; j < j_end; j++) {
                     let xij = min_image(p - pred[j].xyz, grid);
                     let r2 = dot(xij, xij);
                     let lj = level_of(j);
@@ -205,7 +208,8 @@ fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
                     let s = lam_i * mj + lambda[j] * mi + scorr(r2, li, lj) * mj;
                     dp += s * gsym(xij, sqrt(r2), li, lj);
                 }
-                for (var k = bcell_start[n]; k < bcell_start[n + 1]; k++) {
+                let k_end = bcell_start[n + 1];
+                for (var k = bcell_start[n]; k < k_end; k++) {
                     let xik = min_image(p - bpos[k].xyz, grid);
                     let r2 = dot(xik, xik);
                     let hm = max(hi, prm.h0);
@@ -242,7 +246,8 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
             for (var dx = -1; dx <= 1; dx++) {
                 let n = neighbor_cell(c, vec3<i32>(dx, dy, dz), grid);
                 if (n < 0) { continue; }
-                for (var j = cell_start[n]; j < cell_start[n + 1]; j++) {
+                let j_end = cell_start[n + 1];
+                for (var j = cell_start[n]; j < j_end; j++) {
                     let xij = min_image(p - pred[j].xyz, grid);
                     let r2 = dot(xij, xij);
                     let lj = level_of(j);
@@ -281,7 +286,8 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
             for (var dx = -1; dx <= 1; dx++) {
                 let n = neighbor_cell(c, vec3<i32>(dx, dy, dz), grid);
                 if (n < 0) { continue; }
-                for (var j = cell_start[n]; j < cell_start[n + 1]; j++) {
+                let j_end = cell_start[n + 1];
+                for (var j = cell_start[n]; j < j_end; j++) {
                     let xij = min_image(p - pred[j].xyz, grid);
                     let r2 = dot(xij, xij);
                     let lj = level_of(j);
