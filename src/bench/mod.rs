@@ -1,5 +1,6 @@
 //! Measurement commands: figures for docs/PERFORMANCE.md, never timed tests.
 pub mod checkpoint;
+pub mod pbf;
 pub mod preview;
 pub mod splat;
 pub mod vdb;

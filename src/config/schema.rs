@@ -176,15 +176,17 @@ pub struct SolverConfig {
     pub iterations: u32,
     /// Rest density rho0 (kg/m^3).
     pub rest_density: f64,
-    /// Constraint force mixing epsilon (eq. 4 relaxation), in the units of |grad C|^2.
+    /// Constraint force mixing epsilon (eq. 4 relaxation), dimensionless: eps = relaxation / h0^2
+    /// (the lattice value of sum |grad C|^2 is 1.46 / h0^2 at h0 = 2d).
     pub relaxation: f64,
-    /// Artificial pressure s_corr: k, n and delta q (fraction of h).
+    /// Artificial pressure s_corr = -k (W / W(dq h))^n h_i h_j: k (dimensionless), n and
+    /// delta q (fraction of h).
     pub scorr_k: f64,
     pub scorr_n: u32,
     pub scorr_dq: f64,
     /// XSPH viscosity c.
     pub xsph: f64,
-    /// Vorticity confinement epsilon.
+    /// Vorticity confinement epsilon (m/s): acceleration = vorticity * (N x omega).
     pub vorticity: f64,
     /// Constant gravity (m/s^2, downward); 0 = none (paper example 1).
     pub gravity: f64,
@@ -196,7 +198,7 @@ impl Default for SolverConfig {
         Self {
             iterations: 4,
             rest_density: 1.0,
-            relaxation: 1.0e-6,
+            relaxation: 1.0e-1,
             scorr_k: 1.0e-4,
             scorr_n: 4,
             scorr_dq: 0.2,

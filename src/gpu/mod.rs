@@ -1,6 +1,9 @@
 //! wgpu context (headless adapter choice, features, limits), buffer helpers and shader loading.
 pub mod buffers;
+pub mod kernel;
 pub mod shaders;
+pub mod sort;
+pub mod timing;
 
 use crate::config::{Backend, GpuConfig};
 use crate::error::{Error, Result};

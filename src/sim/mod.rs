@@ -10,10 +10,15 @@
 pub mod adaptive;
 pub mod diagnostics;
 pub mod grid_params;
+pub mod init;
 pub mod noise;
+pub mod pbf;
 pub mod reference;
+mod simulation;
 pub mod smoothing;
 pub mod thermo;
+
+pub use simulation::{density_error, Buf, FrameReport, SimClock, Simulation, Stage};
 
 /// Host copy of all per-particle state: what checkpoints store and what the splat reads.
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -45,3 +45,13 @@ pub fn for_each_neighbor(
         }
     }
 }
+
+/// Mirror of `cell_keys` (grid.wgsl): the linear cell of each position.
+pub fn cell_keys(grid: &GridParams, pos: &[[f64; 3]]) -> Vec<u32> {
+    pos.iter().map(|p| grid.cell_index(*p)).collect()
+}
+
+/// Mirror of `permute4`/`permute2`: `dst[i] = src[order[i]]`.
+pub fn permute<T: Copy>(order: &[u32], src: &[T]) -> Vec<T> {
+    order.iter().map(|&o| src[o as usize]).collect()
+}

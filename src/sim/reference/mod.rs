@@ -2,5 +2,7 @@
 pub mod adaptive;
 pub mod grid;
 pub mod kernels;
+pub mod pbf;
 pub mod smoothing;
+pub mod sort;
 pub mod thermo;

@@ -1,0 +1,158 @@
+//! Initial state (paper section 5), computed on the CPU in f64 and uploaded once.
+//!
+//! Why the CPU: it runs once per shot, is a handful of closed-form expressions per particle, and
+//! computing it in f64 on the host makes it exactly reproducible on every adapter (no f32
+//! transcendental differences between GPU vendors) with nothing to mirror or to checkpoint. The
+//! random velocities come from a stateless hash of (seed, particle index), so there is no RNG
+//! state either.
+use crate::config::ShotConfig;
+use crate::sim::grid_params::GridParams;
+use crate::sim::reference::kernels::poly6;
+use crate::sim::ParticleState;
+
+/// Particles per axis of the initial lattice and its spacing per axis: `round(size / d)` cells
+/// of edge `size / n` (= d when d divides the box, as validation asks for periodic axes).
+pub fn lattice(cfg: &ShotConfig) -> ([usize; 3], [f64; 3]) {
+    let n = cfg
+        .domain
+        .size
+        .map(|s| ((s / cfg.domain.spacing).round() as usize).max(1));
+    let d = [0, 1, 2].map(|a| cfg.domain.size[a] / n[a] as f64);
+    (n, d)
+}
+
+/// Level-0 kernel radius h0 = kernel_ratio * spacing.
+pub fn kernel_radius(cfg: &ShotConfig) -> f64 {
+    cfg.domain.spacing * cfg.domain.kernel_ratio
+}
+
+/// Level-0 mass m0: rho0 divided by the poly6 sum over the initial lattice, so that the lattice
+/// (and a fluid particle next to the wall particles, which continue the lattice) is exactly at
+/// rest density. With h0 = 2d this differs from rho0 d^3 by the kernel's discretisation error.
+pub fn particle_mass(cfg: &ShotConfig) -> f64 {
+    let (_, d) = lattice(cfg);
+    let h = kernel_radius(cfg);
+    let r = [0, 1, 2].map(|a| (h / d[a]).ceil() as i64);
+    let mut sum = 0.0;
+    for k in -r[2]..=r[2] {
+        for j in -r[1]..=r[1] {
+            for i in -r[0]..=r[0] {
+                let x = [i as f64 * d[0], j as f64 * d[1], k as f64 * d[2]];
+                sum += poly6(x[0] * x[0] + x[1] * x[1] + x[2] * x[2], h);
+            }
+        }
+    }
+    cfg.solver.rest_density / sum
+}
+
+/// splitmix64 finaliser.
+fn mix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Uniform number in [0, 1) from (seed, particle index, draw number): stateless.
+pub fn hash_uniform(seed: u64, index: u64, draw: u64) -> f64 {
+    let h = mix(mix(seed ^ mix(index)).wrapping_add(draw));
+    (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+}
+
+/// Environment temperature T0(y) = ground - lapse * y.
+pub fn environment_temperature(cfg: &ShotConfig, y: f64) -> f64 {
+    cfg.physics.ground_temperature - cfg.physics.environment_lapse_rate * y
+}
+
+/// Saturation mixing ratio of eq. 10.
+pub fn saturation(cfg: &ShotConfig, t: f64) -> f64 {
+    let p = &cfg.physics;
+    p.saturation_a * (p.saturation_b / (t + p.saturation_c)).exp()
+}
+
+/// The fluid particles: a uniform lattice filling the box, random velocity directions with speeds
+/// uniform in [0, initial_speed], T = T0(y), cloud w = 0, vapor v = kv * gamma(T), level 0, id = index.
+pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
+    let (n, d) = lattice(cfg);
+    let count = n[0] * n[1] * n[2];
+    let mut s = ParticleState {
+        pos: Vec::with_capacity(count),
+        vel: Vec::with_capacity(count),
+        thermo: Vec::with_capacity(count),
+        info: Vec::with_capacity(count),
+        density: vec![cfg.solver.rest_density as f32; count],
+    };
+    for k in 0..n[2] {
+        for j in 0..n[1] {
+            for i in 0..n[0] {
+                let idx = s.pos.len() as u64;
+                let p = [
+                    (i as f64 + 0.5) * d[0],
+                    (j as f64 + 0.5) * d[1],
+                    (k as f64 + 0.5) * d[2],
+                ];
+                let cos_t = 2.0 * hash_uniform(cfg.seed, idx, 0) - 1.0;
+                let phi = 2.0 * std::f64::consts::PI * hash_uniform(cfg.seed, idx, 1);
+                let speed = cfg.physics.initial_speed * hash_uniform(cfg.seed, idx, 2);
+                let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+                let v = [
+                    speed * sin_t * phi.cos(),
+                    speed * cos_t,
+                    speed * sin_t * phi.sin(),
+                ];
+                let t = environment_temperature(cfg, p[1]);
+                let vapor = cfg.physics.initial_vapor * saturation(cfg, t);
+                s.pos.push([p[0] as f32, p[1] as f32, p[2] as f32, 0.0]);
+                s.vel.push([v[0] as f32, v[1] as f32, v[2] as f32, 0.0]);
+                s.thermo.push([t as f32, vapor as f32, 0.0, 0.0]);
+                s.info.push([idx as u32, 0]);
+            }
+        }
+    }
+    s
+}
+
+/// Floor and ceiling walls: the x/z lattice, layers spaced d below y = 0 and above y = size
+/// down to depth h0 (so a fluid particle at the wall has a full neighbourhood), w = the
+/// environment temperature of the floor (ceiling). Returned in cell order with their cell table.
+pub fn boundary_particles(cfg: &ShotConfig, grid: &GridParams) -> (Vec<[f32; 4]>, Vec<u32>) {
+    let (n, d) = lattice(cfg);
+    let h = kernel_radius(cfg);
+    let layers = ((h / d[1] - 0.5).ceil() as usize).max(1);
+    let size_y = cfg.domain.size[1];
+    let t_floor = environment_temperature(cfg, 0.0);
+    let t_ceil = environment_temperature(cfg, size_y);
+    let mut pts: Vec<[f64; 4]> = Vec::new();
+    for (wall, t) in [(0, t_floor), (1, t_ceil)] {
+        for l in 0..layers {
+            let off = (l as f64 + 0.5) * d[1];
+            let y = if wall == 0 { -off } else { size_y + off };
+            for k in 0..n[2] {
+                for i in 0..n[0] {
+                    pts.push([(i as f64 + 0.5) * d[0], y, (k as f64 + 0.5) * d[2], t]);
+                }
+            }
+        }
+    }
+    let p3: Vec<[f64; 3]> = pts.iter().map(|p| [p[0], p[1], p[2]]).collect();
+    let (order, cell_start) = crate::sim::reference::grid::build_cell_table(grid, &p3);
+    let sorted = order
+        .iter()
+        .map(|&o| pts[o as usize].map(|v| v as f32))
+        .collect();
+    (sorted, cell_start)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hash_is_uniform_and_stateless() {
+        let n = 20000;
+        let mean: f64 = (0..n).map(|i| hash_uniform(7, i, 0)).sum::<f64>() / n as f64;
+        assert!((mean - 0.5).abs() < 0.01, "mean {mean}");
+        assert_eq!(hash_uniform(7, 123, 2), hash_uniform(7, 123, 2));
+        assert_ne!(hash_uniform(7, 123, 2), hash_uniform(8, 123, 2));
+    }
+}

@@ -1,0 +1,58 @@
+//! Parameters of the PBF step (shaders/pbf.wgsl `PbfParams`, byte-identical).
+use crate::config::ShotConfig;
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct PbfParams {
+    pub dt: f32,
+    pub inv_dt: f32,
+    pub rest_density: f32,
+    pub m0: f32,
+    pub h0: f32,
+    /// Relaxation epsilon of eq. 4 in 1/m^2: `solver.relaxation / h0^2`.
+    pub eps: f32,
+    pub scorr_k: f32,
+    pub scorr_n: f32,
+    pub scorr_dq: f32,
+    pub xsph: f32,
+    pub vorticity: f32,
+    pub gravity: f32,
+    pub max_speed: f32,
+    pub _pad: [f32; 3],
+    /// Per level l (0..8): (h_l, 315 / (64 pi h_l^9), -45 / (pi h_l^6), m_l).
+    pub levels: [[f32; 4]; 8],
+}
+
+impl PbfParams {
+    pub fn for_shot(cfg: &ShotConfig) -> Self {
+        let s = &cfg.solver;
+        let h0 = crate::sim::init::kernel_radius(cfg);
+        let dt = cfg.output.frame_seconds / cfg.output.substeps as f64;
+        Self {
+            dt: dt as f32,
+            inv_dt: (1.0 / dt) as f32,
+            rest_density: s.rest_density as f32,
+            m0: crate::sim::init::particle_mass(cfg) as f32,
+            h0: h0 as f32,
+            eps: (s.relaxation / (h0 * h0)) as f32,
+            scorr_k: s.scorr_k as f32,
+            scorr_n: s.scorr_n as f32,
+            scorr_dq: s.scorr_dq as f32,
+            xsph: s.xsph as f32,
+            vorticity: s.vorticity as f32,
+            gravity: s.gravity as f32,
+            max_speed: s.max_speed as f32,
+            _pad: [0.0; 3],
+            levels: std::array::from_fn(|l| {
+                let h = h0 * (-(l as f64) / 3.0).exp2();
+                let pi = std::f64::consts::PI;
+                [
+                    h as f32,
+                    (315.0 / (64.0 * pi * h.powi(9))) as f32,
+                    (-45.0 / (pi * h.powi(6))) as f32,
+                    (crate::sim::init::particle_mass(cfg) * (-(l as f64)).exp2()) as f32,
+                ]
+            }),
+        }
+    }
+}
