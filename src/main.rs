@@ -1,13 +1,15 @@
 //! `nimbus` command line: parse, call into the library, map errors to exit codes.
 use clap::{Parser, Subcommand};
-use nimbus::error::exit;
-use std::path::PathBuf;
+use nimbus::error::{exit, Error, Result};
+use nimbus::pipeline::{self, LogFormat, RunOptions, Start};
+use std::path::{Path, PathBuf};
 
 #[derive(Parser)]
 #[command(
     name = "nimbus",
     version,
-    about = "Particle clouds on the GPU, written as OpenVDB/OpenEXR sequences"
+    about = "Particle clouds on the GPU, written as OpenVDB/OpenEXR sequences",
+    after_help = "Exit codes: 0 ok, 2 invalid input, 3 runtime/I-O failure, 4 no GPU adapter, 130 interrupted."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -16,6 +18,24 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Simulate a shot and write its VDB/EXR/preview frames, manifest and stats.
+    Run {
+        /// Shot config (YAML).
+        config: PathBuf,
+        /// Run directory (default: the config's output.dir).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Override a key, e.g. `--set output.frames.end=10` (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Go on from the newest valid checkpoint in the run directory (output-only keys may
+        /// change; simulation keys may not).
+        #[arg(long)]
+        resume: bool,
+        /// Progress output: a bar/plain lines, or JSON lines for farm logs.
+        #[arg(long, value_enum, default_value = "human")]
+        log_format: LogFormat,
+    },
     /// Check shot configs without running them; prints one line per file.
     Validate {
         /// Config files (YAML).
@@ -25,14 +45,104 @@ enum Command {
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
     },
+    /// Go on with an interrupted run from its newest valid checkpoint.
+    Resume {
+        /// The run directory (holds manifest.json and checkpoints/).
+        out_dir: PathBuf,
+        /// Progress output: a bar/plain lines, or JSON lines for farm logs.
+        #[arg(long, value_enum, default_value = "human")]
+        log_format: LogFormat,
+    },
+    /// Describe a .vdb, .exr or checkpoint file.
+    Inspect { file: PathBuf },
+    /// (Re)render the preview images of a run from its VDB files.
+    Preview {
+        /// The run directory.
+        out_dir: PathBuf,
+        /// Camera/light overrides, e.g. `--set output.preview.sun_direction=[1,1,0]`.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+    },
+    /// Benchmarks behind docs/PERFORMANCE.md (prints JSON).
+    Bench {
+        #[command(subcommand)]
+        topic: BenchTopic,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchTopic {
+    /// PBF step timings (GPU).
+    Pbf {
+        #[arg(long, default_value_t = 100_000)]
+        particles: usize,
+        #[arg(long, default_value_t = 5)]
+        steps: u32,
+    },
+    /// VDB write speed and size, nimbus against OpenVDB (pyopenvdb) on the same grid.
+    Vdb {
+        #[arg(long, default_value_t = 4_020_000)]
+        active_voxels: usize,
+        /// none, zip or blosc (OpenVDB's writer is compared for blosc).
+        #[arg(long, default_value = "blosc", value_parser = parse_compression)]
+        compression: nimbus::config::Compression,
+        #[arg(long, default_value_t = 5)]
+        reps: usize,
+    },
+    /// Splat throughput.
+    Splat {
+        #[arg(long, default_value_t = 100_000)]
+        particles: usize,
+        #[arg(long, default_value_t = 0.5)]
+        voxel: f64,
+    },
+    /// Preview render time on a synthetic cloud grid of DIM^3 voxels.
+    Preview {
+        #[arg(long, default_value_t = 640)]
+        width: u32,
+        #[arg(long, default_value_t = 360)]
+        height: u32,
+        #[arg(long, default_value_t = 256)]
+        dim: u32,
+        /// Worker threads (0 = all cores).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+    },
+    /// Checkpoint size and write time.
+    Checkpoint {
+        #[arg(long, default_value_t = 100_000)]
+        particles: usize,
+    },
 }
 
 fn main() {
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
     let cli = Cli::parse();
-    let code = match cli.command {
-        Command::Validate { configs, set } => validate(&configs, &set),
+    let result = match cli.command {
+        Command::Validate { configs, set } => std::process::exit(validate(&configs, &set)),
+        Command::Run {
+            config,
+            out,
+            set,
+            resume,
+            log_format,
+        } => run(&config, out, &set, resume, log_format),
+        Command::Resume {
+            out_dir,
+            log_format,
+        } => resume(&out_dir, log_format),
+        Command::Inspect { file } => inspect(&file),
+        Command::Preview { out_dir, set } => preview(&out_dir, &set),
+        Command::Bench { topic } => bench(topic),
     };
-    std::process::exit(code);
+    if let Err(e) = result {
+        match e {
+            // Config errors start with FILE:LINE:COL, which editors jump to.
+            Error::Config(_) => eprintln!("{e}"),
+            _ => eprintln!("error: {e}"),
+        }
+        std::process::exit(e.exit_code());
+    }
 }
 
 fn validate(configs: &[PathBuf], set: &[String]) -> i32 {
@@ -56,4 +166,139 @@ fn validate(configs: &[PathBuf], set: &[String]) -> i32 {
         }
     }
     code
+}
+
+fn run(
+    config: &Path,
+    out: Option<PathBuf>,
+    set: &[String],
+    resume: bool,
+    log: LogFormat,
+) -> Result<()> {
+    let cfg = nimbus::config::load(config, set)?;
+    let out_dir = out.unwrap_or_else(|| PathBuf::from(&cfg.output.dir));
+    if resume {
+        refuse_changed_simulation(&cfg, &out_dir)?;
+    }
+    let start = if resume { Start::Resume } else { Start::Fresh };
+    pipeline::run(
+        &cfg,
+        &RunOptions {
+            out_dir,
+            log,
+            start,
+        },
+    )
+}
+
+fn resume(out_dir: &Path, log: LogFormat) -> Result<()> {
+    let cfg = config_of_run(out_dir, &[])?;
+    pipeline::run(
+        &cfg,
+        &RunOptions {
+            out_dir: out_dir.to_path_buf(),
+            log,
+            start: Start::Resume,
+        },
+    )
+}
+
+/// The resolved config a run recorded in its manifest, with overrides applied (JSON is YAML).
+fn config_of_run(out_dir: &Path, set: &[String]) -> Result<nimbus::config::ShotConfig> {
+    let manifest = pipeline::records::Manifest::load(out_dir)?;
+    let text = serde_json::to_string_pretty(&manifest.config)
+        .map_err(|e| Error::Runtime(e.to_string()))?;
+    let origin = out_dir.join(pipeline::records::MANIFEST);
+    nimbus::config::load_str(&text, &origin.to_string_lossy(), set)
+}
+
+/// `run --resume` with a config whose simulation keys differ from the run's is refused.
+fn refuse_changed_simulation(cfg: &nimbus::config::ShotConfig, out_dir: &Path) -> Result<()> {
+    let recorded = config_of_run(out_dir, &[])?;
+    let diff = nimbus::config::sim_key_diff(&recorded, cfg);
+    if diff.is_empty() {
+        Ok(())
+    } else {
+        Err(Error::InvalidInput(format!(
+            "{}: cannot resume: simulation keys differ from the run's: {}",
+            out_dir.display(),
+            diff.join(", ")
+        )))
+    }
+}
+
+fn inspect(file: &Path) -> Result<()> {
+    let head = read_prefix(file, 16)?;
+    let text = if nimbus::io::checkpoint::is_checkpoint(&head) {
+        nimbus::io::checkpoint::describe(file)?
+    } else {
+        nimbus::io::inspect::describe(file)?
+    };
+    println!("{text}");
+    Ok(())
+}
+
+fn read_prefix(file: &Path, n: usize) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(file)
+        .map_err(|e| Error::InvalidInput(format!("{}: {e}", file.display())))?;
+    let mut buf = vec![0u8; n];
+    let got = f.read(&mut buf).map_err(|e| Error::io(file, e))?;
+    buf.truncate(got);
+    Ok(buf)
+}
+
+fn preview(out_dir: &Path, set: &[String]) -> Result<()> {
+    let cfg = config_of_run(out_dir, set)?;
+    let written = pipeline::rerender::rerender_previews(out_dir, &cfg)?;
+    println!(
+        "{written} previews written to {}",
+        out_dir.join("preview").display()
+    );
+    Ok(())
+}
+
+fn bench(topic: BenchTopic) -> Result<()> {
+    let report = match topic {
+        BenchTopic::Pbf { particles, steps } => nimbus::bench::pbf::bench_pbf(particles, steps)?,
+        BenchTopic::Vdb {
+            active_voxels,
+            compression,
+            reps,
+        } => nimbus::bench::vdb::bench_vdb_write(active_voxels, compression, reps)?,
+        BenchTopic::Splat { particles, voxel } => {
+            nimbus::bench::splat::bench_splat(particles, voxel)?
+        }
+        BenchTopic::Preview {
+            width,
+            height,
+            dim,
+            threads,
+        } => {
+            let threads = if threads == 0 {
+                std::thread::available_parallelism().map_or(1, |n| n.get())
+            } else {
+                threads
+            };
+            nimbus::bench::preview::bench_preview(width, height, dim, threads)?
+        }
+        BenchTopic::Checkpoint { particles } => {
+            nimbus::bench::checkpoint::bench_checkpoint(particles)?
+        }
+    };
+    println!(
+        "{}",
+        serde_json::to_string_pretty(&report).map_err(|e| Error::Runtime(e.to_string()))?
+    );
+    Ok(())
+}
+
+fn parse_compression(s: &str) -> std::result::Result<nimbus::config::Compression, String> {
+    use nimbus::config::Compression;
+    match s {
+        "none" => Ok(Compression::None),
+        "zip" => Ok(Compression::Zip),
+        "blosc" => Ok(Compression::Blosc),
+        _ => Err(format!("'{s}' is not one of none, zip, blosc")),
+    }
 }

@@ -16,6 +16,7 @@ fn params(size: [f64; 3], d: f64, voxel: f64, periodic: [bool; 2]) -> SplatParam
         domain_size: size,
         periodic,
         threshold: 0.0,
+        cloud_scale: 1.0,
         min_coverage: 1e-3,
         fields: SplatFields::default(),
     }

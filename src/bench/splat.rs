@@ -57,6 +57,7 @@ pub fn bench_splat(particles: usize, voxel: f64) -> Result<serde_json::Value> {
         domain_size: [size; 3],
         periodic: [true, true],
         threshold: 1e-6,
+        cloud_scale: 1.0,
         min_coverage: 1e-3,
         fields: SplatFields::default(),
     };

@@ -111,7 +111,7 @@ fn d_sun_intensity() -> f64 {
     3.0
 }
 fn d_density_scale() -> f64 {
-    1.0
+    0.02
 }
 impl Default for PreviewConfig {
     fn default() -> Self {
@@ -317,7 +317,7 @@ impl Default for AdaptiveConfig {
             enabled: false,
             max_level: 3,
             kp: 1.0,
-            kc: 1000.0,
+            kc: 5000.0,
             split_threshold: 0.5,
             merge_threshold: 0.1,
             capacity_factor: 2.0,
@@ -358,6 +358,9 @@ pub struct ExportConfig {
     pub voxel_size: f64,
     /// Values below this stay inactive (background 0).
     pub threshold: f64,
+    /// The density grid holds cloud water times this (1000: grams per kilogram of air, so a
+    /// cumulus core reads about 0.5-2, what renderers expect of a density).
+    pub density_scale: f64,
     pub grids: GridNames,
     pub vdb: VdbConfig,
     pub exr: ExrConfig,
@@ -366,7 +369,8 @@ impl Default for ExportConfig {
     fn default() -> Self {
         Self {
             voxel_size: 20.0,
-            threshold: 1.0e-6,
+            threshold: 1.0e-3,
+            density_scale: 1000.0,
             grids: GridNames::default(),
             vdb: VdbConfig::default(),
             exr: ExrConfig::default(),

@@ -469,6 +469,7 @@ fn check_adaptive(k: &mut Checks, a: &AdaptiveConfig, c: &ShotConfig) {
 fn check_export(k: &mut Checks, e: &ExportConfig, d: &DomainConfig) {
     k.positive("export.voxel_size", e.voxel_size);
     k.non_negative("export.threshold", e.threshold);
+    k.positive("export.density_scale", e.density_scale);
     if e.voxel_size.is_finite() && e.voxel_size > 0.0 {
         for (i, axis) in AXES.iter().enumerate() {
             let n = d.size[i] / e.voxel_size;

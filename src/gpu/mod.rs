@@ -36,7 +36,13 @@ impl Context {
         };
         desc.backends = backends;
         let instance = wgpu::Instance::new(desc);
-        let adapters = pollster::block_on(instance.enumerate_adapters(backends));
+        // Vulkan first: probing GL on a headless machine logs driver errors for nothing.
+        let mut adapters = Vec::new();
+        for b in [wgpu::Backends::VULKAN, wgpu::Backends::GL] {
+            if backends.contains(b) && adapters.is_empty() {
+                adapters = pollster::block_on(instance.enumerate_adapters(b));
+            }
+        }
         let adapter = pick_adapter(adapters, &cfg.adapter)?;
         let info = adapter.get_info();
         log::info!(

@@ -2,3 +2,9 @@
 pub mod naming;
 pub mod progress;
 pub mod records;
+pub mod rerender;
+pub mod run;
+pub mod writer;
+
+pub use progress::LogFormat;
+pub use run::{run, RunOptions, Start};

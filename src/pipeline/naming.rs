@@ -4,16 +4,26 @@ use std::path::{Path, PathBuf};
 pub const DIRS: [&str; 4] = ["vdb", "exr", "preview", "checkpoints"];
 
 /// `<run>/<kind>/<shot>.<frame, zero-padded>.<ext>`
-pub fn frame_file(run_dir: &Path, kind: &str, shot: &str, frame: u32, padding: u32, ext: &str) -> PathBuf {
-    run_dir
-        .join(kind)
-        .join(format!("{shot}.{frame:0width$}.{ext}", width = padding as usize))
+pub fn frame_file(
+    run_dir: &Path,
+    kind: &str,
+    shot: &str,
+    frame: u32,
+    padding: u32,
+    ext: &str,
+) -> PathBuf {
+    run_dir.join(kind).join(format!(
+        "{shot}.{frame:0width$}.{ext}",
+        width = padding as usize
+    ))
 }
 
 /// The shell command that resumes the run in `run_dir`.
 pub fn resume_command(run_dir: &Path) -> String {
     let d = run_dir.to_string_lossy();
-    if d.chars().all(|c| c.is_ascii_alphanumeric() || "/._-+:".contains(c)) {
+    if d.chars()
+        .all(|c| c.is_ascii_alphanumeric() || "/._-+:".contains(c))
+    {
         format!("nimbus resume {d}")
     } else {
         format!("nimbus resume '{}'", d.replace('\'', "'\\''"))
@@ -33,6 +43,9 @@ mod tests {
     #[test]
     fn resume_command_quotes_odd_paths() {
         assert_eq!(resume_command(Path::new("out/a")), "nimbus resume out/a");
-        assert_eq!(resume_command(Path::new("my out")), "nimbus resume 'my out'");
+        assert_eq!(
+            resume_command(Path::new("my out")),
+            "nimbus resume 'my out'"
+        );
     }
 }

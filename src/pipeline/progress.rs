@@ -23,15 +23,22 @@ impl Progress {
         let bar = (format == LogFormat::Human && std::io::stderr().is_terminal()).then(|| {
             let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
             bar.set_style(
-                ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} frames, ETA {eta} {msg}")
-                    .unwrap_or_else(|_| ProgressStyle::default_bar())
-                    .progress_chars("=> "),
+                ProgressStyle::with_template(
+                    "{prefix} [{bar:30}] {pos}/{len} frames, ETA {eta} {msg}",
+                )
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
             );
             bar.set_prefix("nimbus");
             bar.set_position((first - start) as u64);
             bar
         });
-        Self { format, bar, start, end }
+        Self {
+            format,
+            bar,
+            start,
+            end,
+        }
     }
 
     /// The phase now running on frame `frame` (shown on the bar only; lines would be noise).
@@ -50,7 +57,10 @@ impl Progress {
                 serde_json::json!({"event": "frame", "frame": frame, "of": self.end, "particles": particles, "wall_ms": wall_ms})
             ),
             (None, LogFormat::Human) => {
-                eprintln!("frame {frame}/{}: {particles} particles, {wall_ms:.0} ms", self.end)
+                eprintln!(
+                    "frame {frame}/{}: {particles} particles, {wall_ms:.0} ms",
+                    self.end
+                )
             }
         }
     }
@@ -59,7 +69,9 @@ impl Progress {
     pub fn note(&self, event: &str, msg: &str) {
         match (&self.bar, self.format) {
             (Some(bar), _) => bar.println(msg),
-            (None, LogFormat::Json) => eprintln!("{}", serde_json::json!({"event": event, "message": msg})),
+            (None, LogFormat::Json) => {
+                eprintln!("{}", serde_json::json!({"event": event, "message": msg}))
+            }
             (None, LogFormat::Human) => eprintln!("{msg}"),
         }
     }

@@ -52,13 +52,16 @@ pub struct Manifest {
 impl Manifest {
     pub fn load(run_dir: &Path) -> Result<Self> {
         let path = run_dir.join(MANIFEST);
-        let text = std::fs::read_to_string(&path).map_err(|e| Error::InvalidInput(format!("{}: {e}", path.display())))?;
-        serde_json::from_str(&text)
-            .map_err(|e| Error::InvalidInput(format!("{}: not a nimbus manifest: {e}", path.display())))
+        let text = std::fs::read_to_string(&path)
+            .map_err(|e| Error::InvalidInput(format!("{}: {e}", path.display())))?;
+        serde_json::from_str(&text).map_err(|e| {
+            Error::InvalidInput(format!("{}: not a nimbus manifest: {e}", path.display()))
+        })
     }
 
     pub fn save(&self, run_dir: &Path) -> Result<()> {
-        let mut text = serde_json::to_string_pretty(self).map_err(|e| Error::Runtime(e.to_string()))?;
+        let mut text =
+            serde_json::to_string_pretty(self).map_err(|e| Error::Runtime(e.to_string()))?;
         text.push('\n');
         write_atomic(&run_dir.join(MANIFEST), text.as_bytes())
     }
@@ -188,9 +191,15 @@ mod tests {
             complete: false,
         };
         for f in [3, 1, 2, 1] {
-            m.record_frame(FrameRecord { frame: f, files: vec![] });
+            m.record_frame(FrameRecord {
+                frame: f,
+                files: vec![],
+            });
         }
-        assert_eq!(m.frames.iter().map(|f| f.frame).collect::<Vec<_>>(), [1, 2, 3]);
+        assert_eq!(
+            m.frames.iter().map(|f| f.frame).collect::<Vec<_>>(),
+            [1, 2, 3]
+        );
     }
 
     #[test]
@@ -198,11 +207,20 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut log = StatsLog::default();
         for f in 1..=5 {
-            log.push(FrameStats { frame: f, sim_time: f as f64, particles: 10, phase_ms: Default::default(), diagnostics: Default::default() });
+            log.push(FrameStats {
+                frame: f,
+                sim_time: f as f64,
+                particles: 10,
+                phase_ms: Default::default(),
+                diagnostics: Default::default(),
+            });
         }
         log.save(dir.path()).unwrap();
         let back = StatsLog::load_until(dir.path(), 4).unwrap();
-        assert_eq!(back.lines().iter().map(|l| l.frame).collect::<Vec<_>>(), [1, 2, 3]);
+        assert_eq!(
+            back.lines().iter().map(|l| l.frame).collect::<Vec<_>>(),
+            [1, 2, 3]
+        );
     }
 
     #[test]
@@ -210,7 +228,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("a.vdb");
         std::fs::write(&p, b"abc").unwrap();
-        let rec = FrameRecord { frame: 1, files: vec![file_record(dir.path(), &p).unwrap()] };
+        let rec = FrameRecord {
+            frame: 1,
+            files: vec![file_record(dir.path(), &p).unwrap()],
+        };
         assert_eq!(rec.files[0].path, "a.vdb");
         assert!(frame_intact(dir.path(), &rec));
         std::fs::write(&p, b"abd").unwrap();

@@ -537,6 +537,11 @@ impl AdaptiveStage {
     /// Runs marks, merges, compaction and splits on the first `count` particles; new ids start
     /// at `next_id`. Returns the new count and the stats (the particle arrays are updated in
     /// place; the cell table is stale afterwards, the next grid build re-sorts).
+    /// The deepest level a split may reach.
+    pub fn max_level(&self) -> u32 {
+        self.params.max_level
+    }
+
     pub fn run(
         &self,
         ctx: &Context,

@@ -17,8 +17,11 @@ use crate::gpu::kernel::{range, Bind, Kernel};
 use crate::gpu::sort::{key_bits, RadixSort};
 use crate::gpu::timing::GpuTimer;
 use crate::gpu::Context;
+use crate::sim::adaptive::{AdaptiveBuffers, AdaptiveStage};
 use crate::sim::grid_params::GridParams;
 use crate::sim::pbf::PbfParams;
+use crate::sim::smoothing::{SmoothingBuffers, SmoothingStage};
+use crate::sim::thermo::{ThermoBuffers, ThermoStage};
 use crate::sim::ParticleState;
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -123,6 +126,10 @@ pub struct Simulation {
     sort: RadixSort,
     timer: Option<GpuTimer>,
     boundary_host: (Vec<[f32; 4]>, Vec<u32>),
+    smoothing: SmoothingStage,
+    thermo: ThermoStage,
+    /// Split and merge (paper 5.2); `None` when `adaptive.enabled` is false.
+    adaptive: Option<AdaptiveStage>,
 }
 
 impl Simulation {
@@ -338,7 +345,24 @@ impl Simulation {
             pred_to_pos: p4(&b.pred, &b.pos, e(&b.lambda)),
         };
         let timer = ctx.timestamps.then(|| GpuTimer::new(dev, &ctx.queue));
+        let smoothing = SmoothingStage::new(&ctx, cfg)?;
+        let thermo = ThermoStage::new(&ctx, cfg)?;
+        let adaptive = if cfg.adaptive.enabled {
+            let h0 = cfg.domain.spacing * cfg.domain.kernel_ratio;
+            Some(AdaptiveStage::new(
+                &ctx,
+                &cfg.adaptive,
+                &grid,
+                h0,
+                capacity,
+            )?)
+        } else {
+            None
+        };
         Ok(Self {
+            smoothing,
+            thermo,
+            adaptive,
             clock,
             substeps: cfg.output.substeps,
             iterations: cfg.solver.iterations,
@@ -494,7 +518,8 @@ impl Simulation {
             ("velocity", "velocity"),
         ];
         let mut report = FrameReport::default();
-        let dev = &self.ctx.device;
+        let ctx = self.ctx.clone();
+        let dev = &ctx.device;
         for _ in 0..self.substeps {
             if let Some(mut timer) = self.timer.take() {
                 let mut enc = dev.create_command_encoder(&Default::default());
@@ -518,14 +543,20 @@ impl Simulation {
                         t0.elapsed().as_secs_f64() * 1e3;
                 }
             }
+            if self.timer.is_some() {
+                // The CPU-timed phases below must not include the PBF work still queued.
+                self.wait()?;
+            }
+            self.cloud_physics(&mut report)?;
             self.clock.step += 1;
             self.clock.time += self.params.dt as f64;
+            self.adapt(&mut report)?;
         }
         if let Some(timer) = self.timer.as_mut() {
             let mut enc = dev.create_command_encoder(&Default::default());
             timer.resolve(&mut enc);
             self.ctx.queue.submit([enc.finish()]);
-            report.phase_ms = timer.collect(dev)?;
+            report.phase_ms.extend(timer.collect(dev)?);
         }
         self.clock.frame += 1;
         let density: Vec<f32> =
@@ -536,7 +567,129 @@ impl Simulation {
         report
             .diagnostics
             .insert("particles".into(), self.count as f64);
+        if self.adaptive.is_some() {
+            self.level_diagnostics(&mut report)?;
+        }
         Ok(report)
+    }
+
+    /// Temperature smoothing (4.1), then heating, buoyancy, cooling, phase transition and latent
+    /// heat (eqs. 5-11), in the paper's order after the PBF move. The particles are in the cell
+    /// order of the grid just built, so the smoothing reads valid neighbourhoods.
+    fn cloud_physics(&mut self, report: &mut FrameReport) -> Result<()> {
+        let b = &self.b;
+        let t0 = std::time::Instant::now();
+        let mut enc = self.ctx.device.create_command_encoder(&Default::default());
+        self.smoothing.encode(
+            &mut enc,
+            &SmoothingBuffers {
+                grid: &b.grid_u,
+                pos: &b.pos,
+                info: &b.info,
+                thermo: &b.thermo,
+                cell_start: &b.cell_start,
+                boundary: &b.bpos,
+                boundary_cell_start: &b.bcell_start,
+            },
+            self.count,
+        );
+        self.ctx.queue.submit([enc.finish()]);
+        self.wait()?;
+        let t1 = std::time::Instant::now();
+        let mut enc = self.ctx.device.create_command_encoder(&Default::default());
+        self.thermo.encode(
+            &mut enc,
+            &ThermoBuffers {
+                pos: &b.pos,
+                vel: &b.vel,
+                thermo: &b.thermo,
+            },
+            self.count,
+            self.params.dt as f64,
+            self.clock.time,
+        );
+        self.ctx.queue.submit([enc.finish()]);
+        self.wait()?;
+        let ms = |a: std::time::Instant, b: std::time::Instant| (b - a).as_secs_f64() * 1e3;
+        *report.phase_ms.entry("smoothing".into()).or_insert(0.0) += ms(t0, t1);
+        *report.phase_ms.entry("cloud".into()).or_insert(0.0) += ms(t1, std::time::Instant::now());
+        Ok(())
+    }
+
+    /// Shape energy, split and merge at the end of the substep (5.2); the count may change.
+    fn adapt(&mut self, report: &mut FrameReport) -> Result<()> {
+        let Some(stage) = &self.adaptive else {
+            return Ok(());
+        };
+        let b = &self.b;
+        let r = stage.run(
+            &self.ctx,
+            &AdaptiveBuffers {
+                grid: &b.grid_u,
+                pos: &b.pos,
+                vel: &b.vel,
+                thermo: &b.thermo,
+                info: &b.info,
+                cell_start: &b.cell_start,
+            },
+            self.count,
+            self.clock.next_id,
+        )?;
+        self.clock.next_id = r.next_id;
+        *report.phase_ms.entry("split".into()).or_insert(0.0) += r.phase_ms.split;
+        *report.phase_ms.entry("merge".into()).or_insert(0.0) += r.phase_ms.merge;
+        for (key, v) in [
+            ("splits", r.splits),
+            ("merges", r.merges),
+            ("skipped_splits", r.skipped_splits),
+        ] {
+            *report.diagnostics.entry(key.into()).or_insert(0.0) += v as f64;
+        }
+        self.set_count(r.count);
+        Ok(())
+    }
+
+    /// Tells every stage how many particles are live.
+    fn set_count(&mut self, n: u32) {
+        if n == self.count {
+            return;
+        }
+        self.count = n;
+        self.grid.n_particles = n;
+        self.ctx
+            .queue
+            .write_buffer(&self.b.grid_u, 0, bytemuck::bytes_of(&self.grid));
+        self.ctx
+            .queue
+            .write_buffer(&self.b.count_u, 0, bytemuck::cast_slice(&[n, 0u32, 0, 0]));
+        self.sort.set_count(&self.ctx.queue, n);
+    }
+
+    /// Particles per level and total mass in units of m0 2^-max_level (exact integers).
+    fn level_diagnostics(&self, report: &mut FrameReport) -> Result<()> {
+        let Some(stage) = &self.adaptive else {
+            return Ok(());
+        };
+        let info: Vec<[u32; 2]> = read_back(
+            &self.ctx.device,
+            &self.ctx.queue,
+            &self.b.info,
+            self.count as usize,
+        )?;
+        let max_level = stage.max_level();
+        let mut per_level = vec![0u64; max_level as usize + 1];
+        let mut units = 0u64;
+        for [_, level] in info {
+            per_level[(level.min(max_level)) as usize] += 1;
+            units += crate::sim::adaptive::level_mass_units(level, max_level);
+        }
+        for (l, n) in per_level.iter().enumerate() {
+            report
+                .diagnostics
+                .insert(format!("particles_level_{l}"), *n as f64);
+        }
+        report.diagnostics.insert("mass_units".into(), units as f64);
+        Ok(())
     }
 
     /// Blocking read-back of the live particles (in the device's current cell order).

@@ -61,6 +61,8 @@ pub struct SplatParams {
     pub periodic: [bool; 2],
     /// `density` and `vapor` voxels below this stay inactive.
     pub threshold: f64,
+    /// Multiplier of the cloud water (kg/kg) in the density grid (`export.density_scale`).
+    pub cloud_scale: f64,
     /// `temperature` and `vel` voxels whose coverage sum_j V_j W is below this stay inactive.
     pub min_coverage: f64,
     pub fields: SplatFields,
@@ -95,6 +97,7 @@ impl SplatParams {
                 cfg.domain.periodic.contains(&Axis::Z),
             ],
             threshold: cfg.export.threshold,
+            cloud_scale: cfg.export.density_scale,
             min_coverage: 1.0e-3,
             fields: SplatFields {
                 density: !cfg.export.grids.density.is_empty(),
@@ -329,7 +332,7 @@ pub fn splat(state: &ParticleState, params: &SplatParams) -> Result<SplatGrids> 
                             r,
                             h2: h * h,
                             c,
-                            cloud: th[2] as f64,
+                            cloud: th[2] as f64 * params.cloud_scale,
                             vapor: th[1] as f64,
                             temp: th[0] as f64,
                             vel,

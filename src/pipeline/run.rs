@@ -1,0 +1,338 @@
+//! The frame loop: the GPU simulates frame N+1 while a writer thread splats and writes frame N
+//! (a bounded queue of one frame keeps memory bounded). Checkpoints are written after the writer
+//! has caught up, so every frame up to a checkpoint is on disk before the checkpoint exists.
+use super::naming::{self, resume_command};
+use super::progress::{LogFormat, Progress};
+use super::records::{FrameStats, Manifest, StatsLog};
+use super::writer::{FrameJob, FrameWriter, WrittenFrame};
+use crate::config::{self, ShotConfig};
+use crate::error::{Error, Result};
+use crate::gpu;
+use crate::io::checkpoint;
+use crate::sim::{ParticleState, SimClock, Simulation};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// How a run starts.
+pub enum Start {
+    /// A new run: the simulation starts at the first frame.
+    Fresh,
+    /// Go on from the newest valid checkpoint in the run directory.
+    Resume,
+}
+
+pub struct RunOptions {
+    pub out_dir: PathBuf,
+    pub log: LogFormat,
+    pub start: Start,
+}
+
+/// Runs (or resumes) a shot into `opts.out_dir`.
+pub fn run(cfg: &ShotConfig, opts: &RunOptions) -> Result<()> {
+    let run_dir = opts.out_dir.as_path();
+    for d in naming::DIRS {
+        std::fs::create_dir_all(run_dir.join(d)).map_err(|e| Error::io(run_dir.join(d), e))?;
+    }
+    let interrupted = install_signal_handlers()?;
+    let sim_hash = config::sim_hash(cfg);
+    let ckpt_dir = run_dir.join("checkpoints");
+
+    // What to resume from, decided before the GPU is opened (bad input fails fast).
+    let resumed: Option<checkpoint::Checkpoint> = match opts.start {
+        Start::Fresh => {
+            clear_checkpoints(&ckpt_dir)?;
+            None
+        }
+        Start::Resume => {
+            checkpoint::remove_temp_files(run_dir)?;
+            let (found, skipped) = checkpoint::find_resumable(&ckpt_dir, &sim_hash)?;
+            for s in &skipped {
+                eprintln!("warning: skipped checkpoint: {s}");
+            }
+            match found {
+                Some((path, ck)) => {
+                    eprintln!(
+                        "resuming from {} (frame {})",
+                        path.display(),
+                        ck.header.frame
+                    );
+                    Some(ck)
+                }
+                None => {
+                    return Err(Error::InvalidInput(format!(
+                        "{}: no usable checkpoint to resume from{}",
+                        ckpt_dir.display(),
+                        if skipped.is_empty() {
+                            ""
+                        } else {
+                            " (see the warnings above)"
+                        }
+                    )))
+                }
+            }
+        }
+    };
+
+    let ctx = Arc::new(gpu::Context::new(&cfg.gpu)?);
+    let adapter = ctx.adapter_name();
+    let (mut sim, first_frame) = match &resumed {
+        None => (Simulation::new(ctx.clone(), cfg)?, cfg.output.frames.start),
+        Some(ck) => {
+            if ck.header.adapter != adapter {
+                eprintln!(
+                    "warning: checkpoint written on adapter '{}', resuming on '{}': frames may differ bit for bit",
+                    ck.header.adapter, adapter
+                );
+            }
+            // The header holds the last completed frame; the clock counts the next one.
+            let clock = SimClock {
+                frame: ck.header.frame + 1,
+                step: ck.header.step,
+                time: ck.header.time,
+                next_id: ck.header.next_id,
+            };
+            (
+                Simulation::from_state(ctx.clone(), cfg, &ck.state, clock)?,
+                ck.header.frame + 1,
+            )
+        }
+    };
+
+    let writer = FrameWriter::new(cfg, run_dir)?;
+    let mut manifest = match (&resumed, Manifest::load(run_dir)) {
+        (Some(_), Ok(m)) => m,
+        _ => writer.new_manifest(cfg, &adapter, &sim_hash)?,
+    };
+    manifest.adapter = adapter.clone();
+    manifest.config = serde_json::to_value(cfg).map_err(|e| Error::Runtime(e.to_string()))?;
+    manifest.config_hash = config::full_hash(cfg);
+    manifest.frame_end = cfg.output.frames.end;
+    manifest.complete = false;
+    let stats = match resumed {
+        Some(_) => StatsLog::load_until(run_dir, first_frame)?,
+        None => StatsLog::default(),
+    };
+    manifest.save(run_dir)?;
+
+    let end = cfg.output.frames.end;
+    let progress = Progress::new(opts.log, cfg.output.frames.start, end, first_frame);
+    progress.note(
+        "start",
+        &format!(
+            "nimbus {}: shot '{}' frames {first_frame}..={end} on {adapter}",
+            crate::VERSION,
+            cfg.shot
+        ),
+    );
+
+    // The writer thread: splat + write + preview, one frame at a time, in order.
+    let (job_tx, job_rx) = sync_channel::<FrameJob>(1);
+    let (done_tx, done_rx) = std::sync::mpsc::channel::<Result<WrittenFrame>>();
+    let writer = Arc::new(writer);
+    let worker = {
+        let writer = writer.clone();
+        std::thread::Builder::new()
+            .name("nimbus-writer".into())
+            .spawn(move || {
+                for job in job_rx {
+                    if done_tx.send(writer.write(job)).is_err() {
+                        break;
+                    }
+                }
+            })
+            .map_err(|e| Error::Runtime(format!("cannot start the writer thread: {e}")))?
+    };
+
+    let mut loop_state = LoopState {
+        in_flight: 0,
+        manifest,
+        stats,
+        pending_stats: Vec::new(),
+    };
+    let result = (|| -> Result<()> {
+        for frame in first_frame..=end {
+            let t0 = Instant::now();
+            progress.phase(frame, "simulate", 0);
+            let report = sim.step_frame()?;
+            crate::fault::during_frame(frame);
+            let state = Arc::new(sim.state()?);
+            let clock = sim.clock();
+            let mut diagnostics = report.diagnostics.clone();
+            diagnostics.extend(crate::sim::diagnostics::cloud_diagnostics(&state, cfg));
+            loop_state.pending_stats.push(FrameStats {
+                frame,
+                sim_time: clock.time,
+                particles: state.len() as u64,
+                phase_ms: report.phase_ms.clone(),
+                diagnostics,
+            });
+            let skip_write = loop_state
+                .manifest
+                .frame(frame)
+                .is_some_and(|rec| super::records::frame_intact(run_dir, rec));
+            progress.phase(frame, "splat + write", state.len() as u64);
+            send(
+                &job_tx,
+                FrameJob {
+                    frame,
+                    state: state.clone(),
+                    skip_write,
+                    started: t0,
+                },
+            )?;
+            loop_state.in_flight += 1;
+            loop_state.collect(&done_rx, run_dir, &progress, false)?;
+
+            let stop = interrupted.load(Ordering::SeqCst);
+            let due = cfg.checkpoint.every > 0
+                && (frame - cfg.output.frames.start + 1) % cfg.checkpoint.every == 0;
+            if due || stop || frame == end {
+                loop_state.collect(&done_rx, run_dir, &progress, true)?;
+                let path = write_checkpoint(
+                    cfg,
+                    &ckpt_dir,
+                    &sim_hash,
+                    &adapter,
+                    &state,
+                    frame,
+                    clock,
+                    sim.capacity(),
+                )?;
+                progress.note("checkpoint", &format!("checkpoint {}", path.display()));
+            }
+            if stop && frame < end {
+                return Err(Error::Interrupted(format!(
+                    "stopped after frame {frame}; resume with: {}",
+                    resume_command(run_dir)
+                )));
+            }
+        }
+        Ok(())
+    })();
+    drop(job_tx);
+    let drained = loop_state.collect(&done_rx, run_dir, &progress, true);
+    let _ = worker.join();
+    progress.finish();
+    result?;
+    drained?;
+    loop_state.manifest.complete = true;
+    loop_state.manifest.save(run_dir)?;
+    writer.finish_run(&loop_state.manifest)?;
+    progress.note(
+        "done",
+        &format!(
+            "done: {} frames in {}",
+            end - cfg.output.frames.start + 1,
+            run_dir.display()
+        ),
+    );
+    Ok(())
+}
+
+struct LoopState {
+    in_flight: usize,
+    manifest: Manifest,
+    stats: StatsLog,
+    /// Stats of frames still with the writer: a stats line lands with its frame's files.
+    pending_stats: Vec<FrameStats>,
+}
+
+impl LoopState {
+    /// Records finished frames; with `wait`, blocks until the writer has caught up.
+    fn collect(
+        &mut self,
+        rx: &Receiver<Result<WrittenFrame>>,
+        run_dir: &Path,
+        progress: &Progress,
+        wait: bool,
+    ) -> Result<()> {
+        while self.in_flight > 0 {
+            let next = if wait {
+                rx.recv().ok()
+            } else {
+                rx.try_recv().ok()
+            };
+            let Some(done) = next else { break };
+            self.in_flight -= 1;
+            let done = done?;
+            if let Some(rec) = done.record {
+                self.manifest.record_frame(rec);
+            }
+            if let Some(i) = self
+                .pending_stats
+                .iter()
+                .position(|s| s.frame == done.frame)
+            {
+                let mut s = self.pending_stats.remove(i);
+                s.phase_ms.extend(done.phase_ms);
+                self.stats.push(s);
+            }
+            self.manifest.save(run_dir)?;
+            self.stats.save(run_dir)?;
+            progress.frame_done(done.frame, done.particles, done.wall_ms);
+        }
+        Ok(())
+    }
+}
+
+fn send(tx: &SyncSender<FrameJob>, job: FrameJob) -> Result<()> {
+    tx.send(job)
+        .map_err(|_| Error::Runtime("the writer thread stopped unexpectedly".into()))
+}
+
+fn write_checkpoint(
+    cfg: &ShotConfig,
+    dir: &Path,
+    sim_hash: &str,
+    adapter: &str,
+    state: &ParticleState,
+    frame: u32,
+    clock: SimClock,
+    capacity: usize,
+) -> Result<PathBuf> {
+    let ck = checkpoint::Checkpoint {
+        header: checkpoint::CheckpointHeader {
+            tool_version: crate::VERSION.to_string(),
+            sim_hash: sim_hash.to_string(),
+            frame,
+            step: clock.step,
+            time: clock.time,
+            seed: cfg.seed,
+            particle_count: state.len() as u64,
+            capacity: capacity as u64,
+            adapter: adapter.to_string(),
+            next_id: clock.next_id,
+        },
+        state: state.clone(),
+        extra: Default::default(),
+    };
+    checkpoint::write_and_prune(dir, &ck, cfg.checkpoint.keep.max(1) as usize)
+}
+
+/// A fresh run must not later resume from a checkpoint of an earlier, different run.
+fn clear_checkpoints(dir: &Path) -> Result<()> {
+    let entries = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
+    for e in entries.flatten() {
+        let p = e.path();
+        if p.is_file() {
+            std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+        }
+    }
+    Ok(())
+}
+
+/// SIGINT/SIGTERM set a flag: the loop finishes the frame, checkpoints and exits 130.
+/// A second signal ends the process at once.
+fn install_signal_handlers() -> Result<Arc<AtomicBool>> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let flag = Arc::new(AtomicBool::new(false));
+    for sig in [SIGINT, SIGTERM] {
+        signal_hook::flag::register_conditional_shutdown(sig, 130, flag.clone())
+            .and_then(|_| signal_hook::flag::register(sig, flag.clone()))
+            .map_err(|e| Error::Runtime(format!("cannot install signal handlers: {e}")))?;
+    }
+    Ok(flag)
+}

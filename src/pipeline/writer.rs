@@ -1,0 +1,234 @@
+//! The CPU side of a frame: splat the particles, write VDB, EXR and preview files atomically,
+//! and return their records for the manifest.
+use super::naming::frame_file;
+use super::records::{file_record, FrameRecord, Manifest};
+use crate::config::ShotConfig;
+use crate::error::Result;
+use crate::io::vdb::{VdbFile, VdbGrid, VdbOptions};
+use crate::sim::ParticleState;
+use crate::splat::{GridTransform, SparseGrid, SplatGrids};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+pub struct FrameJob {
+    pub frame: u32,
+    pub state: Arc<ParticleState>,
+    /// The frame is already on disk with matching checksums (a resume): do not rewrite it.
+    pub skip_write: bool,
+    pub started: Instant,
+}
+
+pub struct WrittenFrame {
+    pub frame: u32,
+    pub particles: u64,
+    pub record: Option<FrameRecord>,
+    pub phase_ms: BTreeMap<String, f64>,
+    pub wall_ms: f64,
+}
+
+pub struct FrameWriter {
+    cfg: ShotConfig,
+    run_dir: PathBuf,
+    transform: GridTransform,
+    splat: crate::splat::SplatParams,
+    preview: Option<crate::preview::PreviewParams>,
+}
+
+impl FrameWriter {
+    pub fn new(cfg: &ShotConfig, run_dir: &Path) -> Result<Self> {
+        let splat = crate::splat::SplatParams::from_config(cfg)?;
+        let preview = if cfg.output.preview.enabled {
+            Some(crate::preview::PreviewParams::from_config(
+                &cfg.output.preview,
+                cfg.domain.size,
+            )?)
+        } else {
+            None
+        };
+        Ok(Self {
+            cfg: cfg.clone(),
+            run_dir: run_dir.to_path_buf(),
+            transform: splat.transform,
+            splat,
+            preview,
+        })
+    }
+
+    pub fn new_manifest(
+        &self,
+        cfg: &ShotConfig,
+        adapter: &str,
+        sim_hash: &str,
+    ) -> Result<Manifest> {
+        Ok(Manifest {
+            tool: "nimbus".into(),
+            version: crate::VERSION.into(),
+            shot: cfg.shot.clone(),
+            config: serde_json::to_value(cfg).map_err(|e| crate::Error::Runtime(e.to_string()))?,
+            config_hash: crate::config::full_hash(cfg),
+            sim_hash: sim_hash.to_string(),
+            adapter: adapter.to_string(),
+            frame_start: cfg.output.frames.start,
+            frame_end: cfg.output.frames.end,
+            fps: cfg.output.fps,
+            voxel_size: self.transform.voxel_size,
+            grid_origin: self.transform.origin,
+            resume_command: super::naming::resume_command(&self.run_dir),
+            frames: Vec::new(),
+            complete: false,
+        })
+    }
+
+    pub fn write(&self, job: FrameJob) -> Result<WrittenFrame> {
+        let mut phase_ms = BTreeMap::new();
+        let particles = job.state.len() as u64;
+        if job.skip_write {
+            return Ok(WrittenFrame {
+                frame: job.frame,
+                particles,
+                record: None,
+                phase_ms,
+                wall_ms: ms(job.started),
+            });
+        }
+        let t = Instant::now();
+        let grids = crate::splat::splat(&job.state, &self.splat)?;
+        phase_ms.insert("splat".into(), ms(t));
+        let mut files = Vec::new();
+        let c = &self.cfg;
+        let pad = c.output.frame_padding;
+        if c.export.vdb.enabled {
+            let t = Instant::now();
+            let path = frame_file(&self.run_dir, "vdb", &c.shot, job.frame, pad, "vdb");
+            crate::io::vdb::write_file(
+                &path,
+                &self.vdb_file(&grids, job.frame),
+                &self.vdb_options(),
+            )?;
+            files.push(file_record(&self.run_dir, &path)?);
+            phase_ms.insert("write_vdb".into(), ms(t));
+        }
+        if c.export.exr.enabled {
+            let t = Instant::now();
+            let path = frame_file(&self.run_dir, "exr", &c.shot, job.frame, pad, "exr");
+            let empty;
+            let density = match &grids.density {
+                Some(g) => g,
+                None => {
+                    empty = SparseGrid {
+                        name: "density".into(),
+                        background: 0.0,
+                        transform: self.transform,
+                        leaves: vec![],
+                    };
+                    &empty
+                }
+            };
+            crate::io::exr::write_density_atlas(&path, density, c.export.exr.half)?;
+            files.push(file_record(&self.run_dir, &path)?);
+            phase_ms.insert("write_exr".into(), ms(t));
+        }
+        if let (Some(params), Some(density)) = (&self.preview, &grids.density) {
+            let t = Instant::now();
+            let png = crate::preview::write_frame_preview(
+                density,
+                params,
+                &self.run_dir,
+                &c.shot,
+                job.frame,
+                pad,
+                c.output.preview.exr,
+            )?;
+            files.push(file_record(&self.run_dir, &png)?);
+            if c.output.preview.exr {
+                files.push(file_record(&self.run_dir, &png.with_extension("exr"))?);
+            }
+            phase_ms.insert("preview".into(), ms(t));
+        }
+        Ok(WrittenFrame {
+            frame: job.frame,
+            particles,
+            record: Some(FrameRecord {
+                frame: job.frame,
+                files,
+            }),
+            phase_ms,
+            wall_ms: ms(job.started),
+        })
+    }
+
+    /// The grids of a frame under their configured names, with their aliases.
+    fn vdb_file(&self, grids: &SplatGrids, frame: u32) -> VdbFile {
+        let names = &self.cfg.export.grids;
+        let with_aliases = |mut g: VdbGrid| {
+            for (alias, target) in &names.aliases {
+                if *target == g.name {
+                    g = g.with_alias(alias.clone());
+                }
+            }
+            g
+        };
+        let mut out = Vec::new();
+        for (name, grid) in [
+            (&names.density, &grids.density),
+            (&names.temperature, &grids.temperature),
+            (&names.vapor, &grids.vapor),
+        ] {
+            if let (false, Some(g)) = (name.is_empty(), grid) {
+                out.push(with_aliases(VdbGrid::float(name.clone(), g.clone())));
+            }
+        }
+        if let (false, Some(g)) = (names.velocity.is_empty(), &grids.velocity) {
+            out.push(with_aliases(VdbGrid::vec3(
+                names.velocity.clone(),
+                g.clone(),
+            )));
+        }
+        VdbFile {
+            grids: out,
+            metadata: VdbFile::standard_metadata(frame as i64),
+        }
+    }
+
+    fn vdb_options(&self) -> VdbOptions {
+        VdbOptions {
+            compression: self.cfg.export.vdb.compression,
+            half: self.cfg.export.vdb.half,
+        }
+    }
+
+    /// After the last frame: the contact sheet of the previews.
+    pub fn finish_run(&self, manifest: &Manifest) -> Result<()> {
+        if !self.cfg.output.preview.enabled {
+            return Ok(());
+        }
+        let frames: Vec<(u32, PathBuf)> = manifest
+            .frames
+            .iter()
+            .map(|f| {
+                (
+                    f.frame,
+                    frame_file(
+                        &self.run_dir,
+                        "preview",
+                        &self.cfg.shot,
+                        f.frame,
+                        self.cfg.output.frame_padding,
+                        "png",
+                    ),
+                )
+            })
+            .filter(|(_, p)| p.exists())
+            .collect();
+        if frames.is_empty() {
+            return Ok(());
+        }
+        crate::preview::sheet::write_contact_sheet(&self.run_dir, &frames).map(|_| ())
+    }
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}

@@ -1,0 +1,81 @@
+//! Helpers shared by the end-to-end tests: run the real binary on a real run directory.
+#![allow(dead_code)]
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+pub fn nimbus() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_nimbus"));
+    c.current_dir(env!("CARGO_MANIFEST_DIR"));
+    // Mesa's lavapipe warns without it; keep test logs clean.
+    let xdg = std::env::temp_dir().join("nimbus-test-xdg");
+    let _ = std::fs::create_dir_all(&xdg);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let _ = std::fs::set_permissions(&xdg, std::fs::Permissions::from_mode(0o700));
+    }
+    c.env("XDG_RUNTIME_DIR", xdg);
+    c.env_remove("NIMBUS_FAULT");
+    c
+}
+
+pub fn sample(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("samples")
+        .join(name)
+}
+
+/// `nimbus run samples/tiny.yaml --out DIR` plus extra arguments.
+pub fn run_tiny(out: &Path, extra: &[&str]) -> Output {
+    let mut c = nimbus();
+    c.arg("run")
+        .arg(sample("tiny.yaml"))
+        .arg("--out")
+        .arg(out)
+        .arg("--log-format")
+        .arg("json");
+    c.args(extra);
+    c.output().expect("nimbus runs")
+}
+
+pub fn text(o: &Output) -> String {
+    format!(
+        "exit {:?}\nstdout:\n{}\nstderr:\n{}",
+        o.status.code(),
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+pub fn manifest(out: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("manifest.json")).unwrap()).unwrap()
+}
+
+/// (frame, path, sha256) of every file the manifest records.
+pub fn checksums(out: &Path) -> Vec<(u64, String, String)> {
+    let m = manifest(out);
+    let mut v = Vec::new();
+    for f in m["frames"].as_array().unwrap() {
+        for file in f["files"].as_array().unwrap() {
+            v.push((
+                f["frame"].as_u64().unwrap(),
+                file["path"].as_str().unwrap().to_string(),
+                file["sha256"].as_str().unwrap().to_string(),
+            ));
+        }
+    }
+    v
+}
+
+/// stats.jsonl without the timings (which differ run to run).
+pub fn stats_without_timings(out: &Path) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(out.join("stats.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
+            v.as_object_mut().unwrap().remove("phase_ms");
+            v
+        })
+        .collect()
+}
