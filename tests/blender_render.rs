@@ -64,8 +64,14 @@ fn quickstart_sequence_renders_in_blender() {
     );
     let manifest = std::fs::read_to_string(run_dir.join("manifest.json")).expect("manifest.json");
     let manifest: serde_json::Value = serde_json::from_str(&manifest).expect("manifest is JSON");
-    let frames = manifest["frames"].as_array().expect("manifest frames").len();
-    assert!(frames >= 2, "need a sequence of at least 2 frames, manifest has {frames}");
+    let frames = manifest["frames"]
+        .as_array()
+        .expect("manifest frames")
+        .len();
+    assert!(
+        frames >= 2,
+        "need a sequence of at least 2 frames, manifest has {frames}"
+    );
 
     let png = base.join("frame.png");
     let out = Command::new("blender")
@@ -82,17 +88,40 @@ fn quickstart_sequence_renders_in_blender() {
     let summary = stdout
         .lines()
         .find_map(|l| l.strip_prefix("NIMBUS_BLENDER "))
-        .unwrap_or_else(|| panic!("no summary line from the script:\n{stdout}\n{}", String::from_utf8_lossy(&out.stderr)));
-    assert!(out.status.success(), "blender render failed ({}): {summary}", out.status);
+        .unwrap_or_else(|| {
+            panic!(
+                "no summary line from the script:\n{stdout}\n{}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+    assert!(
+        out.status.success(),
+        "blender render failed ({}): {summary}",
+        out.status
+    );
     let summary: serde_json::Value = serde_json::from_str(summary).expect("summary is JSON");
     assert_eq!(summary["ok"], true, "{summary}");
     // the whole sequence was imported as one Volume, and the last frame is what was rendered
     assert_eq!(summary["volume"]["is_sequence"], true, "{summary}");
-    assert_eq!(summary["sequence_files"].as_u64(), Some(frames as u64), "{summary}");
-    assert_eq!(summary["frame"], manifest["frames"][frames - 1]["frame"], "{summary}");
+    assert_eq!(
+        summary["sequence_files"].as_u64(),
+        Some(frames as u64),
+        "{summary}"
+    );
+    assert_eq!(
+        summary["frame"],
+        manifest["frames"][frames - 1]["frame"],
+        "{summary}"
+    );
 
     let bytes = std::fs::read(&png).expect("rendered PNG");
-    assert_eq!(png_size(&bytes), Some((RES[0], RES[1])), "not a {}x{} PNG", RES[0], RES[1]);
+    assert_eq!(
+        png_size(&bytes),
+        Some((RES[0], RES[1])),
+        "not a {}x{} PNG",
+        RES[0],
+        RES[1]
+    );
 }
 
 #[test]
@@ -103,4 +132,42 @@ fn png_size_reads_ihdr() {
     assert_eq!(png_size(&png), Some((160, 120)));
     png[1] = b'X';
     assert_eq!(png_size(&png), None);
+}
+
+#[test]
+fn script_fails_on_a_file_that_is_not_vdb() {
+    if !blender_available() {
+        eprintln!("note: blender not on PATH, skipping the Blender render test");
+        return;
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let base = fresh_dir("blender_render_bad");
+    let bad = base.join("bad.0001.vdb");
+    std::fs::write(
+        &bad,
+        b"not an OpenVDB file, just text that is long enough to be read",
+    )
+    .expect("write");
+    let png = base.join("bad.png");
+    let out = Command::new("blender")
+        .args(["-b", "--factory-startup", "--python-exit-code", "1", "-P"])
+        .arg(root.join("tools/render_blender.py"))
+        .arg("--")
+        .arg(&bad)
+        .arg(&png)
+        .output()
+        .expect("spawn blender");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let summary = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("NIMBUS_BLENDER "))
+        .expect("summary line");
+    let summary: serde_json::Value = serde_json::from_str(summary).expect("summary is JSON");
+    assert_eq!(out.status.code(), Some(1), "{summary}");
+    assert_eq!(summary["ok"], false, "{summary}");
+    assert!(
+        summary["error"].as_str().is_some_and(|e| !e.is_empty()),
+        "{summary}"
+    );
+    assert!(!png.exists(), "no image may be written for a bad file");
 }
