@@ -27,7 +27,7 @@ import time
 import zlib
 
 import bpy
-from mathutils import Matrix, Vector
+from mathutils import Vector
 
 T0 = time.time()
 TAG = "NIMBUS_BLENDER "
@@ -238,7 +238,7 @@ def grid_max_mesh(obj, grid):
     return 10.0**hi
 
 
-def build_material(obj, scale, a, names):
+def build_material(obj, scale, a):
     mat = bpy.data.materials.new("NimbusCloud")
     mat.use_nodes = True
     nt = mat.node_tree
@@ -412,7 +412,7 @@ def run(a, report):
         scale = float(a.density_scale)
     report["density_scale"] = scale
     report["setup_s"] = round(time.time() - t, 3)
-    build_material(obj, scale, a, report["grids"])
+    build_material(obj, scale, a)
     report["camera_distance"] = round(build_scene(lo, hi, a), 6)
 
     out = os.path.abspath(a.output)
