@@ -1,0 +1,173 @@
+//! End to end: a sequence written by `nimbus run pipelines/quickstart.yaml` renders in Blender
+//! (headless, Cycles on the CPU) through `tools/render_blender.py`.
+//! Skipped, with a note, when `blender` is not on PATH.
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// Frames simulated: few enough for a test, enough for the cloud to show (the render's coverage
+/// check fails on an empty sky).
+const FRAMES_END: u32 = 3;
+/// Small image and few samples: this checks that Blender reads and renders the files, not looks.
+const RES: [u32; 2] = [160, 120];
+const SAMPLES: u32 = 4;
+
+fn blender_available() -> bool {
+    Command::new("blender")
+        .arg("--version")
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false)
+}
+
+/// (width, height) from a PNG's IHDR chunk.
+fn png_size(bytes: &[u8]) -> Option<(u32, u32)> {
+    if bytes.len() < 24 || &bytes[..8] != b"\x89PNG\r\n\x1a\n" || &bytes[12..16] != b"IHDR" {
+        return None;
+    }
+    let w = u32::from_be_bytes(bytes[16..20].try_into().ok()?);
+    let h = u32::from_be_bytes(bytes[20..24].try_into().ok()?);
+    Some((w, h))
+}
+
+fn fresh_dir(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("create test dir");
+    dir
+}
+
+#[test]
+fn quickstart_sequence_renders_in_blender() {
+    if !blender_available() {
+        eprintln!("note: blender not on PATH, skipping the Blender render test");
+        return;
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let base = fresh_dir("blender_render");
+    let run_dir = base.join("run");
+    let xdg = std::env::var_os("XDG_RUNTIME_DIR").unwrap_or_else(|| "/tmp/xdg".into());
+
+    let sim = Command::new(env!("CARGO_BIN_EXE_nimbus"))
+        .current_dir(root)
+        .env("XDG_RUNTIME_DIR", xdg)
+        .args(["run", "pipelines/quickstart.yaml", "--out"])
+        .arg(&run_dir)
+        .args(["--set", &format!("output.frames.end={FRAMES_END}")])
+        .args(["--set", "output.preview.enabled=false"])
+        .output()
+        .expect("spawn nimbus");
+    assert!(
+        sim.status.success(),
+        "nimbus run failed ({}):\n{}",
+        sim.status,
+        String::from_utf8_lossy(&sim.stderr)
+    );
+    let manifest = std::fs::read_to_string(run_dir.join("manifest.json")).expect("manifest.json");
+    let manifest: serde_json::Value = serde_json::from_str(&manifest).expect("manifest is JSON");
+    let frames = manifest["frames"]
+        .as_array()
+        .expect("manifest frames")
+        .len();
+    assert!(
+        frames >= 2,
+        "need a sequence of at least 2 frames, manifest has {frames}"
+    );
+
+    let png = base.join("frame.png");
+    let out = Command::new("blender")
+        .args(["-b", "--factory-startup", "--python-exit-code", "1", "-P"])
+        .arg(root.join("tools/render_blender.py"))
+        .arg("--")
+        .arg(&run_dir)
+        .arg(&png)
+        .args(["--res", &RES[0].to_string(), &RES[1].to_string()])
+        .args(["--samples", &SAMPLES.to_string()])
+        .output()
+        .expect("spawn blender");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let summary = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("NIMBUS_BLENDER "))
+        .unwrap_or_else(|| {
+            panic!(
+                "no summary line from the script:\n{stdout}\n{}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+    assert!(
+        out.status.success(),
+        "blender render failed ({}): {summary}",
+        out.status
+    );
+    let summary: serde_json::Value = serde_json::from_str(summary).expect("summary is JSON");
+    assert_eq!(summary["ok"], true, "{summary}");
+    // the whole sequence was imported as one Volume, and the last frame is what was rendered
+    assert_eq!(summary["volume"]["is_sequence"], true, "{summary}");
+    assert_eq!(
+        summary["sequence_files"].as_u64(),
+        Some(frames as u64),
+        "{summary}"
+    );
+    assert_eq!(
+        summary["frame"],
+        manifest["frames"][frames - 1]["frame"],
+        "{summary}"
+    );
+
+    let bytes = std::fs::read(&png).expect("rendered PNG");
+    assert_eq!(
+        png_size(&bytes),
+        Some((RES[0], RES[1])),
+        "not a {}x{} PNG",
+        RES[0],
+        RES[1]
+    );
+}
+
+#[test]
+fn png_size_reads_ihdr() {
+    let mut png = b"\x89PNG\r\n\x1a\n\0\0\0\x0dIHDR".to_vec();
+    png.extend_from_slice(&160u32.to_be_bytes());
+    png.extend_from_slice(&120u32.to_be_bytes());
+    assert_eq!(png_size(&png), Some((160, 120)));
+    png[1] = b'X';
+    assert_eq!(png_size(&png), None);
+}
+
+#[test]
+fn script_fails_on_a_file_that_is_not_vdb() {
+    if !blender_available() {
+        eprintln!("note: blender not on PATH, skipping the Blender render test");
+        return;
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let base = fresh_dir("blender_render_bad");
+    let bad = base.join("bad.0001.vdb");
+    std::fs::write(
+        &bad,
+        b"not an OpenVDB file, just text that is long enough to be read",
+    )
+    .expect("write");
+    let png = base.join("bad.png");
+    let out = Command::new("blender")
+        .args(["-b", "--factory-startup", "--python-exit-code", "1", "-P"])
+        .arg(root.join("tools/render_blender.py"))
+        .arg("--")
+        .arg(&bad)
+        .arg(&png)
+        .output()
+        .expect("spawn blender");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let summary = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("NIMBUS_BLENDER "))
+        .expect("summary line");
+    let summary: serde_json::Value = serde_json::from_str(summary).expect("summary is JSON");
+    assert_eq!(out.status.code(), Some(1), "{summary}");
+    assert_eq!(summary["ok"], false, "{summary}");
+    assert!(
+        summary["error"].as_str().is_some_and(|e| !e.is_empty()),
+        "{summary}"
+    );
+    assert!(!png.exists(), "no image may be written for a bad file");
+}
