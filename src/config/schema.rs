@@ -111,7 +111,7 @@ fn d_sun_intensity() -> f64 {
     3.0
 }
 fn d_density_scale() -> f64 {
-    0.02
+    0.15
 }
 impl Default for PreviewConfig {
     fn default() -> Self {
@@ -251,7 +251,7 @@ impl Default for PhysicsConfig {
             ground_temperature: 295.0,
             environment_lapse_rate: 0.0065,
             adiabatic_lapse_rate: 0.0098,
-            heat_source: 0.05,
+            heat_source: 0.15,
             heat_height: 100.0,
             heat_noise_scale: 400.0,
             heat_noise_speed: 0.002,
@@ -263,7 +263,7 @@ impl Default for PhysicsConfig {
             saturation_b: -4302.6,
             saturation_c: -29.65,
             latent_heat: 2500.0,
-            initial_vapor: 0.5,
+            initial_vapor: 0.8,
             initial_speed: 0.5,
             smoothing: SmoothingConfig::default(),
         }

@@ -94,7 +94,11 @@ impl FrameWriter {
             });
         }
         let t = Instant::now();
-        let grids = crate::splat::splat(&job.state, &self.splat)?;
+        // Split and merge move particles without their SPH densities, and PBF holds every
+        // density at rho0 within a few percent: the splat uses m / rho0 as particle volume.
+        let mut state = (*job.state).clone();
+        state.density.fill(self.cfg.solver.rest_density as f32);
+        let grids = crate::splat::splat(&state, &self.splat)?;
         phase_ms.insert("splat".into(), ms(t));
         let mut files = Vec::new();
         let c = &self.cfg;

@@ -520,7 +520,8 @@ impl Simulation {
         let mut report = FrameReport::default();
         let ctx = self.ctx.clone();
         let dev = &ctx.device;
-        for _ in 0..self.substeps {
+        let mut last_error = (0.0, 0.0);
+        for sub in 0..self.substeps {
             if let Some(mut timer) = self.timer.take() {
                 let mut enc = dev.create_command_encoder(&Default::default());
                 for (phase, label) in PHASES {
@@ -550,6 +551,12 @@ impl Simulation {
             self.cloud_physics(&mut report)?;
             self.clock.step += 1;
             self.clock.time += self.params.dt as f64;
+            if sub + 1 == self.substeps {
+                // Read before split/merge, which move particles without their densities.
+                let density: Vec<f32> =
+                    read_back(dev, &self.ctx.queue, &self.b.density, self.count as usize)?;
+                last_error = density_error(&density, self.params.rest_density as f64);
+            }
             self.adapt(&mut report)?;
         }
         if let Some(timer) = self.timer.as_mut() {
@@ -559,9 +566,7 @@ impl Simulation {
             report.phase_ms.extend(timer.collect(dev)?);
         }
         self.clock.frame += 1;
-        let density: Vec<f32> =
-            read_back(dev, &self.ctx.queue, &self.b.density, self.count as usize)?;
-        let (mean, max) = density_error(&density, self.params.rest_density as f64);
+        let (mean, max) = last_error;
         report.diagnostics.insert("density_error_mean".into(), mean);
         report.diagnostics.insert("density_error_max".into(), max);
         report
