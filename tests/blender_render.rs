@@ -4,9 +4,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// Frames simulated: few enough for a test, enough for the cloud to show (the render's coverage
-/// check fails on an empty sky).
-const FRAMES_END: u32 = 3;
+/// The quickstart shot at twice its particle spacing (3k particles, seconds to run): by frame 30
+/// its cloud has formed (the render's coverage check fails on an empty sky).
+const FRAMES_END: u32 = 30;
 /// Small image and few samples: this checks that Blender reads and renders the files, not looks.
 const RES: [u32; 2] = [160, 120];
 const SAMPLES: u32 = 4;
@@ -54,6 +54,12 @@ fn quickstart_sequence_renders_in_blender() {
         .arg(&run_dir)
         .args(["--set", &format!("output.frames.end={FRAMES_END}")])
         .args(["--set", "output.preview.enabled=false"])
+        .args([
+            "--set",
+            "domain.spacing=100",
+            "--set",
+            "export.voxel_size=50",
+        ])
         .output()
         .expect("spawn nimbus");
     assert!(

@@ -54,7 +54,10 @@ fn side_params(w: u32, h: u32) -> PreviewParams {
         look_at: [32.0, 32.0, 32.0],
         fov_deg: 40.0,
     };
-    PreviewParams::defaults(cam, w, h)
+    let mut p = PreviewParams::defaults(cam, w, h);
+    // The test clouds hold density ~1: an optically thick extinction, whatever the default.
+    p.density_scale = 1.0;
+    p
 }
 
 fn sphere(c: [f64; 3], r: f64, rho: f32) -> impl Fn([f64; 3]) -> f32 {

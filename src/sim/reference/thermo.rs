@@ -220,7 +220,10 @@ mod tests {
     /// there cools more slowly (latent heat): the kink of the T(y) curve.
     #[test]
     fn heated_parcel_rises_dry_adiabatically_then_condenses() {
-        let cfg = shot();
+        // A drier start than the shot defaults, so the dry and the cloudy legs are both long.
+        let mut cfg = shot();
+        cfg.physics.initial_vapor = 0.5;
+        cfg.physics.heat_source = 0.05;
         let (trace, base) = parcel_trace(&cfg, 2.0, 600);
         let gd = cfg.physics.adiabatic_lapse_rate;
         let Some(base) = base else {
