@@ -4,17 +4,12 @@ mod common;
 use common::*;
 use std::path::Path;
 
+/// The uninterrupted reference run (kept on disk), its file checksums and stats without timings.
+type Reference = (tempfile::TempDir, Vec<Checksum>, Vec<serde_json::Value>);
+
 /// The uninterrupted reference run, shared by the tests of this file.
-fn reference() -> &'static (
-    tempfile::TempDir,
-    Vec<(u64, String, String)>,
-    Vec<serde_json::Value>,
-) {
-    static R: std::sync::OnceLock<(
-        tempfile::TempDir,
-        Vec<(u64, String, String)>,
-        Vec<serde_json::Value>,
-    )> = std::sync::OnceLock::new();
+fn reference() -> &'static Reference {
+    static R: std::sync::OnceLock<Reference> = std::sync::OnceLock::new();
     R.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("ref");

@@ -188,19 +188,11 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions) -> Result<()> {
 
             let stop = interrupted.load(Ordering::SeqCst);
             let due = cfg.checkpoint.every > 0
-                && (frame - cfg.output.frames.start + 1) % cfg.checkpoint.every == 0;
+                && (frame - cfg.output.frames.start + 1).is_multiple_of(cfg.checkpoint.every);
             if due || stop || frame == end {
                 loop_state.collect(&done_rx, run_dir, &progress, true)?;
-                let path = write_checkpoint(
-                    cfg,
-                    &ckpt_dir,
-                    &sim_hash,
-                    &adapter,
-                    &state,
-                    frame,
-                    clock,
-                    sim.capacity(),
-                )?;
+                let path =
+                    write_checkpoint(cfg, &ckpt_dir, &sim_hash, &adapter, &state, frame, &sim)?;
                 progress.note("checkpoint", &format!("checkpoint {}", path.display()));
             }
             if stop && frame < end {
@@ -290,9 +282,9 @@ fn write_checkpoint(
     adapter: &str,
     state: &ParticleState,
     frame: u32,
-    clock: SimClock,
-    capacity: usize,
+    sim: &Simulation,
 ) -> Result<PathBuf> {
+    let clock = sim.clock();
     let ck = checkpoint::Checkpoint {
         header: checkpoint::CheckpointHeader {
             tool_version: crate::VERSION.to_string(),
@@ -302,7 +294,7 @@ fn write_checkpoint(
             time: clock.time,
             seed: cfg.seed,
             particle_count: state.len() as u64,
-            capacity: capacity as u64,
+            capacity: sim.capacity() as u64,
             adapter: adapter.to_string(),
             next_id: clock.next_id,
         },

@@ -51,8 +51,11 @@ pub fn manifest(out: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(out.join("manifest.json")).unwrap()).unwrap()
 }
 
-/// (frame, path, sha256) of every file the manifest records.
-pub fn checksums(out: &Path) -> Vec<(u64, String, String)> {
+/// (frame, path, sha256) of a file the manifest records.
+pub type Checksum = (u64, String, String);
+
+/// Every file the manifest records.
+pub fn checksums(out: &Path) -> Vec<Checksum> {
     let m = manifest(out);
     let mut v = Vec::new();
     for f in m["frames"].as_array().unwrap() {
