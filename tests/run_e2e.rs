@@ -83,3 +83,57 @@ fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
     }
     v
 }
+
+#[test]
+fn preview_command_reproduces_the_run_previews() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let o = run_tiny(&out, &[]);
+    assert!(o.status.success(), "{}", text(&o));
+    let previews: Vec<(u64, String, String)> = checksums(&out)
+        .into_iter()
+        .filter(|(_, p, _)| p.starts_with("preview/"))
+        .collect();
+    assert_eq!(previews.len(), 8, "one preview per frame");
+    let sheet = std::fs::read(out.join("preview/contact_sheet.png")).unwrap();
+    for (_, p, _) in &previews {
+        std::fs::remove_file(out.join(p)).unwrap();
+    }
+    let o = nimbus().arg("preview").arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    for (_, p, sum) in &previews {
+        let bytes = std::fs::read(out.join(p)).unwrap();
+        assert_eq!(
+            &nimbus::pipeline::records::sha256_hex(&bytes),
+            sum,
+            "{p} differs"
+        );
+    }
+    assert_eq!(
+        std::fs::read(out.join("preview/contact_sheet.png")).unwrap(),
+        sheet
+    );
+    // A light override changes the pictures.
+    let o = nimbus()
+        .arg("preview")
+        .arg(&out)
+        .args(["--set", "output.preview.sun_direction=[-1,0.2,0]"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let (_, last, sum) = previews.last().unwrap();
+    let bytes = std::fs::read(out.join(last)).unwrap();
+    assert_ne!(&nimbus::pipeline::records::sha256_hex(&bytes), sum);
+}
+
+#[test]
+fn no_gpu_adapter_is_exit_4_with_a_remedy() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = run_tiny(
+        &dir.path().join("run"),
+        &["--set", "gpu.adapter=no-such-gpu-xyz"],
+    );
+    assert_eq!(o.status.code(), Some(4), "{}", text(&o));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("mesa-vulkan-drivers"), "{err}");
+}
