@@ -40,11 +40,41 @@ struct PbfParams {
 @group(0) @binding(5) var<storage, read_write> scratch: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read_write> lambda: array<f32>;
 @group(0) @binding(7) var<storage, read_write> density: array<f32>;
-@group(0) @binding(8) var<storage, read_write> info: array<vec2<u32>>;
-@group(0) @binding(9) var<storage, read_write> cell_start: array<u32>;
+// read-only bindings (declared so, the compiler need not assume they alias the written ones)
+@group(0) @binding(8) var<storage, read> info: array<vec2<u32>>;
+@group(0) @binding(9) var<storage, read> cell_start: array<u32>;
 // boundary particles: xyz, w = temperature; cell-ordered with their own table
-@group(0) @binding(10) var<storage, read_write> bpos: array<vec4<f32>>;
-@group(0) @binding(11) var<storage, read_write> bcell_start: array<u32>;
+@group(0) @binding(10) var<storage, read> bpos: array<vec4<f32>>;
+@group(0) @binding(11) var<storage, read> bcell_start: array<u32>;
+
+// Neighbour search over rows: the cells x-1..x+1 of a (y, z) row are consecutive in the linear
+// index (z dy + y) dx + x, so away from the x faces they are one range of cell_start (9 ranges
+// instead of 27). At the x faces (or dims.x < 3) each of the 3 cells is its own segment, wrapped
+// as neighbor_cell does. The order of the particles visited is the same as cell by cell.
+fn row_segments(c: vec3<i32>) -> u32 {
+    if (c.x >= 1 && c.x + 1 < i32(grid.dims.x)) { return 1u; }
+    return 3u;
+}
+// [first cell, last cell + 1) of segment s of row (dy, dz) around c; an empty range when the row
+// or the cell is outside a walled face.
+fn segment_cells(c: vec3<i32>, dy: i32, dz: i32, s: u32, nseg: u32) -> vec2<i32> {
+    if (nseg == 1u) {
+        let n = neighbor_cell(c, vec3<i32>(0, dy, dz), grid);
+        if (n < 0) { return vec2<i32>(0, 0); }
+        return vec2<i32>(n - 1, n + 2);
+    }
+    let n = neighbor_cell(c, vec3<i32>(i32(s) - 1, dy, dz), grid);
+    if (n < 0) { return vec2<i32>(0, 0); }
+    return vec2<i32>(n, n + 1);
+}
+// min_image with a reciprocal (one multiply instead of a divide per pair; the rounded image is the
+// same for every pair closer than half the domain, i.e. every pair that counts)
+fn min_image_r(d: vec3<f32>, inv: vec3<f32>) -> vec3<f32> {
+    var r = d;
+    if ((grid.periodic & 1u) != 0u) { r.x = r.x - grid.domain_size.x * round(r.x * inv.x); }
+    if ((grid.periodic & 4u) != 0u) { r.z = r.z - grid.domain_size.z * round(r.z * inv.z); }
+    return r;
+}
 
 fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
     return gid.y * nwg.x * 64u + gid.x;
@@ -54,31 +84,41 @@ fn level_of(i: u32) -> u32 {
     return min(info[i].y, 7u);
 }
 fn radius_of(i: u32) -> f32 {
-    return prm.lv[level_of(i)].x;
+    return lv_of(level_of(i)).x;
 }
 fn mass_of(i: u32) -> f32 {
-    return prm.lv[level_of(i)].w;
+    return lv_of(level_of(i)).w;
 }
-// poly6 and spiky gradient of level l from the table (same values as common.wgsl's poly6/spiky_grad)
+// Level constants by constant-index reads and selects: a per-lane indexed read of the table is a
+// scalar loop over the SIMD lanes on llvmpipe, a select chain is 7 vector ops.
+fn lv_of(l: u32) -> vec4<f32> {
+    var v = prm.lv[0];
+    v = select(v, prm.lv[1], l == 1u);
+    v = select(v, prm.lv[2], l == 2u);
+    v = select(v, prm.lv[3], l == 3u);
+    v = select(v, prm.lv[4], l == 4u);
+    v = select(v, prm.lv[5], l == 5u);
+    v = select(v, prm.lv[6], l == 6u);
+    v = select(v, prm.lv[7], l >= 7u);
+    return v;
+}
+// poly6 and spiky gradient of level l from the table (same values as common.wgsl's poly6/spiky_grad),
+// branch free (divergent branches cost both sides on SIMD CPUs anyway)
 fn w_l(r2: f32, l: u32) -> f32 {
-    let h = prm.lv[l].x;
-    let d = h * h - r2;
-    if (d <= 0.0) { return 0.0; }
-    return prm.lv[l].y * d * d * d;
+    let lv = lv_of(l);
+    let d = max(lv.x * lv.x - r2, 0.0);
+    return lv.y * d * d * d;
 }
 fn gw_l(xij: vec3<f32>, r: f32, l: u32) -> vec3<f32> {
-    let h = prm.lv[l].x;
-    if (r >= h || r <= 1e-9 * h) { return vec3<f32>(0.0); }
-    let d = h - r;
-    return (prm.lv[l].z * d * d / r) * xij;
+    let lv = lv_of(l);
+    let d = lv.x - r;
+    return select((lv.z * d * d / r) * xij, vec3<f32>(0.0), r >= lv.x || r <= 1e-9 * lv.x);
 }
-// eq. 19 by level
+// eq. 19 by level (0.5 (a + a) == a exactly, so equal levels need no branch)
 fn wsym(r2: f32, li: u32, lj: u32) -> f32 {
-    if (li == lj) { return w_l(r2, li); }
     return 0.5 * (w_l(r2, li) + w_l(r2, lj));
 }
 fn gsym(xij: vec3<f32>, r: f32, li: u32, lj: u32) -> vec3<f32> {
-    if (li == lj) { return gw_l(xij, r, li); }
     return 0.5 * (gw_l(xij, r, li) + gw_l(xij, r, lj));
 }
 
@@ -122,8 +162,8 @@ fn predict(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
 // units, m^2, so the term is scale free).
 fn scorr(r2: f32, li: u32, lj: u32) -> f32 {
     if (prm.scorr_k == 0.0) { return 0.0; }
-    let hi = prm.lv[li].x;
-    let hj = prm.lv[lj].x;
+    let hi = lv_of(li).x;
+    let hj = lv_of(lj).x;
     let hb = prm.scorr_dq * 0.5 * (hi + hj);
     let x = wsym(r2, li, lj) / wsym(hb * hb, li, lj);
     var t = 1.0;
@@ -131,96 +171,135 @@ fn scorr(r2: f32, li: u32, lj: u32) -> f32 {
     return -prm.scorr_k * t * hi * hj;
 }
 
+struct LamAcc {
+    grad: vec3<f32>,
+    rho: f32,
+    g2: f32,
+}
+struct Me {
+    p: vec3<f32>,
+    li: u32,
+    hi: f32,
+    mi: f32,
+    lam: f32,
+    inv: vec3<f32>,
+    wdq: f32,
+}
+fn me_of(i: u32) -> Me {
+    let li = level_of(i);
+    let hi = lv_of(li).x;
+    let hd = prm.scorr_dq * hi;
+    return Me(pred[i].xyz, li, hi, lv_of(li).w, 0.0, 1.0 / grid.domain_size, w_l(hd * hd, li));
+}
+fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) {
+    let xij = min_image_r(me.p - pred[j].xyz, me.inv);
+    let r2 = dot(xij, xij);
+    // every radius is <= h0: farther pairs are rejected before their level is loaded
+    if (r2 < prm.h0 * prm.h0) {
+        let lj = level_of(j);
+        let lvj = lv_of(lj);
+        let hm = max(me.hi, lvj.x);
+        if (r2 < hm * hm) {
+            let mj = lvj.w;
+            (*a).rho += mj * wsym(r2, me.li, lj);
+            let g = gsym(xij, sqrt(r2), me.li, lj) * (mj / prm.rest_density);
+            (*a).grad += g;
+            (*a).g2 += dot(g, g);
+        }
+    }
+}
+fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
+    let xik = min_image_r(me.p - bpos[k].xyz, me.inv);
+    let r2 = dot(xik, xik);
+    let hm = max(me.hi, prm.h0);
+    if (r2 < hm * hm) {
+        (*a).rho += me.mi * wsym(r2, me.li, 0u);
+        (*a).grad += gsym(xik, sqrt(r2), me.li, 0u) * (me.mi / prm.rest_density);
+    }
+}
+
 @compute @workgroup_size(64)
 fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= grid.n_particles) { return; }
-    let p = pred[i].xyz;
-    let li = level_of(i);
-    let hi = radius_of(i);
-    let mi = mass_of(i);
-    let inv_rho0 = 1.0 / prm.rest_density;
-    var rho = 0.0;
-    var grad_i = vec3<f32>(0.0);
-    var sum_grad2 = 0.0;
-    let c = cell_coord(p, grid);
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            for (var dx = -1; dx <= 1; dx++) {
-                let n = neighbor_cell(c, vec3<i32>(dx, dy, dz), grid);
-                if (n < 0) { continue; }
-                let j_end = cell_start[n + 1];
-                for (var j = cell_start[n]; j < j_end; j++) {
-                    let xij = min_image(p - pred[j].xyz, grid);
-                    let r2 = dot(xij, xij);
-                    let lj = level_of(j);
-                    let hj = radius_of(j);
-                    let hm = max(hi, hj);
-                    if (r2 >= hm * hm) { continue; }
-                    let mj = mass_of(j);
-                    rho += mj * wsym(r2, li, lj);
-                    let g = gsym(xij, sqrt(r2), li, lj) * (mj * inv_rho0);
-                    grad_i += g;
-                    sum_grad2 += dot(g, g);
-                }
-                let k_end = bcell_start[n + 1];
-                for (var k = bcell_start[n]; k < k_end; k++) {
-                    let xik = min_image(p - bpos[k].xyz, grid);
-                    let r2 = dot(xik, xik);
-                    let hm = max(hi, prm.h0);
-                    if (r2 >= hm * hm) { continue; }
-                    rho += mi * wsym(r2, li, 0u);
-                    grad_i += gsym(xik, sqrt(r2), li, 0u) * (mi * inv_rho0);
+    let me = me_of(i);
+    var a = LamAcc(vec3<f32>(0.0), 0.0, 0.0);
+    let c = cell_coord(me.p, grid);
+    {
+        let nseg = row_segments(c);
+        for (var dz = -1; dz <= 1; dz++) {
+            for (var dy = -1; dy <= 1; dy++) {
+                for (var s = 0u; s < nseg; s++) {
+                    let cr = segment_cells(c, dy, dz, s, nseg);
+                    let j_end = cell_start[cr.y];
+                    for (var j = cell_start[cr.x]; j < j_end; j++) { lam_fluid(&a, me, j); }
+                    let k_end = bcell_start[cr.y];
+                    for (var k = bcell_start[cr.x]; k < k_end; k++) { lam_wall(&a, me, k); }
                 }
             }
         }
     }
-    let constraint = rho * inv_rho0 - 1.0;
-    lambda[i] = -constraint / (sum_grad2 + dot(grad_i, grad_i) + prm.eps);
-    density[i] = rho;
+    let constraint = a.rho / prm.rest_density - 1.0;
+    lambda[i] = -constraint / (a.g2 + dot(a.grad, a.grad) + prm.eps);
+    density[i] = a.rho;
+}
+
+// s_corr with W(dq h_i) precomputed for same-level pairs
+fn scorr_me(me: Me, r2: f32, lj: u32) -> f32 {
+    if (lj != me.li) { return scorr(r2, me.li, lj); }
+    if (prm.scorr_k == 0.0) { return 0.0; }
+    let x = w_l(r2, me.li) / me.wdq;
+    var t = 1.0;
+    for (var k = 0u; k < u32(prm.scorr_n); k++) { t = t * x; }
+    return -prm.scorr_k * t * me.hi * me.hi;
+}
+fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
+    let xij = min_image_r(me.p - pred[j].xyz, me.inv);
+    let r2 = dot(xij, xij);
+    if (r2 < prm.h0 * prm.h0) {
+        let lj = level_of(j);
+        let lvj = lv_of(lj);
+        let hm = max(me.hi, lvj.x);
+        if (r2 < hm * hm) {
+            let mj = lvj.w;
+            let s = me.lam * mj + lambda[j] * me.mi + scorr_me(me, r2, lj) * mj;
+            *dp += s * gsym(xij, sqrt(r2), me.li, lj);
+        }
+    }
+}
+fn delta_wall(dp: ptr<function, vec3<f32>>, me: Me, k: u32) {
+    let xik = min_image_r(me.p - bpos[k].xyz, me.inv);
+    let r2 = dot(xik, xik);
+    let hm = max(me.hi, prm.h0);
+    if (r2 < hm * hm) {
+        let s = (me.lam + scorr(r2, me.li, 0u)) * me.mi;
+        *dp += s * gsym(xik, sqrt(r2), me.li, 0u);
+    }
 }
 
 @compute @workgroup_size(64)
 fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= grid.n_particles) { return; }
-    let p = pred[i].xyz;
-    let li = level_of(i);
-    let hi = radius_of(i);
-    let mi = mass_of(i);
-    let lam_i = lambda[i];
+    var me = me_of(i);
+    me.lam = lambda[i];
     var dp = vec3<f32>(0.0);
-    let c = cell_coord(p, grid);
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            for (var dx = -1; dx <= 1; dx++) {
-                let n = neighbor_cell(c, vec3<i32>(dx, dy, dz), grid);
-                if (n < 0) { continue; }
-                let j_end = cell_start[n + 1];
-                for (var j = cell_start[n]; j < j_end; j++) {
-                    let xij = min_image(p - pred[j].xyz, grid);
-                    let r2 = dot(xij, xij);
-                    let lj = level_of(j);
-                    let hj = radius_of(j);
-                    let hm = max(hi, hj);
-                    if (r2 >= hm * hm) { continue; }
-                    let mj = mass_of(j);
-                    let s = lam_i * mj + lambda[j] * mi + scorr(r2, li, lj) * mj;
-                    dp += s * gsym(xij, sqrt(r2), li, lj);
-                }
-                let k_end = bcell_start[n + 1];
-                for (var k = bcell_start[n]; k < k_end; k++) {
-                    let xik = min_image(p - bpos[k].xyz, grid);
-                    let r2 = dot(xik, xik);
-                    let hm = max(hi, prm.h0);
-                    if (r2 >= hm * hm) { continue; }
-                    let s = (lam_i + scorr(r2, li, 0u)) * mi;
-                    dp += s * gsym(xik, sqrt(r2), li, 0u);
+    let c = cell_coord(me.p, grid);
+    {
+        let nseg = row_segments(c);
+        for (var dz = -1; dz <= 1; dz++) {
+            for (var dy = -1; dy <= 1; dy++) {
+                for (var s = 0u; s < nseg; s++) {
+                    let cr = segment_cells(c, dy, dz, s, nseg);
+                    let j_end = cell_start[cr.y];
+                    for (var j = cell_start[cr.x]; j < j_end; j++) { delta_fluid(&dp, me, j); }
+                    let k_end = bcell_start[cr.y];
+                    for (var k = bcell_start[cr.x]; k < k_end; k++) { delta_wall(&dp, me, k); }
                 }
             }
         }
     }
-    scratch[i] = vec4<f32>(confine(p + dp / prm.rest_density), 0.0);
+    scratch[i] = vec4<f32>(confine(me.p + dp / prm.rest_density), 0.0);
 }
 
 @compute @workgroup_size(64)
@@ -241,20 +320,26 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let hi = radius_of(i);
     var w = vec3<f32>(0.0);
     let c = cell_coord(p, grid);
+    let nseg = row_segments(c);
+    let inv = 1.0 / grid.domain_size;
+    // every radius is <= h0: pairs beyond it are rejected before their level is loaded
+    let h02 = prm.h0 * prm.h0;
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
-            for (var dx = -1; dx <= 1; dx++) {
-                let n = neighbor_cell(c, vec3<i32>(dx, dy, dz), grid);
-                if (n < 0) { continue; }
-                let j_end = cell_start[n + 1];
-                for (var j = cell_start[n]; j < j_end; j++) {
-                    let xij = min_image(p - pred[j].xyz, grid);
+            for (var s = 0u; s < nseg; s++) {
+                let cr = segment_cells(c, dy, dz, s, nseg);
+                let j_end = cell_start[cr.y];
+                for (var j = cell_start[cr.x]; j < j_end; j++) {
+                    let xij = min_image_r(p - pred[j].xyz, inv);
                     let r2 = dot(xij, xij);
+                    if (r2 >= h02) { continue; }
                     let lj = level_of(j);
-                    let hj = radius_of(j);
+                    let lvj = lv_of(lj);
+                    let hj = lvj.x;
                     let hm = max(hi, hj);
                     if (r2 >= hm * hm) { continue; }
-                    let vj = mass_of(j) / density[j];
+                    let rho_j = density[j];
+                    let vj = lvj.w / rho_j;
                     w += vj * cross(vi - vel[j].xyz, gsym(xij, sqrt(r2), li, lj));
                 }
             }
@@ -281,22 +366,28 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     var acc = vec3<f32>(0.0);
     var eta = vec3<f32>(0.0);
     let c = cell_coord(p, grid);
+    let nseg = row_segments(c);
+    let inv = 1.0 / grid.domain_size;
+    // every radius is <= h0: pairs beyond it are rejected before their level is loaded
+    let h02 = prm.h0 * prm.h0;
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
-            for (var dx = -1; dx <= 1; dx++) {
-                let n = neighbor_cell(c, vec3<i32>(dx, dy, dz), grid);
-                if (n < 0) { continue; }
-                let j_end = cell_start[n + 1];
-                for (var j = cell_start[n]; j < j_end; j++) {
-                    let xij = min_image(p - pred[j].xyz, grid);
+            for (var s = 0u; s < nseg; s++) {
+                let cr = segment_cells(c, dy, dz, s, nseg);
+                let j_end = cell_start[cr.y];
+                for (var j = cell_start[cr.x]; j < j_end; j++) {
+                    let xij = min_image_r(p - pred[j].xyz, inv);
                     let r2 = dot(xij, xij);
+                    if (r2 >= h02) { continue; }
                     let lj = level_of(j);
-                    let hj = radius_of(j);
+                    let lvj = lv_of(lj);
+                    let hj = lvj.x;
                     let hm = max(hi, hj);
                     if (r2 >= hm * hm) { continue; }
-                    let vj = mass_of(j) / density[j];
+                    let rho_j = density[j];
+                    let vj = lvj.w / rho_j;
                     // 2 m_j / (rho_i + rho_j): pairwise symmetric, so XSPH conserves momentum
-                    let vs = 2.0 * mass_of(j) / (rho_i + density[j]);
+                    let vs = 2.0 * lvj.w / (rho_i + rho_j);
                     acc += vs * wsym(r2, li, lj) * (vel[j].xyz - vi);
                     if (use_vort) {
                         eta += vj * (pos[j].w - wi) * gsym(xij, sqrt(r2), li, lj);

@@ -2,11 +2,13 @@
 //! (so one bind group serves them all), and 2-D dispatch for arrays beyond 65535 workgroups.
 use crate::error::Result;
 
-/// Kind of a binding: a uniform buffer or a read-write storage buffer.
+/// Kind of a binding: a uniform buffer, a read-write or a read-only storage buffer (WGSL
+/// `var<storage, read>`: must match the shader's declaration exactly).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Bind {
     Uniform,
     Storage,
+    StorageRead,
 }
 
 /// The compute pipelines of one shader file, all with the same layout.
@@ -32,6 +34,7 @@ impl Kernel {
                     ty: match b {
                         Bind::Uniform => wgpu::BufferBindingType::Uniform,
                         Bind::Storage => wgpu::BufferBindingType::Storage { read_only: false },
+                        Bind::StorageRead => wgpu::BufferBindingType::Storage { read_only: true },
                     },
                     has_dynamic_offset: false,
                     min_binding_size: None,

@@ -264,10 +264,11 @@ impl Simulation {
                     s4,
                     s4,
                     s4,
-                    s4,
-                    s4,
-                    s4,
-                    s4,
+                    // info, cell_start, bpos, bcell_start: read-only in every pbf entry point
+                    Bind::StorageRead,
+                    Bind::StorageRead,
+                    Bind::StorageRead,
+                    Bind::StorageRead,
                 ],
                 &[
                     "predict",
