@@ -21,6 +21,17 @@ fn reference() -> &'static Reference {
     })
 }
 
+/// `nimbus run samples/tiny.yaml` into `out`, aborted at the `NIMBUS_FAULT` point `fault`.
+fn run_with_fault(out: &Path, fault: &str) -> std::process::Output {
+    let mut c = nimbus();
+    c.arg("run")
+        .arg(sample("tiny.yaml"))
+        .arg("--out")
+        .arg(out)
+        .args(["--log-format", "json"]);
+    c.env("NIMBUS_FAULT", fault).output().unwrap()
+}
+
 fn resume(out: &Path) -> std::process::Output {
     nimbus()
         .arg("resume")
@@ -36,15 +47,7 @@ fn crash_and_resume(fault: &str) {
     let (_keep, ref_sums, ref_stats) = reference();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    let mut c = nimbus();
-    c.arg("run")
-        .arg(sample("tiny.yaml"))
-        .arg("--out")
-        .arg(&out)
-        .arg("--log-format")
-        .arg("json");
-    c.env("NIMBUS_FAULT", fault);
-    let o = c.output().unwrap();
+    let o = run_with_fault(&out, fault);
     assert!(
         !o.status.success(),
         "the fault {fault} did not stop the run: {}",
@@ -120,15 +123,7 @@ fn corrupt_newest_checkpoint_falls_back_to_the_previous() {
     let (_keep, ref_sums, _) = reference();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    let mut c = nimbus();
-    c.arg("run")
-        .arg(sample("tiny.yaml"))
-        .arg("--out")
-        .arg(&out)
-        .arg("--log-format")
-        .arg("json");
-    c.env("NIMBUS_FAULT", "frame:6");
-    assert!(!c.output().unwrap().status.success());
+    assert!(!run_with_fault(&out, "frame:6").status.success());
     let mut cks: Vec<_> = std::fs::read_dir(out.join("checkpoints"))
         .unwrap()
         .flatten()
@@ -155,15 +150,7 @@ fn corrupt_newest_checkpoint_falls_back_to_the_previous() {
 fn resume_without_a_usable_checkpoint_is_invalid_input() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    let mut c = nimbus();
-    c.arg("run")
-        .arg(sample("tiny.yaml"))
-        .arg("--out")
-        .arg(&out)
-        .arg("--log-format")
-        .arg("json");
-    c.env("NIMBUS_FAULT", "frame:2");
-    assert!(!c.output().unwrap().status.success());
+    assert!(!run_with_fault(&out, "frame:2").status.success());
     for e in std::fs::read_dir(out.join("checkpoints"))
         .unwrap()
         .flatten()
@@ -187,15 +174,7 @@ fn resume_of_a_directory_that_is_no_run_is_invalid_input() {
 fn changed_simulation_keys_are_refused_with_their_names() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    let mut c = nimbus();
-    c.arg("run")
-        .arg(sample("tiny.yaml"))
-        .arg("--out")
-        .arg(&out)
-        .arg("--log-format")
-        .arg("json");
-    c.env("NIMBUS_FAULT", "frame:3");
-    assert!(!c.output().unwrap().status.success());
+    assert!(!run_with_fault(&out, "frame:3").status.success());
     let o = run_tiny(
         &out,
         &[
