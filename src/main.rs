@@ -113,6 +113,19 @@ enum BenchTopic {
         #[arg(long, default_value_t = 100_000)]
         particles: usize,
     },
+    /// The paper's Table 1: both paper scenarios, adaptive and not, ms per step and phase.
+    /// Prints the markdown table, then the JSON.
+    Table1 {
+        /// Fraction of the shots' x and z extent (the height is kept).
+        #[arg(long, default_value_t = 0.25)]
+        scale: f64,
+        /// Measured frames per run.
+        #[arg(long, default_value_t = 3)]
+        frames: u32,
+        /// Frames simulated before measuring (extended until the adaptive run has split).
+        #[arg(long, default_value_t = 40)]
+        warmup: u32,
+    },
 }
 
 fn main() {
@@ -284,6 +297,17 @@ fn bench(topic: BenchTopic) -> Result<()> {
         }
         BenchTopic::Checkpoint { particles } => {
             nimbus::bench::checkpoint::bench_checkpoint(particles)?
+        }
+        BenchTopic::Table1 {
+            scale,
+            frames,
+            warmup,
+        } => {
+            let report = nimbus::bench::table1::bench_table1(scale, frames, warmup)?;
+            if let Some(table) = report["table"].as_str() {
+                println!("{table}");
+            }
+            report
         }
     };
     println!(

@@ -3,6 +3,7 @@ pub mod checkpoint;
 pub mod pbf;
 pub mod preview;
 pub mod splat;
+pub mod table1;
 pub mod vdb;
 
 /// CPU seconds (user + system) this process has used so far, from `/proc/self/stat` (Linux,
