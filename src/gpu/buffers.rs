@@ -75,7 +75,17 @@ pub fn read_back<T: bytemuck::Pod>(
     });
     enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
     queue.submit([enc.finish()]);
-    let slice = staging.slice(..);
+    map_read(device, &staging, size)
+}
+
+/// Maps the first `size` bytes of a MAP_READ buffer, copies them out as `T`s and unmaps it
+/// (blocks until the GPU is done with the buffer).
+pub fn map_read<T: bytemuck::Pod>(
+    device: &wgpu::Device,
+    buffer: &wgpu::Buffer,
+    size: u64,
+) -> Result<Vec<T>> {
+    let slice = buffer.slice(0..size);
     let (tx, rx) = std::sync::mpsc::channel();
     slice.map_async(wgpu::MapMode::Read, move |r| {
         let _ = tx.send(r);
@@ -91,6 +101,6 @@ pub fn read_back<T: bytemuck::Pod>(
         .map_err(|e| Error::Runtime(format!("GPU read-back mapping failed: {e:?}")))?;
     let out = bytemuck::cast_slice::<u8, T>(&view).to_vec();
     drop(view);
-    staging.unmap();
+    buffer.unmap();
     Ok(out)
 }

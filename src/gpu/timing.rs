@@ -1,7 +1,7 @@
 //! Per-phase GPU timings from timestamp queries: every timed compute pass writes a begin and an
 //! end timestamp; `collect` sums the spans per label. Without the feature, callers fall back to
 //! CPU wall time around each submission.
-use crate::error::{Error, Result};
+use crate::error::Result;
 use std::collections::BTreeMap;
 
 /// Queries per set (wgpu's maximum); passes beyond it in one frame are not timed.
@@ -84,28 +84,11 @@ impl GpuTimer {
         if n == 0 {
             return Ok(out);
         }
-        let slice = self.readback.slice(0..n * 8);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| Error::Runtime(format!("GPU poll failed: {e}")))?;
-        rx.recv()
-            .map_err(|_| Error::Runtime("timestamp read-back was dropped".into()))?
-            .map_err(|e| Error::Runtime(format!("timestamp read-back failed: {e}")))?;
-        {
-            let view = slice
-                .get_mapped_range()
-                .map_err(|e| Error::Runtime(format!("timestamp mapping failed: {e:?}")))?;
-            let ts: &[u64] = bytemuck::cast_slice(&view);
-            for (k, label) in self.labels.iter().enumerate() {
-                let dt = ts[2 * k + 1].saturating_sub(ts[2 * k]) as f64 * self.period_ns * 1e-6;
-                *out.entry(label.clone()).or_insert(0.0) += dt;
-            }
+        let ts: Vec<u64> = crate::gpu::buffers::map_read(device, &self.readback, n * 8)?;
+        for (k, label) in self.labels.iter().enumerate() {
+            let dt = ts[2 * k + 1].saturating_sub(ts[2 * k]) as f64 * self.period_ns * 1e-6;
+            *out.entry(label.clone()).or_insert(0.0) += dt;
         }
-        self.readback.unmap();
         self.labels.clear();
         Ok(out)
     }

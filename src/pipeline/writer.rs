@@ -103,17 +103,6 @@ impl FrameWriter {
         let mut files = Vec::new();
         let c = &self.cfg;
         let pad = c.output.frame_padding;
-        if c.export.vdb.enabled {
-            let t = Instant::now();
-            let path = frame_file(&self.run_dir, "vdb", &c.shot, job.frame, pad, "vdb");
-            crate::io::vdb::write_file(
-                &path,
-                &self.vdb_file(&grids, job.frame),
-                &self.vdb_options(),
-            )?;
-            files.push(file_record(&self.run_dir, &path)?);
-            phase_ms.insert("write_vdb".into(), ms(t));
-        }
         if c.export.exr.enabled {
             let t = Instant::now();
             let path = frame_file(&self.run_dir, "exr", &c.shot, job.frame, pad, "exr");
@@ -151,6 +140,18 @@ impl FrameWriter {
             }
             phase_ms.insert("preview".into(), ms(t));
         }
+        // Last, so the grids move into the file instead of being copied; listed first.
+        if c.export.vdb.enabled {
+            let t = Instant::now();
+            let path = frame_file(&self.run_dir, "vdb", &c.shot, job.frame, pad, "vdb");
+            crate::io::vdb::write_file(
+                &path,
+                &self.vdb_file(grids, job.frame),
+                &self.vdb_options(),
+            )?;
+            files.insert(0, file_record(&self.run_dir, &path)?);
+            phase_ms.insert("write_vdb".into(), ms(t));
+        }
         Ok(WrittenFrame {
             frame: job.frame,
             particles,
@@ -164,7 +165,7 @@ impl FrameWriter {
     }
 
     /// The grids of a frame under their configured names, with their aliases.
-    fn vdb_file(&self, grids: &SplatGrids, frame: u32) -> VdbFile {
+    fn vdb_file(&self, grids: SplatGrids, frame: u32) -> VdbFile {
         let names = &self.cfg.export.grids;
         let with_aliases = |mut g: VdbGrid| {
             for (alias, target) in &names.aliases {
@@ -176,19 +177,16 @@ impl FrameWriter {
         };
         let mut out = Vec::new();
         for (name, grid) in [
-            (&names.density, &grids.density),
-            (&names.temperature, &grids.temperature),
-            (&names.vapor, &grids.vapor),
+            (&names.density, grids.density),
+            (&names.temperature, grids.temperature),
+            (&names.vapor, grids.vapor),
         ] {
             if let (false, Some(g)) = (name.is_empty(), grid) {
-                out.push(with_aliases(VdbGrid::float(name.clone(), g.clone())));
+                out.push(with_aliases(VdbGrid::float(name.clone(), g)));
             }
         }
-        if let (false, Some(g)) = (names.velocity.is_empty(), &grids.velocity) {
-            out.push(with_aliases(VdbGrid::vec3(
-                names.velocity.clone(),
-                g.clone(),
-            )));
+        if let (false, Some(g)) = (names.velocity.is_empty(), grids.velocity) {
+            out.push(with_aliases(VdbGrid::vec3(names.velocity.clone(), g)));
         }
         VdbFile {
             grids: out,
