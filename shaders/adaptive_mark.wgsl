@@ -26,7 +26,7 @@ fn split_fits(i: u32, x: vec3<f32>, id: u32, level: u32) -> bool {
             for (var dx = -1; dx <= 1; dx++) {
                 let n = neighbor_cell(c, vec3<i32>(dx, dy, dz), grid);
                 if (n < 0) { continue; }
-                for (var k = cell_start[n]; k < cell_start[n + 1]; k++) {
+                for (var k = cell_start[cell_entry(u32(n), grid)]; k < cell_start[cell_entry(u32(n) + 1u, grid)]; k++) {
                     if (k == i) { continue; }
                     let q = pos[k].xyz;
                     let da = min_image(a - q, grid);

@@ -43,7 +43,7 @@ fn find_partner(i: u32, xi: vec3<f32>, level: u32, h: f32, c: vec3<i32>) -> i32 
             for (var dx = -1; dx <= 1; dx++) {
                 let n = neighbor_cell(c, vec3<i32>(dx, dy, dz), grid);
                 if (n < 0) { continue; }
-                for (var k = cell_start[n]; k < cell_start[n + 1]; k++) {
+                for (var k = cell_start[cell_entry(u32(n), grid)]; k < cell_start[cell_entry(u32(n) + 1u, grid)]; k++) {
                     if (k == i || flags[k] != FLAG_MERGE || info[k].y != level) { continue; }
                     let d = min_image(pos[k].xyz - xi, grid);
                     let d2 = dot(d, d);
@@ -66,7 +66,7 @@ fn merge_clear(i: u32, j: u32, m: vec3<f32>, r: f32, c: vec3<i32>) -> bool {
             for (var dx = -1; dx <= 1; dx++) {
                 let n = neighbor_cell(c, vec3<i32>(dx, dy, dz), grid);
                 if (n < 0) { continue; }
-                for (var k = cell_start[n]; k < cell_start[n + 1]; k++) {
+                for (var k = cell_start[cell_entry(u32(n), grid)]; k < cell_start[cell_entry(u32(n) + 1u, grid)]; k++) {
                     if (k == i || k == j || (flags[k] & FLAG_DEAD) != 0u) { continue; }
                     let d = min_image(m - pos[k].xyz, grid);
                     if (dot(d, d) < r2) { return false; }
@@ -88,8 +88,8 @@ fn adaptive_merge(@builtin(global_invocation_id) gid: vec3<u32>,
     let d = vec3<i32>(grid.dims);
     let cell = u32((c.z * d.y + c.y) * d.x + c.x);
     // One thread pairs the particles of its cell in slot order (deterministic).
-    let begin = cell_start[cell] + merge_round.first;
-    let end = min(begin + merge_round.len, cell_start[cell + 1]);
+    let begin = cell_start[cell_entry(cell, grid)] + merge_round.first;
+    let end = min(begin + merge_round.len, cell_start[cell_entry(cell + 1u, grid)]);
     for (var i = begin; i < end; i++) {
         if (flags[i] != FLAG_MERGE) { continue; }
         let level = info[i].y;
@@ -125,10 +125,10 @@ fn cell_load(@builtin(global_invocation_id) gid: vec3<u32>,
         for (var dy = -1; dy <= 1; dy++) {
             for (var dx = -1; dx <= 1; dx++) {
                 let n = neighbor_cell(cc, vec3<i32>(dx, dy, dz), grid);
-                if (n >= 0) { nb += cell_start[n + 1] - cell_start[n]; }
+                if (n >= 0) { nb += cell_start[cell_entry(u32(n) + 1u, grid)] - cell_start[cell_entry(u32(n), grid)]; }
             }
         }
     }
-    atomicMax(&load[0], cell_start[c + 1] - cell_start[c]);
+    atomicMax(&load[0], cell_start[cell_entry(c + 1u, grid)] - cell_start[cell_entry(c, grid)]);
     atomicMax(&load[1], nb);
 }

@@ -1,4 +1,4 @@
-// Neighbour grid build: cell keys of the predicted positions, then (after the radix sort) the
+// Neighbour grid build: (cell, x slice) keys of the predicted positions, then (after the radix sort) the
 // cell table from the sorted keys. Each thread writes the starts of the cells between its key and
 // its predecessor's: no atomics, deterministic. Mirror: src/sim/reference/grid.rs.
 //!include shared/common.wgsl
@@ -17,8 +17,7 @@ fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
 fn cell_keys(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= grid.n_particles) { return; }
-    let c = cell_coord(pos_in[i].xyz, grid);
-    keys[i] = u32(neighbor_cell(c, vec3<i32>(0), grid));
+    keys[i] = slice_key(pos_in[i].xyz, grid);
     vals[i] = i;
 }
 
@@ -32,6 +31,6 @@ fn cell_table(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     if (i > 0u) { first = keys[i - 1u] + 1u; }
     for (var c = first; c <= k; c = c + 1u) { cell_start[c] = i; }
     if (i == n - 1u) {
-        for (var c = k + 1u; c <= grid.num_cells; c = c + 1u) { cell_start[c] = n; }
+        for (var c = k + 1u; c <= grid.num_cells * grid.x_slices; c = c + 1u) { cell_start[c] = n; }
     }
 }

@@ -21,7 +21,9 @@ struct PbfParams {
     vorticity: f32,
     gravity: f32,
     max_speed: f32,
-    _p0: f32,
+    // 1 when every particle is on level 0 (no split particles): the pair terms then skip the
+    // level look-up and the per-level kernel pairs (same values: eq. 19 of equal radii is W)
+    single_level: u32,
     _p1: f32,
     _p2: f32,
     // per level l: (h_l, poly6 factor 315/(64 pi h^9), spiky factor -45/(pi h^6), m_l): no pow or
@@ -47,25 +49,49 @@ struct PbfParams {
 @group(0) @binding(10) var<storage, read> bpos: array<vec4<f32>>;
 @group(0) @binding(11) var<storage, read> bcell_start: array<u32>;
 
-// Neighbour search over rows: the cells x-1..x+1 of a (y, z) row are consecutive in the linear
-// index (z dy + y) dx + x, so away from the x faces they are one range of cell_start (9 ranges
-// instead of 27). At the x faces (or dims.x < 3) each of the 3 cells is its own segment, wrapped
-// as neighbor_cell does. The order of the particles visited is the same as cell by cell.
-fn row_segments(c: vec3<i32>) -> u32 {
-    if (c.x >= 1 && c.x + 1 < i32(grid.dims.x)) { return 1u; }
-    return 3u;
-}
-// [first cell, last cell + 1) of segment s of row (dy, dz) around c; an empty range when the row
-// or the cell is outside a walled face.
-fn segment_cells(c: vec3<i32>, dy: i32, dz: i32, s: u32, nseg: u32) -> vec2<i32> {
-    if (nseg == 1u) {
-        let n = neighbor_cell(c, vec3<i32>(0, dy, dz), grid);
-        if (n < 0) { return vec2<i32>(0, 0); }
-        return vec2<i32>(n - 1, n + 2);
+// Neighbour search by rows. The cells x-1..x+1 of a (y, z) row are consecutive in the linear
+// cell index, and within a cell the particles are sorted by x slice (GridParams.x_slices), so a
+// row is one run of cell-table entries ordered by x. Each of the 9 rows around the particle is
+// clipped to the slices that meet its search sphere (radius h0, the largest kernel radius): a
+// row farther than h0 in (y, z) is skipped, the others span x +- sqrt(h0^2 - d_yz^2). That visits
+// about a third of the 27-cell candidates. Across a periodic x face a row is two segments.
+// Returns the table entry ranges [x, y) and [z, w) (empty: equal ends).
+fn row_entries(p: vec3<f32>, c: vec3<i32>, dy: i32, dz: i32) -> vec4<u32> {
+    let none = vec4<u32>(0u);
+    let d = vec3<i32>(grid.dims);
+    let ny = c.y + dy;
+    if (ny < 0 || ny >= d.y) { return none; }
+    var nz = c.z + dz;
+    if ((grid.periodic & 4u) != 0u) { nz = (nz + d.z) % d.z; } else if (nz < 0 || nz >= d.z) { return none; }
+    // distance from p to the row's slab in y and z (unwrapped neighbour cell: periodic images
+    // are adjacent)
+    let lo = grid.domain_min.yz + vec2<f32>(f32(ny), f32(c.z + dz)) * grid.cell_size.yz;
+    let q = max(max(lo - p.yz, p.yz - (lo + grid.cell_size.yz)), vec2<f32>(0.0));
+    let r2 = prm.h0 * prm.h0 - dot(q, q);
+    if (r2 <= 0.0) { return none; }
+    // a hair wider than the sphere: slices are binned in f32 like the keys
+    let ext = sqrt(r2) + 1e-5 * grid.cell_size.x;
+    let w = grid.cell_size.x / f32(grid.x_slices);
+    let xs = i32(grid.x_slices);
+    let nx = d.x * xs;
+    let x = p.x - grid.domain_min.x;
+    let a = max(i32(floor((x - ext) / w)), (c.x - 1) * xs);
+    let b = min(i32(floor((x + ext) / w)), (c.x + 2) * xs - 1);
+    let base = u32((nz * d.y + ny) * nx);
+    if ((grid.periodic & 1u) == 0u) {
+        let a0 = max(a, 0);
+        let b0 = min(b, nx - 1);
+        if (a0 > b0) { return none; }
+        return vec4<u32>(base + u32(a0), base + u32(b0 + 1), 0u, 0u);
     }
-    let n = neighbor_cell(c, vec3<i32>(i32(s) - 1, dy, dz), grid);
-    if (n < 0) { return vec2<i32>(0, 0); }
-    return vec2<i32>(n, n + 1);
+    if (b - a + 1 >= nx) { return vec4<u32>(base, base + u32(nx), 0u, 0u); }
+    if (a < 0) {
+        return vec4<u32>(base + u32(a + nx), base + u32(nx), base, base + u32(b + 1));
+    }
+    if (b >= nx) {
+        return vec4<u32>(base + u32(a), base + u32(nx), base, base + u32(b - nx + 1));
+    }
+    return vec4<u32>(base + u32(a), base + u32(b + 1), 0u, 0u);
 }
 // min_image with a reciprocal (one multiply instead of a divide per pair; the rounded image is the
 // same for every pair closer than half the domain, i.e. every pair that counts)
@@ -158,6 +184,21 @@ fn predict(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     pred[i] = vec4<f32>(confine(pos[i].xyz + v * prm.dt), 0.0);
 }
 
+// x^n for the s_corr exponent n in [1, 16] (validated) by squaring: no loop per pair (a loop
+// inside the pair loop costs its own mask bookkeeping on SIMD CPUs).
+fn pow_n(x: f32) -> f32 {
+    let n = u32(prm.scorr_n);
+    var t = select(1.0, x, (n & 1u) != 0u);
+    var b = x * x;
+    t = select(t, t * b, (n & 2u) != 0u);
+    b = b * b;
+    t = select(t, t * b, (n & 4u) != 0u);
+    b = b * b;
+    t = select(t, t * b, (n & 8u) != 0u);
+    b = b * b;
+    return select(t, t * b, (n & 16u) != 0u);
+}
+
 // Artificial pressure s_corr = -k (W / W(dq h))^n h_i h_j (k dimensionless; h_i h_j gives lambda's
 // units, m^2, so the term is scale free).
 fn scorr(r2: f32, li: u32, lj: u32) -> f32 {
@@ -166,8 +207,7 @@ fn scorr(r2: f32, li: u32, lj: u32) -> f32 {
     let hj = lv_of(lj).x;
     let hb = prm.scorr_dq * 0.5 * (hi + hj);
     let x = wsym(r2, li, lj) / wsym(hb * hb, li, lj);
-    var t = 1.0;
-    for (var k = 0u; k < u32(prm.scorr_n); k++) { t = t * x; }
+    let t = pow_n(x);
     return -prm.scorr_k * t * hi * hj;
 }
 
@@ -191,9 +231,29 @@ fn me_of(i: u32) -> Me {
     let hd = prm.scorr_dq * hi;
     return Me(pred[i].xyz, li, hi, lv_of(li).w, 0.0, 1.0 / grid.domain_size, w_l(hd * hd, li));
 }
+// Level-0 kernels from the table's first row: the same operations as w_l / gw_l for l = 0.
+fn w0(r2: f32) -> f32 {
+    let d = max(prm.lv[0].x * prm.lv[0].x - r2, 0.0);
+    return prm.lv[0].y * d * d * d;
+}
+fn gw0(xij: vec3<f32>, r: f32) -> vec3<f32> {
+    let h = prm.lv[0].x;
+    let d = h - r;
+    return select((prm.lv[0].z * d * d / r) * xij, vec3<f32>(0.0), r >= h || r <= 1e-9 * h);
+}
 fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) {
     let xij = min_image_r(me.p - pred[j].xyz, me.inv);
     let r2 = dot(xij, xij);
+    if (prm.single_level != 0u) {
+        if (r2 < prm.h0 * prm.h0) {
+            let m = prm.lv[0].w;
+            (*a).rho += m * w0(r2);
+            let g = gw0(xij, sqrt(r2)) * (m / prm.rest_density);
+            (*a).grad += g;
+            (*a).g2 += dot(g, g);
+        }
+        return;
+    }
     // every radius is <= h0: farther pairs are rejected before their level is loaded
     if (r2 < prm.h0 * prm.h0) {
         let lj = level_of(j);
@@ -225,17 +285,16 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
     let me = me_of(i);
     var a = LamAcc(vec3<f32>(0.0), 0.0, 0.0);
     let c = cell_coord(me.p, grid);
-    {
-        let nseg = row_segments(c);
-        for (var dz = -1; dz <= 1; dz++) {
-            for (var dy = -1; dy <= 1; dy++) {
-                for (var s = 0u; s < nseg; s++) {
-                    let cr = segment_cells(c, dy, dz, s, nseg);
-                    let j_end = cell_start[cr.y];
-                    for (var j = cell_start[cr.x]; j < j_end; j++) { lam_fluid(&a, me, j); }
-                    let k_end = bcell_start[cr.y];
-                    for (var k = bcell_start[cr.x]; k < k_end; k++) { lam_wall(&a, me, k); }
-                }
+    for (var dz = -1; dz <= 1; dz++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            let rows = row_entries(me.p, c, dy, dz);
+            for (var s = 0u; s < 2u; s++) {
+                let e = select(rows.xy, rows.zw, s == 1u);
+                if (e.x == e.y) { continue; }
+                let j_end = cell_start[e.y];
+                for (var j = cell_start[e.x]; j < j_end; j++) { lam_fluid(&a, me, j); }
+                let k_end = bcell_start[e.y];
+                for (var k = bcell_start[e.x]; k < k_end; k++) { lam_wall(&a, me, k); }
             }
         }
     }
@@ -249,13 +308,25 @@ fn scorr_me(me: Me, r2: f32, lj: u32) -> f32 {
     if (lj != me.li) { return scorr(r2, me.li, lj); }
     if (prm.scorr_k == 0.0) { return 0.0; }
     let x = w_l(r2, me.li) / me.wdq;
-    var t = 1.0;
-    for (var k = 0u; k < u32(prm.scorr_n); k++) { t = t * x; }
+    let t = pow_n(x);
     return -prm.scorr_k * t * me.hi * me.hi;
 }
 fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
     let xij = min_image_r(me.p - pred[j].xyz, me.inv);
     let r2 = dot(xij, xij);
+    if (prm.single_level != 0u) {
+        if (r2 < prm.h0 * prm.h0) {
+            let m = prm.lv[0].w;
+            var sc = 0.0;
+            if (prm.scorr_k != 0.0) {
+                let x = w0(r2) / me.wdq;
+                sc = -prm.scorr_k * pow_n(x) * me.hi * me.hi;
+            }
+            let s = me.lam * m + lambda[j] * me.mi + sc * m;
+            *dp += s * gw0(xij, sqrt(r2));
+        }
+        return;
+    }
     if (r2 < prm.h0 * prm.h0) {
         let lj = level_of(j);
         let lvj = lv_of(lj);
@@ -285,17 +356,16 @@ fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
     me.lam = lambda[i];
     var dp = vec3<f32>(0.0);
     let c = cell_coord(me.p, grid);
-    {
-        let nseg = row_segments(c);
-        for (var dz = -1; dz <= 1; dz++) {
-            for (var dy = -1; dy <= 1; dy++) {
-                for (var s = 0u; s < nseg; s++) {
-                    let cr = segment_cells(c, dy, dz, s, nseg);
-                    let j_end = cell_start[cr.y];
-                    for (var j = cell_start[cr.x]; j < j_end; j++) { delta_fluid(&dp, me, j); }
-                    let k_end = bcell_start[cr.y];
-                    for (var k = bcell_start[cr.x]; k < k_end; k++) { delta_wall(&dp, me, k); }
-                }
+    for (var dz = -1; dz <= 1; dz++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            let rows = row_entries(me.p, c, dy, dz);
+            for (var s = 0u; s < 2u; s++) {
+                let e = select(rows.xy, rows.zw, s == 1u);
+                if (e.x == e.y) { continue; }
+                let j_end = cell_start[e.y];
+                for (var j = cell_start[e.x]; j < j_end; j++) { delta_fluid(&dp, me, j); }
+                let k_end = bcell_start[e.y];
+                for (var k = bcell_start[e.x]; k < k_end; k++) { delta_wall(&dp, me, k); }
             }
         }
     }
@@ -309,6 +379,30 @@ fn update_velocity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
     vel[i] = vec4<f32>(min_image(pred[i].xyz - pos[i].xyz, grid) * prm.inv_dt, 0.0);
 }
 
+// Pair terms of the velocity passes for a candidate j with r2 < h0^2: j's level, its constants,
+// and whether r < max(h_i, h_j). All level 0: the table's first row, no level look-up.
+struct Pair {
+    inside: bool,
+    lj: u32,
+    lvj: vec4<f32>,
+}
+fn pair_of(r2: f32, hi: f32, j: u32) -> Pair {
+    if (prm.single_level != 0u) { return Pair(true, 0u, prm.lv[0]); }
+    let lj = level_of(j);
+    let lvj = lv_of(lj);
+    let hm = max(hi, lvj.x);
+    return Pair(r2 < hm * hm, lj, lvj);
+}
+// W and grad W of eq. 19 (level 0 alone: the same values without the per-level selects)
+fn pair_w(r2: f32, li: u32, lj: u32) -> f32 {
+    if (prm.single_level != 0u) { return w0(r2); }
+    return wsym(r2, li, lj);
+}
+fn pair_g(xij: vec3<f32>, r2: f32, li: u32, lj: u32) -> vec3<f32> {
+    if (prm.single_level != 0u) { return gw0(xij, sqrt(r2)); }
+    return gsym(xij, sqrt(r2), li, lj);
+}
+
 // omega_i = sum_j V_j (v_i - v_j) x grad_i W_ij, V_j = m_j / rho_j; written over pos (x is dead).
 @compute @workgroup_size(64)
 fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -320,27 +414,26 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let hi = radius_of(i);
     var w = vec3<f32>(0.0);
     let c = cell_coord(p, grid);
-    let nseg = row_segments(c);
     let inv = 1.0 / grid.domain_size;
     // every radius is <= h0: pairs beyond it are rejected before their level is loaded
     let h02 = prm.h0 * prm.h0;
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
-            for (var s = 0u; s < nseg; s++) {
-                let cr = segment_cells(c, dy, dz, s, nseg);
-                let j_end = cell_start[cr.y];
-                for (var j = cell_start[cr.x]; j < j_end; j++) {
+            let rows = row_entries(p, c, dy, dz);
+            for (var s = 0u; s < 2u; s++) {
+                let e = select(rows.xy, rows.zw, s == 1u);
+                if (e.x == e.y) { continue; }
+                let j_end = cell_start[e.y];
+                for (var j = cell_start[e.x]; j < j_end; j++) {
                     let xij = min_image_r(p - pred[j].xyz, inv);
                     let r2 = dot(xij, xij);
                     if (r2 >= h02) { continue; }
-                    let lj = level_of(j);
-                    let lvj = lv_of(lj);
-                    let hj = lvj.x;
-                    let hm = max(hi, hj);
-                    if (r2 >= hm * hm) { continue; }
+                    let pk = pair_of(r2, hi, j);
+                    if (!pk.inside) { continue; }
+                    let lvj = pk.lvj;
                     let rho_j = density[j];
                     let vj = lvj.w / rho_j;
-                    w += vj * cross(vi - vel[j].xyz, gsym(xij, sqrt(r2), li, lj));
+                    w += vj * cross(vi - vel[j].xyz, pair_g(xij, r2, li, pk.lj));
                 }
             }
         }
@@ -366,31 +459,30 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     var acc = vec3<f32>(0.0);
     var eta = vec3<f32>(0.0);
     let c = cell_coord(p, grid);
-    let nseg = row_segments(c);
     let inv = 1.0 / grid.domain_size;
     // every radius is <= h0: pairs beyond it are rejected before their level is loaded
     let h02 = prm.h0 * prm.h0;
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
-            for (var s = 0u; s < nseg; s++) {
-                let cr = segment_cells(c, dy, dz, s, nseg);
-                let j_end = cell_start[cr.y];
-                for (var j = cell_start[cr.x]; j < j_end; j++) {
+            let rows = row_entries(p, c, dy, dz);
+            for (var s = 0u; s < 2u; s++) {
+                let e = select(rows.xy, rows.zw, s == 1u);
+                if (e.x == e.y) { continue; }
+                let j_end = cell_start[e.y];
+                for (var j = cell_start[e.x]; j < j_end; j++) {
                     let xij = min_image_r(p - pred[j].xyz, inv);
                     let r2 = dot(xij, xij);
                     if (r2 >= h02) { continue; }
-                    let lj = level_of(j);
-                    let lvj = lv_of(lj);
-                    let hj = lvj.x;
-                    let hm = max(hi, hj);
-                    if (r2 >= hm * hm) { continue; }
+                    let pk = pair_of(r2, hi, j);
+                    if (!pk.inside) { continue; }
+                    let lvj = pk.lvj;
                     let rho_j = density[j];
                     let vj = lvj.w / rho_j;
                     // 2 m_j / (rho_i + rho_j): pairwise symmetric, so XSPH conserves momentum
                     let vs = 2.0 * lvj.w / (rho_i + rho_j);
-                    acc += vs * wsym(r2, li, lj) * (vel[j].xyz - vi);
+                    acc += vs * pair_w(r2, li, pk.lj) * (vel[j].xyz - vi);
                     if (use_vort) {
-                        eta += vj * (pos[j].w - wi) * gsym(xij, sqrt(r2), li, lj);
+                        eta += vj * (pos[j].w - wi) * pair_g(xij, r2, li, pk.lj);
                     }
                 }
             }

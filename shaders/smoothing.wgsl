@@ -63,7 +63,7 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                 let n = neighbor_cell(ci, vec3<i32>(dx, dy, dz), grid);
                 if (n < 0) { continue; }
                 let cell = u32(n);
-                for (var j = cell_start[cell]; j < cell_start[cell + 1u]; j++) {
+                for (var j = cell_start[cell_entry(cell, grid)]; j < cell_start[cell_entry(cell + 1u, grid)]; j++) {
                     if (j == i) { continue; }
                     let lj = info[j].y;
                     let xij = min_image(xi - pos[j].xyz, grid);
@@ -72,7 +72,7 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                     sum_a2 += a * a;
                     c += a * (ti - thermo_in[j].x);
                 }
-                for (var k = boundary_cell_start[cell]; k < boundary_cell_start[cell + 1u]; k++) {
+                for (var k = boundary_cell_start[cell_entry(cell, grid)]; k < boundary_cell_start[cell_entry(cell + 1u, grid)]; k++) {
                     let b = boundary[k];
                     let xik = min_image(xi - b.xyz, grid);
                     let a = laplacian_coefficient(xik, hi, S.h0, S.volume0);

@@ -78,6 +78,10 @@ enum BenchTopic {
         particles: usize,
         #[arg(long, default_value_t = 5)]
         steps: u32,
+        /// Substeps run before timing (the box starts as a lattice; a few dozen substeps of
+        /// gravity and random initial velocities disorder it as a running shot is).
+        #[arg(long, default_value_t = 1)]
+        warmup: u32,
     },
     /// VDB write speed and size, nimbus against OpenVDB (pyopenvdb) on the same grid.
     Vdb {
@@ -273,7 +277,11 @@ fn preview(out_dir: &Path, set: &[String]) -> Result<()> {
 
 fn bench(topic: BenchTopic) -> Result<()> {
     let report = match topic {
-        BenchTopic::Pbf { particles, steps } => nimbus::bench::pbf::bench_pbf(particles, steps)?,
+        BenchTopic::Pbf {
+            particles,
+            steps,
+            warmup,
+        } => nimbus::bench::pbf::bench_pbf(particles, steps, warmup)?,
         BenchTopic::Vdb {
             active_voxels,
             compression,

@@ -71,16 +71,27 @@ fn fresh_seed() -> u64 {
 
 #[test]
 fn every_kernel_matches_the_cpu_mirror() {
+    kernels_match_the_mirror(2);
+}
+
+/// All particles on level 0: the shader's fast path without level look-ups.
+#[test]
+fn level_zero_fast_path_matches_the_cpu_mirror() {
+    kernels_match_the_mirror(0);
+}
+
+fn kernels_match_the_mirror(levels: u32) {
     // tolerance: f32 sums of ~30-60 terms against f64: 1e-4 of the largest value
     const TOL: f64 = 1e-4;
     let cfg = config(
         [9.0, 8.0, 10.0],
         "solver: {gravity: 9.81, vorticity: 0.5, scorr_k: 0.001, xsph: 0.1}\n",
     );
-    let state = random_state(&cfg, fresh_seed(), 2);
+    let state = random_state(&cfg, fresh_seed(), levels);
     let ctx = ctx();
     let mut sim = Simulation::from_state(ctx, &cfg, &state, SimClock::default()).unwrap();
     let (grid, prm) = (*sim.grid(), *sim.params());
+    assert_eq!(prm.single_level, (levels == 0) as u32);
     let n = sim.count();
 
     sim.run_stage(Stage::Predict).unwrap();
@@ -97,7 +108,7 @@ fn every_kernel_matches_the_cpu_mirror() {
     let gpu_order: Vec<u32> = info.iter().map(|i| i[0]).collect();
     assert_eq!(gpu_order, order, "cell order");
     let gpu_cs = sim
-        .read_u32(Buf::CellStart, grid.num_cells as usize + 1)
+        .read_u32(Buf::CellStart, grid.table_len())
         .unwrap();
     assert_eq!(gpu_cs, cell_start, "cell_start");
     let pred: Vec<[f64; 3]> = sim.read_vec4(Buf::Pred).unwrap().iter().map(v3).collect();
@@ -230,7 +241,7 @@ fn periodic_faces_have_the_interior_neighbourhood() {
     sim.run_stage(Stage::Lambda).unwrap();
     let pred: Vec<[f64; 3]> = sim.read_vec4(Buf::Pred).unwrap().iter().map(v3).collect();
     let cs = sim
-        .read_u32(Buf::CellStart, grid.num_cells as usize + 1)
+        .read_u32(Buf::CellStart, grid.table_len())
         .unwrap();
     let h = sim.params().h0 as f64;
     let counts: Vec<usize> = pred

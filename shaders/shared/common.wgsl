@@ -14,6 +14,12 @@ struct GridParams {
     dims: vec3<u32>,
     // bit 0: x periodic, bit 2: z periodic
     periodic: u32,
+    // Each cell is cut into x_slices slices along x; particles are sorted by (cell, slice) and a
+    // cell table has one entry per slice: cell c spans entries c * x_slices .. (c + 1) * x_slices.
+    x_slices: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 // Poly6 kernel W(r, h), used for densities and interpolation.
@@ -61,4 +67,18 @@ fn neighbor_cell(c: vec3<i32>, offset: vec3<i32>, g: GridParams) -> i32 {
     if (n.y < 0 || n.y >= d.y) { return -1; }
     if ((g.periodic & 4u) != 0u) { n.z = (n.z + d.z) % d.z; } else if (n.z < 0 || n.z >= d.z) { return -1; }
     return (n.z * d.y + n.y) * d.x + n.x;
+}
+
+// Sort key of a position: its cell's first table entry plus its x slice within the cell.
+fn slice_key(p: vec3<f32>, g: GridParams) -> u32 {
+    let c = cell_coord(p, g);
+    let w = g.cell_size.x / f32(g.x_slices);
+    let s = floor((p.x - g.domain_min.x - f32(c.x) * g.cell_size.x) / w);
+    let slice = u32(clamp(s, 0.0, f32(g.x_slices - 1u)));
+    return u32(neighbor_cell(c, vec3<i32>(0), g)) * g.x_slices + slice;
+}
+
+// First cell-table entry of cell c (the table has one entry per x slice).
+fn cell_entry(c: u32, g: GridParams) -> u32 {
+    return c * g.x_slices;
 }

@@ -15,12 +15,15 @@ pub fn bench_config(particles: usize) -> Result<ShotConfig> {
     serde_saphyr::from_str(&yaml).map_err(|e| Error::Config(format!("bench config: {e}")))
 }
 
-/// Runs `steps` substeps after one warm-up substep; returns the figures as JSON.
-pub fn bench_pbf(particles: usize, steps: u32) -> Result<serde_json::Value> {
+/// Runs `steps` substeps after `warmup` (at least one: pipeline compilation, first grid build);
+/// returns the figures as JSON.
+pub fn bench_pbf(particles: usize, steps: u32, warmup: u32) -> Result<serde_json::Value> {
     let cfg = bench_config(particles)?;
     let ctx = Arc::new(crate::gpu::Context::new(&GpuConfig::default())?);
     let mut sim = Simulation::new(ctx.clone(), &cfg)?;
-    sim.step_frame()?; // warm-up: pipeline compilation, first grid build
+    for _ in 0..warmup.max(1) {
+        sim.step_frame()?;
+    }
     let mut phases = std::collections::BTreeMap::<String, f64>::new();
     let t0 = std::time::Instant::now();
     let mut last = None;
@@ -41,6 +44,7 @@ pub fn bench_pbf(particles: usize, steps: u32) -> Result<serde_json::Value> {
         "particles": n,
         "boundary_particles": sim.boundary_count(),
         "steps": steps,
+        "warmup": warmup.max(1),
         "iterations": cfg.solver.iterations,
         "adapter": ctx.adapter_name(),
         "gpu_timestamps": ctx.timestamps,

@@ -14,7 +14,16 @@ pub struct GridParams {
     pub dims: [u32; 3],
     /// bit 0: x periodic, bit 2: z periodic.
     pub periodic: u32,
+    /// Each cell is cut into this many slices along x; particles are sorted by (cell, slice) and
+    /// the cell table has an entry per slice, so a neighbour search can clip each row of cells
+    /// to the x extent of its search sphere (pbf.wgsl). Cell `c` spans table entries
+    /// `c * x_slices .. (c + 1) * x_slices`.
+    pub x_slices: u32,
+    pub _pad: [u32; 3],
 }
+
+/// Slices per cell along x (see `GridParams::x_slices`); measured in docs/PERFORMANCE.md "PBF".
+pub const X_SLICES: u32 = 2;
 
 impl GridParams {
     /// Cells of edge >= `max_radius`; along a periodic axis the cell count divides the extent
@@ -31,6 +40,8 @@ impl GridParams {
             num_cells: dims[0] * dims[1] * dims[2],
             dims,
             periodic: (periodic_x as u32) | ((periodic_z as u32) << 2),
+            x_slices: X_SLICES,
+            _pad: [0; 3],
         }
     }
 
@@ -79,5 +90,30 @@ impl GridParams {
     pub fn cell_index(&self, p: [f64; 3]) -> u32 {
         self.neighbor_cell(self.cell_coord(p), [0, 0, 0])
             .expect("clamped cell is inside")
+    }
+
+    /// Entries of a cell table: one per slice, plus the end (mirror of `cell_table`).
+    pub fn table_len(&self) -> usize {
+        (self.num_cells * self.x_slices) as usize + 1
+    }
+
+    /// Slots (indices into the cell-ordered arrays) of cell `cell` in a cell table.
+    pub fn cell_slots(&self, cell_start: &[u32], cell: u32) -> std::ops::Range<u32> {
+        let s = self.x_slices as usize;
+        cell_start[cell as usize * s]..cell_start[(cell as usize + 1) * s]
+    }
+
+    /// Sort key of a position: its cell's first table entry plus its x slice within the cell
+    /// (mirror of `slice_key` in common.wgsl, computed in f32 like the shader).
+    pub fn slice_key(&self, p: [f64; 3]) -> u32 {
+        let c = self.cell_coord(p);
+        let cell = self.neighbor_cell(c, [0, 0, 0]).expect("clamped cell is inside");
+        cell * self.x_slices + self.slice_in_cell(p[0] as f32, c[0])
+    }
+
+    fn slice_in_cell(&self, x: f32, cx: i32) -> u32 {
+        let w = self.cell_size[0] / self.x_slices as f32;
+        let s = ((x - self.domain_min[0] - cx as f32 * self.cell_size[0]) / w).floor();
+        s.clamp(0.0, (self.x_slices - 1) as f32) as u32
     }
 }

@@ -18,7 +18,9 @@ pub struct PbfParams {
     pub vorticity: f32,
     pub gravity: f32,
     pub max_speed: f32,
-    pub _pad: [f32; 3],
+    /// 1 when every particle is on level 0: the shader skips the per-pair level look-up.
+    pub single_level: u32,
+    pub _pad: [f32; 2],
     /// Per level l (0..8): (h_l, 315 / (64 pi h_l^9), -45 / (pi h_l^6), m_l).
     pub levels: [[f32; 4]; 8],
 }
@@ -42,7 +44,8 @@ impl PbfParams {
             vorticity: s.vorticity as f32,
             gravity: s.gravity as f32,
             max_speed: s.max_speed as f32,
-            _pad: [0.0; 3],
+            single_level: 0,
+            _pad: [0.0; 2],
             levels: std::array::from_fn(|l| {
                 let h = h0 * (-(l as f64) / 3.0).exp2();
                 let pi = std::f64::consts::PI;

@@ -201,7 +201,8 @@ impl Simulation {
         let (bpos, bcell) = crate::sim::init::boundary_particles(cfg, &grid);
         grid.n_particles = n as u32;
         grid.n_boundary = bpos.len() as u32;
-        let params = PbfParams::for_shot(cfg);
+        let mut params = PbfParams::for_shot(cfg);
+        params.single_level = state.info.iter().all(|i| i[1] == 0) as u32;
         let dev = &ctx.device;
 
         let cap = capacity as usize;
@@ -225,7 +226,7 @@ impl Simulation {
             pairs: storage_zeroed::<[u32; 4]>(dev, "sort pairs / scratch", cap),
             lambda: storage_zeroed::<f32>(dev, "lambda", cap),
             density,
-            cell_start: storage_zeroed::<u32>(dev, "cell_start", grid.num_cells as usize + 1),
+            cell_start: storage_zeroed::<u32>(dev, "cell_start", grid.table_len()),
             bpos: storage_init(dev, "boundary pos", &bpos),
             bcell_start: storage_init(dev, "boundary cell_start", &bcell),
             grid_u: uniform_init(dev, "grid", &grid),
@@ -280,7 +281,7 @@ impl Simulation {
                 ],
             )?,
         };
-        let bits = key_bits(grid.num_cells.saturating_sub(1));
+        let bits = key_bits(grid.table_len() as u32 - 2);
         let mut sort = RadixSort::new(dev, &b.pairs, capacity, bits)?;
         sort.set_count(&ctx.queue, n as u32);
         let arr = capacity as u64 * 4;
@@ -652,7 +653,23 @@ impl Simulation {
             *report.diagnostics.entry(key.into()).or_insert(0.0) += v as f64;
         }
         self.set_count(r.count);
+        if r.splits > 0 {
+            self.set_single_level(false);
+        }
         Ok(())
+    }
+
+    /// Switches the PBF pair terms between the level-0 fast path and the per-level kernels.
+    /// Splits switch it off at once; only the per-frame level count switches it back on, so the
+    /// choice is a function of the state at frame boundaries (resume takes it from the state).
+    fn set_single_level(&mut self, single: bool) {
+        if (self.params.single_level != 0) == single {
+            return;
+        }
+        self.params.single_level = single as u32;
+        self.ctx
+            .queue
+            .write_buffer(&self.b.params_u, 0, bytemuck::bytes_of(&self.params));
     }
 
     /// Tells every stage how many particles are live.
@@ -672,7 +689,7 @@ impl Simulation {
     }
 
     /// Particles per level and total mass in units of m0 2^-max_level (exact integers).
-    fn level_diagnostics(&self, report: &mut FrameReport) -> Result<()> {
+    fn level_diagnostics(&mut self, report: &mut FrameReport) -> Result<()> {
         let Some(stage) = &self.adaptive else {
             return Ok(());
         };
@@ -695,6 +712,7 @@ impl Simulation {
                 .insert(format!("particles_level_{l}"), *n as f64);
         }
         report.diagnostics.insert("mass_units".into(), units as f64);
+        self.set_single_level(per_level.iter().skip(1).all(|&n| n == 0));
         Ok(())
     }
 

@@ -63,11 +63,11 @@ pub struct SmoothingBuffers<'a> {
     pub info: &'a wgpu::Buffer,
     /// `array<vec4<f32>>` (T, v, w, E); T is smoothed in place (through the scratch buffer).
     pub thermo: &'a wgpu::Buffer,
-    /// `array<u32>`, num_cells + 1 entries.
+    /// `array<u32>`, `GridParams::table_len` entries.
     pub cell_start: &'a wgpu::Buffer,
     /// `array<vec4<f32>>` boundary particles (xyz, w = temperature), in cell order.
     pub boundary: &'a wgpu::Buffer,
-    /// `array<u32>`, num_cells + 1 entries.
+    /// `array<u32>`, `GridParams::table_len` entries.
     pub boundary_cell_start: &'a wgpu::Buffer,
 }
 

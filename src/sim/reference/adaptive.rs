@@ -124,7 +124,7 @@ fn for_slots(g: &GridParams, cell_start: &[u32], c: [i32; 3], mut f: impl FnMut(
                 let Some(n) = g.neighbor_cell(c, [dx, dy, dz]) else {
                     continue;
                 };
-                for k in cell_start[n as usize]..cell_start[n as usize + 1] {
+                for k in g.cell_slots(cell_start, n) {
                     if !f(k as usize) {
                         return;
                     }
@@ -221,7 +221,8 @@ pub fn adaptive_merge(
         let cell = g
             .neighbor_cell(c, [0, 0, 0])
             .expect("colour cells are inside") as usize;
-        for i in cell_start[cell] as usize..cell_start[cell + 1] as usize {
+        for i in g.cell_slots(cell_start, cell as u32) {
+            let i = i as usize;
             if flags[i] != FLAG_MERGE {
                 continue;
             }

@@ -1,19 +1,21 @@
-//! CPU mirror of the neighbour-grid build: a stable sort of particles by cell, and the cell table.
+//! CPU mirror of the neighbour-grid build: a stable sort of particles by (cell, x slice), and
+//! the cell table with one entry per slice.
 use crate::sim::grid_params::GridParams;
 
-/// Returns `(order, cell_start)`: `order[k]` is the original index of the k-th particle in cell
-/// order (stable: equal cells keep their original order), and the particles of cell c are
-/// `order[cell_start[c]..cell_start[c + 1]]` (`cell_start` has `num_cells + 1` entries).
+/// Returns `(order, cell_start)`: `order[k]` is the original index of the k-th particle in
+/// (cell, slice) order (stable: equal keys keep their original order), and the particles of
+/// slice e are `order[cell_start[e]..cell_start[e + 1]]` (`GridParams::table_len` entries; cell
+/// c is slices `c * x_slices .. (c + 1) * x_slices`).
 pub fn build_cell_table(grid: &GridParams, pos: &[[f64; 3]]) -> (Vec<u32>, Vec<u32>) {
-    let cells: Vec<u32> = pos.iter().map(|p| grid.cell_index(*p)).collect();
+    let keys: Vec<u32> = pos.iter().map(|p| grid.slice_key(*p)).collect();
     let mut order: Vec<u32> = (0..pos.len() as u32).collect();
-    order.sort_by_key(|&i| cells[i as usize]);
-    let mut cell_start = vec![0u32; grid.num_cells as usize + 1];
-    for &c in &cells {
-        cell_start[c as usize + 1] += 1;
+    order.sort_by_key(|&i| keys[i as usize]);
+    let mut cell_start = vec![0u32; grid.table_len()];
+    for &k in &keys {
+        cell_start[k as usize + 1] += 1;
     }
-    for c in 0..grid.num_cells as usize {
-        cell_start[c + 1] += cell_start[c];
+    for e in 0..grid.table_len() - 1 {
+        cell_start[e + 1] += cell_start[e];
     }
     (order, cell_start)
 }
@@ -36,7 +38,7 @@ pub fn for_each_neighbor(
                 let Some(n) = grid.neighbor_cell(c, [dx, dy, dz]) else {
                     continue;
                 };
-                for j in cell_start[n as usize]..cell_start[n as usize + 1] {
+                for j in grid.cell_slots(cell_start, n) {
                     let q = sorted_pos[j as usize];
                     let d = [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
                     f(j as usize, super::kernels::min_image(d, size, periodic));
@@ -46,9 +48,9 @@ pub fn for_each_neighbor(
     }
 }
 
-/// Mirror of `cell_keys` (grid.wgsl): the linear cell of each position.
+/// Mirror of `cell_keys` (grid.wgsl): the (cell, x slice) key of each position.
 pub fn cell_keys(grid: &GridParams, pos: &[[f64; 3]]) -> Vec<u32> {
-    pos.iter().map(|p| grid.cell_index(*p)).collect()
+    pos.iter().map(|p| grid.slice_key(*p)).collect()
 }
 
 /// Mirror of `permute4`/`permute2`: `dst[i] = src[order[i]]`.
