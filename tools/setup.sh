@@ -16,12 +16,30 @@ missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
+sudo=""
+if [[ $(id -u) -ne 0 ]]; then sudo="sudo"; fi
 if ((${#missing[@]})); then
-  sudo=""
-  if [[ $(id -u) -ne 0 ]]; then sudo="sudo"; fi
   echo "setup: installing ${missing[*]}" >&2
   $sudo apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+# Debian 12 ships Mesa 22.3, whose lavapipe runs our compute shaders at about half the speed of
+# Mesa 25 (docs/PERFORMANCE.md "PBF": Mesa 25 reads storage buffers at per-lane indices with
+# masked gathers, not a scalar loop over the SIMD lanes). Take mesa-vulkan-drivers from
+# bookworm-backports there; later Debian releases ship Mesa 25 already.
+codename=$(. /etc/os-release && echo "${VERSION_CODENAME:-}")
+mesa=$(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)
+if [[ "$codename" == "bookworm" ]] && dpkg --compare-versions "$mesa" lt 25; then
+  list=/etc/apt/sources.list.d/bookworm-backports.sources
+  if ! grep -rqs "bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
+    printf 'Types: deb\nURIs: http://deb.debian.org/debian\nSuites: bookworm-backports\nComponents: main\nSigned-By: /usr/share/keyrings/debian-archive-keyring.gpg\n' |
+      $sudo tee "$list" >/dev/null
+  fi
+  echo "setup: installing mesa-vulkan-drivers from bookworm-backports (Mesa 25)" >&2
+  $sudo apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends \
+    -t bookworm-backports mesa-vulkan-drivers >/dev/null
 fi
 
 if ! command -v cargo >/dev/null; then

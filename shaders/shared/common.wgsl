@@ -17,7 +17,9 @@ struct GridParams {
     // Each cell is cut into x_slices slices along x; particles are sorted by (cell, slice) and a
     // cell table has one entry per slice: cell c spans entries c * x_slices .. (c + 1) * x_slices.
     x_slices: u32,
-    _pad0: u32,
+    // radius a neighbour search covers around a particle's current position, measured to the
+    // cells as sorted (the largest kernel radius)
+    search_radius: f32,
     _pad1: u32,
     _pad2: u32,
 }

@@ -134,7 +134,8 @@ pub fn compute_lambda(sc: &Scene, pred: &[V3]) -> (Vec<f64>, Vec<f64>) {
                 scale(spiky_grad_sym(xik, r2.sqrt(), hi, h0), mi / rho0),
             );
         });
-        let c = rho / rho0 - 1.0;
+        // unilateral, as the shader: only compression is corrected
+        let c = (rho / rho0 - 1.0).max(0.0);
         lam.push(-c / (sum2 + dot(grad_i, grad_i) + sc.prm.eps as f64));
         den.push(rho);
     }
