@@ -51,7 +51,7 @@ impl Context {
             info.device_type,
             info.backend
         );
-        let wanted = wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::SUBGROUP;
+        let wanted = wgpu::Features::TIMESTAMP_QUERY;
         let features = adapter.features() & wanted;
         let limits = adapter.limits();
         let mut required_limits = wgpu::Limits::downlevel_defaults();
