@@ -4,9 +4,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// The quickstart shot at twice its particle spacing (3k particles, seconds to run): by frame 30
+/// The quickstart shot at twice its particle spacing (3k particles, seconds to run): by frame 40
 /// its cloud has formed (the render's coverage check fails on an empty sky).
-const FRAMES_END: u32 = 30;
+const FRAMES_END: u32 = 40;
 /// Small image and few samples: this checks that Blender reads and renders the files, not looks.
 const RES: [u32; 2] = [160, 120];
 const SAMPLES: u32 = 4;
