@@ -49,50 +49,6 @@ struct PbfParams {
 @group(0) @binding(10) var<storage, read> bpos: array<vec4<f32>>;
 @group(0) @binding(11) var<storage, read> bcell_start: array<u32>;
 
-// Neighbour search by rows. The cells x-1..x+1 of a (y, z) row are consecutive in the linear
-// cell index, and within a cell the particles are sorted by x slice (GridParams.x_slices), so a
-// row is one run of cell-table entries ordered by x. Each of the 9 rows around the particle is
-// clipped to the slices that meet its search sphere (radius R = grid.search_radius, h0): a row
-// farther than R in (y, z) is skipped, the others span x +- sqrt(R^2 - d_yz^2). That visits
-// about 60% of the 27-cell candidates (x_slices = 2). Across a periodic x face a row is two segments.
-// Returns the table entry ranges [x, y) and [z, w) (empty: equal ends).
-fn row_entries(p: vec3<f32>, c: vec3<i32>, dy: i32, dz: i32) -> vec4<u32> {
-    let none = vec4<u32>(0u);
-    let d = vec3<i32>(grid.dims);
-    let ny = c.y + dy;
-    if (ny < 0 || ny >= d.y) { return none; }
-    var nz = c.z + dz;
-    if ((grid.periodic & 4u) != 0u) { nz = (nz + d.z) % d.z; } else if (nz < 0 || nz >= d.z) { return none; }
-    // distance from p to the row's slab in y and z (unwrapped neighbour cell: periodic images
-    // are adjacent)
-    let lo = grid.domain_min.yz + vec2<f32>(f32(ny), f32(c.z + dz)) * grid.cell_size.yz;
-    let q = max(max(lo - p.yz, p.yz - (lo + grid.cell_size.yz)), vec2<f32>(0.0));
-    let r2 = grid.search_radius * grid.search_radius - dot(q, q);
-    if (r2 <= 0.0) { return none; }
-    // a hair wider than the sphere: slices are binned in f32 like the keys
-    let ext = sqrt(r2) + 1e-5 * grid.cell_size.x;
-    let w = grid.cell_size.x / f32(grid.x_slices);
-    let xs = i32(grid.x_slices);
-    let nx = d.x * xs;
-    let x = p.x - grid.domain_min.x;
-    let a = max(i32(floor((x - ext) / w)), (c.x - 1) * xs);
-    let b = min(i32(floor((x + ext) / w)), (c.x + 2) * xs - 1);
-    let base = u32((nz * d.y + ny) * nx);
-    if ((grid.periodic & 1u) == 0u) {
-        let a0 = max(a, 0);
-        let b0 = min(b, nx - 1);
-        if (a0 > b0) { return none; }
-        return vec4<u32>(base + u32(a0), base + u32(b0 + 1), 0u, 0u);
-    }
-    if (b - a + 1 >= nx) { return vec4<u32>(base, base + u32(nx), 0u, 0u); }
-    if (a < 0) {
-        return vec4<u32>(base + u32(a + nx), base + u32(nx), base, base + u32(b + 1));
-    }
-    if (b >= nx) {
-        return vec4<u32>(base + u32(a), base + u32(nx), base, base + u32(b - nx + 1));
-    }
-    return vec4<u32>(base + u32(a), base + u32(b + 1), 0u, 0u);
-}
 // min_image with a reciprocal (one multiply instead of a divide per pair; the rounded image is the
 // same for every pair closer than half the domain, i.e. every pair that counts)
 fn min_image_r(d: vec3<f32>, inv: vec3<f32>) -> vec3<f32> {
@@ -287,7 +243,7 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
     let c = cell_coord(me.p, grid);
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
-            let rows = row_entries(me.p, c, dy, dz);
+            let rows = row_entries(me.p, c, dy, dz, grid);
             for (var s = 0u; s < 2u; s++) {
                 let e = select(rows.xy, rows.zw, s == 1u);
                 if (e.x == e.y) { continue; }
@@ -363,7 +319,7 @@ fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
     let c = cell_coord(me.p, grid);
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
-            let rows = row_entries(me.p, c, dy, dz);
+            let rows = row_entries(me.p, c, dy, dz, grid);
             for (var s = 0u; s < 2u; s++) {
                 let e = select(rows.xy, rows.zw, s == 1u);
                 if (e.x == e.y) { continue; }
@@ -424,7 +380,7 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let h02 = prm.h0 * prm.h0;
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
-            let rows = row_entries(p, c, dy, dz);
+            let rows = row_entries(p, c, dy, dz, grid);
             for (var s = 0u; s < 2u; s++) {
                 let e = select(rows.xy, rows.zw, s == 1u);
                 if (e.x == e.y) { continue; }
@@ -469,7 +425,7 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     let h02 = prm.h0 * prm.h0;
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
-            let rows = row_entries(p, c, dy, dz);
+            let rows = row_entries(p, c, dy, dz, grid);
             for (var s = 0u; s < 2u; s++) {
                 let e = select(rows.xy, rows.zw, s == 1u);
                 if (e.x == e.y) { continue; }

@@ -36,13 +36,24 @@ fn radius_of_level(level: u32) -> f32 {
     return S.h0 * exp2(-f32(level) / 3.0);
 }
 
-// Coefficient a_ij of one neighbour; 0 outside both kernel radii.
-fn laplacian_coefficient(xij: vec3<f32>, hi: f32, hj: f32, volume: f32) -> f32 {
-    let r2 = dot(xij, xij);
-    let hmax = max(hi, hj);
-    if (r2 >= hmax * hmax) { return 0.0; }
+// Spiky gradient factor -45 / (pi h^6) of level l: h = h0 2^(-l/3), so (h0 / h)^6 = 4^l.
+fn spiky_factor(level: u32) -> f32 {
+    return -45.0 / (PI * pow(S.h0, 6.0)) * exp2(2.0 * f32(level));
+}
+
+// One side of x_ij . gradW_ij: f (h - r)^2 r for r < h (spiky_grad's factor (h - r)^2 / r x_ij,
+// dotted with x_ij), 0 at r = 0 as spiky_grad.
+fn radial_spiky(r: f32, h: f32, f: f32) -> f32 {
+    let d = h - r;
+    return select(f * d * d * r, 0.0, r >= h || r <= 1e-9 * h);
+}
+
+// Coefficient a_ij = V_j (x_ij . gradW_ij) / (r^2 + eps) with eq. 19's symmetric gradient; 0
+// outside both kernel radii. (h, spiky factor) of i and j are passed in: no pow per pair.
+fn laplacian_coefficient(r2: f32, hi: f32, fi: f32, hj: f32, fj: f32, volume: f32) -> f32 {
     let r = sqrt(r2);
-    return volume * dot(xij, spiky_grad_sym(xij, r, hi, hj)) / (r2 + S.epsilon);
+    let g = 0.5 * (radial_spiky(r, hi, fi) + radial_spiky(r, hj, fj));
+    return volume * g / (r2 + S.epsilon);
 }
 
 @compute @workgroup_size(64)
@@ -56,26 +67,39 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
     var sum_a = 0.0;
     var sum_a2 = 0.0;
     var c = 0.0;
+    let li = info[i].y;
+    let fi = spiky_factor(li);
+    let f0 = spiky_factor(0u);
+    let h02 = S.h0 * S.h0;
     let ci = cell_coord(xi, grid);
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
-            for (var dx = -1; dx <= 1; dx++) {
-                let n = neighbor_cell(ci, vec3<i32>(dx, dy, dz), grid);
-                if (n < 0) { continue; }
-                let cell = u32(n);
-                for (var j = cell_start[cell_entry(cell, grid)]; j < cell_start[cell_entry(cell + 1u, grid)]; j++) {
-                    if (j == i) { continue; }
-                    let lj = info[j].y;
+            let rows = row_entries(xi, ci, dy, dz, grid);
+            for (var s = 0u; s < 2u; s++) {
+                let e = select(rows.xy, rows.zw, s == 1u);
+                if (e.x == e.y) { continue; }
+                let j_end = cell_start[e.y];
+                for (var j = cell_start[e.x]; j < j_end; j++) {
                     let xij = min_image(xi - pos[j].xyz, grid);
-                    let a = laplacian_coefficient(xij, hi, radius_of_level(lj), S.volume0 * exp2(-f32(lj)));
+                    let r2 = dot(xij, xij);
+                    // every radius is <= h0: farther pairs are rejected before the level load
+                    if (j == i || r2 >= h02) { continue; }
+                    let lj = info[j].y;
+                    let hj = radius_of_level(lj);
+                    let hm = max(hi, hj);
+                    if (r2 >= hm * hm) { continue; }
+                    let a = laplacian_coefficient(r2, hi, fi, hj, spiky_factor(lj), S.volume0 * exp2(-f32(lj)));
                     sum_a += a;
                     sum_a2 += a * a;
                     c += a * (ti - thermo_in[j].x);
                 }
-                for (var k = boundary_cell_start[cell_entry(cell, grid)]; k < boundary_cell_start[cell_entry(cell + 1u, grid)]; k++) {
+                let k_end = boundary_cell_start[e.y];
+                for (var k = boundary_cell_start[e.x]; k < k_end; k++) {
                     let b = boundary[k];
                     let xik = min_image(xi - b.xyz, grid);
-                    let a = laplacian_coefficient(xik, hi, S.h0, S.volume0);
+                    let r2 = dot(xik, xik);
+                    if (r2 >= h02) { continue; }
+                    let a = laplacian_coefficient(r2, hi, fi, S.h0, f0, S.volume0);
                     sum_a += a;
                     sum_a2 += a * a;
                     c += a * (ti - b.w);

@@ -107,9 +107,7 @@ fn kernels_match_the_mirror(levels: u32) {
     let info = sim.state().unwrap().info;
     let gpu_order: Vec<u32> = info.iter().map(|i| i[0]).collect();
     assert_eq!(gpu_order, order, "cell order");
-    let gpu_cs = sim
-        .read_u32(Buf::CellStart, grid.table_len())
-        .unwrap();
+    let gpu_cs = sim.read_u32(Buf::CellStart, grid.table_len()).unwrap();
     assert_eq!(gpu_cs, cell_start, "cell_start");
     let pred: Vec<[f64; 3]> = sim.read_vec4(Buf::Pred).unwrap().iter().map(v3).collect();
     assert_eq!(pred, nimbus::sim::reference::grid::permute(&order, &pred0));
@@ -239,7 +237,10 @@ fn a_box_at_rest_under_gravity_settles() {
     );
     assert!(worst_mean <= 0.01, "mean density error {worst_mean}");
     assert!(worst_max <= 0.05, "max density error {worst_max}");
-    assert!(rms < 0.3 && vmax < 1.0, "not at rest: rms {rms}, max {vmax} m/s");
+    assert!(
+        rms < 0.3 && vmax < 1.0,
+        "not at rest: rms {rms}, max {vmax} m/s"
+    );
 }
 
 /// Without gravity or heating, a lattice given random velocities must calm down (XSPH), not gain
@@ -279,9 +280,7 @@ fn periodic_faces_have_the_interior_neighbourhood() {
     sim.run_stage(Stage::Grid).unwrap();
     sim.run_stage(Stage::Lambda).unwrap();
     let pred: Vec<[f64; 3]> = sim.read_vec4(Buf::Pred).unwrap().iter().map(v3).collect();
-    let cs = sim
-        .read_u32(Buf::CellStart, grid.table_len())
-        .unwrap();
+    let cs = sim.read_u32(Buf::CellStart, grid.table_len()).unwrap();
     let h = sim.params().h0 as f64;
     let counts: Vec<usize> = pred
         .iter()

@@ -84,3 +84,49 @@ fn slice_key(p: vec3<f32>, g: GridParams) -> u32 {
 fn cell_entry(c: u32, g: GridParams) -> u32 {
     return c * g.x_slices;
 }
+
+// Neighbour search by rows. The cells x-1..x+1 of a (y, z) row are consecutive in the linear
+// cell index, and within a cell the particles are sorted by x slice (GridParams.x_slices), so a
+// row is one run of cell-table entries ordered by x. Each of the 9 rows around the particle is
+// clipped to the slices that meet its search sphere (radius R = g.search_radius, h0): a row
+// farther than R in (y, z) is skipped, the others span x +- sqrt(R^2 - d_yz^2). That visits
+// about 60% of the 27-cell candidates (x_slices = 2). Across a periodic x face a row is two
+// segments.
+// Returns the table entry ranges [x, y) and [z, w) (empty: equal ends).
+fn row_entries(p: vec3<f32>, c: vec3<i32>, dy: i32, dz: i32, g: GridParams) -> vec4<u32> {
+    let none = vec4<u32>(0u);
+    let d = vec3<i32>(g.dims);
+    let ny = c.y + dy;
+    if (ny < 0 || ny >= d.y) { return none; }
+    var nz = c.z + dz;
+    if ((g.periodic & 4u) != 0u) { nz = (nz + d.z) % d.z; } else if (nz < 0 || nz >= d.z) { return none; }
+    // distance from p to the row's slab in y and z (unwrapped neighbour cell: periodic images
+    // are adjacent)
+    let lo = g.domain_min.yz + vec2<f32>(f32(ny), f32(c.z + dz)) * g.cell_size.yz;
+    let q = max(max(lo - p.yz, p.yz - (lo + g.cell_size.yz)), vec2<f32>(0.0));
+    let r2 = g.search_radius * g.search_radius - dot(q, q);
+    if (r2 <= 0.0) { return none; }
+    // a hair wider than the sphere: slices are binned in f32 like the keys
+    let ext = sqrt(r2) + 1e-5 * g.cell_size.x;
+    let w = g.cell_size.x / f32(g.x_slices);
+    let xs = i32(g.x_slices);
+    let nx = d.x * xs;
+    let x = p.x - g.domain_min.x;
+    let a = max(i32(floor((x - ext) / w)), (c.x - 1) * xs);
+    let b = min(i32(floor((x + ext) / w)), (c.x + 2) * xs - 1);
+    let base = u32((nz * d.y + ny) * nx);
+    if ((g.periodic & 1u) == 0u) {
+        let a0 = max(a, 0);
+        let b0 = min(b, nx - 1);
+        if (a0 > b0) { return none; }
+        return vec4<u32>(base + u32(a0), base + u32(b0 + 1), 0u, 0u);
+    }
+    if (b - a + 1 >= nx) { return vec4<u32>(base, base + u32(nx), 0u, 0u); }
+    if (a < 0) {
+        return vec4<u32>(base + u32(a + nx), base + u32(nx), base, base + u32(b + 1));
+    }
+    if (b >= nx) {
+        return vec4<u32>(base + u32(a), base + u32(nx), base, base + u32(b - nx + 1));
+    }
+    return vec4<u32>(base + u32(a), base + u32(b + 1), 0u, 0u);
+}

@@ -114,7 +114,9 @@ impl GridParams {
     /// (mirror of `slice_key` in common.wgsl, computed in f32 like the shader).
     pub fn slice_key(&self, p: [f64; 3]) -> u32 {
         let c = self.cell_coord(p);
-        let cell = self.neighbor_cell(c, [0, 0, 0]).expect("clamped cell is inside");
+        let cell = self
+            .neighbor_cell(c, [0, 0, 0])
+            .expect("clamped cell is inside");
         cell * self.x_slices + self.slice_in_cell(p[0] as f32, c[0])
     }
 
