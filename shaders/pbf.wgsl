@@ -65,12 +65,6 @@ fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
 fn level_of(i: u32) -> u32 {
     return min(info[i].y, 7u);
 }
-fn radius_of(i: u32) -> f32 {
-    return lv_of(level_of(i)).x;
-}
-fn mass_of(i: u32) -> f32 {
-    return lv_of(level_of(i)).w;
-}
 // Level constants by constant-index reads and selects: a per-lane indexed read of the table is a
 // scalar loop over the SIMD lanes on llvmpipe, a select chain is 7 vector ops.
 fn lv_of(l: u32) -> vec4<f32> {
@@ -84,24 +78,23 @@ fn lv_of(l: u32) -> vec4<f32> {
     v = select(v, prm.lv[7], l >= 7u);
     return v;
 }
-// poly6 and spiky gradient of level l from the table (same values as common.wgsl's poly6/spiky_grad),
-// branch free (divergent branches cost both sides on SIMD CPUs anyway)
-fn w_l(r2: f32, l: u32) -> f32 {
-    let lv = lv_of(l);
+// poly6 and spiky gradient of a level from its table row lv = lv_of(l) (same values as
+// common.wgsl's poly6/spiky_grad), branch free (divergent branches cost both sides on SIMD CPUs
+// anyway). Callers look each row up once per particle, not per pair.
+fn w_lv(r2: f32, lv: vec4<f32>) -> f32 {
     let d = max(lv.x * lv.x - r2, 0.0);
     return lv.y * d * d * d;
 }
-fn gw_l(xij: vec3<f32>, r: f32, l: u32) -> vec3<f32> {
-    let lv = lv_of(l);
+fn gw_lv(xij: vec3<f32>, r: f32, lv: vec4<f32>) -> vec3<f32> {
     let d = lv.x - r;
     return select((lv.z * d * d / r) * xij, vec3<f32>(0.0), r >= lv.x || r <= 1e-9 * lv.x);
 }
-// eq. 19 by level (0.5 (a + a) == a exactly, so equal levels need no branch)
-fn wsym(r2: f32, li: u32, lj: u32) -> f32 {
-    return 0.5 * (w_l(r2, li) + w_l(r2, lj));
+// eq. 19 (0.5 (a + a) == a exactly, so equal levels need no branch)
+fn wsym(r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> f32 {
+    return 0.5 * (w_lv(r2, lvi) + w_lv(r2, lvj));
 }
-fn gsym(xij: vec3<f32>, r: f32, li: u32, lj: u32) -> vec3<f32> {
-    return 0.5 * (gw_l(xij, r, li) + gw_l(xij, r, lj));
+fn gsym(xij: vec3<f32>, r: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> vec3<f32> {
+    return 0.5 * (gw_lv(xij, r, lvi) + gw_lv(xij, r, lvj));
 }
 
 // Periodic wrap in x/z (velocity untouched) and the walls at y = 0 and y = size.
@@ -157,12 +150,12 @@ fn pow_n(x: f32) -> f32 {
 
 // Artificial pressure s_corr = -k (W / W(dq h))^n h_i h_j (k dimensionless; h_i h_j gives lambda's
 // units, m^2, so the term is scale free).
-fn scorr(r2: f32, li: u32, lj: u32) -> f32 {
+fn scorr(r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> f32 {
     if (prm.scorr_k == 0.0) { return 0.0; }
-    let hi = lv_of(li).x;
-    let hj = lv_of(lj).x;
+    let hi = lvi.x;
+    let hj = lvj.x;
     let hb = prm.scorr_dq * 0.5 * (hi + hj);
-    let x = wsym(r2, li, lj) / wsym(hb * hb, li, lj);
+    let x = wsym(r2, lvi, lvj) / wsym(hb * hb, lvi, lvj);
     let t = pow_n(x);
     return -prm.scorr_k * t * hi * hj;
 }
@@ -175,6 +168,7 @@ struct LamAcc {
 struct Me {
     p: vec3<f32>,
     li: u32,
+    lv: vec4<f32>,
     hi: f32,
     mi: f32,
     lam: f32,
@@ -183,19 +177,16 @@ struct Me {
 }
 fn me_of(i: u32) -> Me {
     let li = level_of(i);
-    let hi = lv_of(li).x;
-    let hd = prm.scorr_dq * hi;
-    return Me(pred[i].xyz, li, hi, lv_of(li).w, 0.0, 1.0 / grid.domain_size, w_l(hd * hd, li));
+    let lv = lv_of(li);
+    let hd = prm.scorr_dq * lv.x;
+    return Me(pred[i].xyz, li, lv, lv.x, lv.w, 0.0, 1.0 / grid.domain_size, w_lv(hd * hd, lv));
 }
-// Level-0 kernels from the table's first row: the same operations as w_l / gw_l for l = 0.
+// Level-0 kernels from the table's first row.
 fn w0(r2: f32) -> f32 {
-    let d = max(prm.lv[0].x * prm.lv[0].x - r2, 0.0);
-    return prm.lv[0].y * d * d * d;
+    return w_lv(r2, prm.lv[0]);
 }
 fn gw0(xij: vec3<f32>, r: f32) -> vec3<f32> {
-    let h = prm.lv[0].x;
-    let d = h - r;
-    return select((prm.lv[0].z * d * d / r) * xij, vec3<f32>(0.0), r >= h || r <= 1e-9 * h);
+    return gw_lv(xij, r, prm.lv[0]);
 }
 fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) {
     let xij = min_image_r(me.p - pred[j].xyz, me.inv);
@@ -217,8 +208,8 @@ fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) {
         let hm = max(me.hi, lvj.x);
         if (r2 < hm * hm) {
             let mj = lvj.w;
-            (*a).rho += mj * wsym(r2, me.li, lj);
-            let g = gsym(xij, sqrt(r2), me.li, lj) * (mj / prm.rest_density);
+            (*a).rho += mj * wsym(r2, me.lv, lvj);
+            let g = gsym(xij, sqrt(r2), me.lv, lvj) * (mj / prm.rest_density);
             (*a).grad += g;
             (*a).g2 += dot(g, g);
         }
@@ -229,8 +220,8 @@ fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
     let r2 = dot(xik, xik);
     let hm = max(me.hi, prm.h0);
     if (r2 < hm * hm) {
-        (*a).rho += me.mi * wsym(r2, me.li, 0u);
-        (*a).grad += gsym(xik, sqrt(r2), me.li, 0u) * (me.mi / prm.rest_density);
+        (*a).rho += me.mi * wsym(r2, me.lv, prm.lv[0]);
+        (*a).grad += gsym(xik, sqrt(r2), me.lv, prm.lv[0]) * (me.mi / prm.rest_density);
     }
 }
 
@@ -265,10 +256,10 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
 }
 
 // s_corr with W(dq h_i) precomputed for same-level pairs
-fn scorr_me(me: Me, r2: f32, lj: u32) -> f32 {
-    if (lj != me.li) { return scorr(r2, me.li, lj); }
+fn scorr_me(me: Me, r2: f32, lj: u32, lvj: vec4<f32>) -> f32 {
+    if (lj != me.li) { return scorr(r2, me.lv, lvj); }
     if (prm.scorr_k == 0.0) { return 0.0; }
-    let x = w_l(r2, me.li) / me.wdq;
+    let x = w_lv(r2, me.lv) / me.wdq;
     let t = pow_n(x);
     return -prm.scorr_k * t * me.hi * me.hi;
 }
@@ -294,8 +285,8 @@ fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
         let hm = max(me.hi, lvj.x);
         if (r2 < hm * hm) {
             let mj = lvj.w;
-            let s = me.lam * mj + lambda[j] * me.mi + scorr_me(me, r2, lj) * mj;
-            *dp += s * gsym(xij, sqrt(r2), me.li, lj);
+            let s = me.lam * mj + lambda[j] * me.mi + scorr_me(me, r2, lj, lvj) * mj;
+            *dp += s * gsym(xij, sqrt(r2), me.lv, lvj);
         }
     }
 }
@@ -304,8 +295,8 @@ fn delta_wall(dp: ptr<function, vec3<f32>>, me: Me, k: u32) {
     let r2 = dot(xik, xik);
     let hm = max(me.hi, prm.h0);
     if (r2 < hm * hm) {
-        let s = (me.lam + scorr(r2, me.li, 0u)) * me.mi;
-        *dp += s * gsym(xik, sqrt(r2), me.li, 0u);
+        let s = (me.lam + scorr(r2, me.lv, prm.lv[0])) * me.mi;
+        *dp += s * gsym(xik, sqrt(r2), me.lv, prm.lv[0]);
     }
 }
 
@@ -340,28 +331,26 @@ fn update_velocity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
     vel[i] = vec4<f32>(min_image(pred[i].xyz - pos[i].xyz, grid) * prm.inv_dt, 0.0);
 }
 
-// Pair terms of the velocity passes for a candidate j with r2 < h0^2: j's level, its constants,
-// and whether r < max(h_i, h_j). All level 0: the table's first row, no level look-up.
+// Pair terms of the velocity passes for a candidate j with r2 < h0^2: j's level constants and
+// whether r < max(h_i, h_j). All level 0: the table's first row, no level look-up.
 struct Pair {
     inside: bool,
-    lj: u32,
     lvj: vec4<f32>,
 }
 fn pair_of(r2: f32, hi: f32, j: u32) -> Pair {
-    if (prm.single_level != 0u) { return Pair(true, 0u, prm.lv[0]); }
-    let lj = level_of(j);
-    let lvj = lv_of(lj);
+    if (prm.single_level != 0u) { return Pair(true, prm.lv[0]); }
+    let lvj = lv_of(level_of(j));
     let hm = max(hi, lvj.x);
-    return Pair(r2 < hm * hm, lj, lvj);
+    return Pair(r2 < hm * hm, lvj);
 }
 // W and grad W of eq. 19 (level 0 alone: the same values without the per-level selects)
-fn pair_w(r2: f32, li: u32, lj: u32) -> f32 {
+fn pair_w(r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> f32 {
     if (prm.single_level != 0u) { return w0(r2); }
-    return wsym(r2, li, lj);
+    return wsym(r2, lvi, lvj);
 }
-fn pair_g(xij: vec3<f32>, r2: f32, li: u32, lj: u32) -> vec3<f32> {
+fn pair_g(xij: vec3<f32>, r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> vec3<f32> {
     if (prm.single_level != 0u) { return gw0(xij, sqrt(r2)); }
-    return gsym(xij, sqrt(r2), li, lj);
+    return gsym(xij, sqrt(r2), lvi, lvj);
 }
 
 // omega_i = sum_j V_j (v_i - v_j) x grad_i W_ij, V_j = m_j / rho_j; written over pos (x is dead).
@@ -371,8 +360,8 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     if (i >= grid.n_particles) { return; }
     let p = pred[i].xyz;
     let vi = vel[i].xyz;
-    let li = level_of(i);
-    let hi = radius_of(i);
+    let lvi = lv_of(level_of(i));
+    let hi = lvi.x;
     var w = vec3<f32>(0.0);
     let c = cell_coord(p, grid);
     let inv = 1.0 / grid.domain_size;
@@ -394,7 +383,7 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
                     let lvj = pk.lvj;
                     let rho_j = density[j];
                     let vj = lvj.w / rho_j;
-                    w += vj * cross(vi - vel[j].xyz, pair_g(xij, r2, li, pk.lj));
+                    w += vj * cross(vi - vel[j].xyz, pair_g(xij, r2, lvi, pk.lvj));
                 }
             }
         }
@@ -411,8 +400,8 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     if (i >= grid.n_particles) { return; }
     let p = pred[i].xyz;
     let vi = vel[i].xyz;
-    let li = level_of(i);
-    let hi = radius_of(i);
+    let lvi = lv_of(level_of(i));
+    let hi = lvi.x;
     let use_vort = prm.vorticity > 0.0;
     let rho_i = density[i];
     var wi = 0.0;
@@ -441,9 +430,9 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
                     let vj = lvj.w / rho_j;
                     // 2 m_j / (rho_i + rho_j): pairwise symmetric, so XSPH conserves momentum
                     let vs = 2.0 * lvj.w / (rho_i + rho_j);
-                    acc += vs * pair_w(r2, li, pk.lj) * (vel[j].xyz - vi);
+                    acc += vs * pair_w(r2, lvi, pk.lvj) * (vel[j].xyz - vi);
                     if (use_vort) {
-                        eta += vj * (pos[j].w - wi) * pair_g(xij, r2, li, pk.lj);
+                        eta += vj * (pos[j].w - wi) * pair_g(xij, r2, lvi, pk.lvj);
                     }
                 }
             }

@@ -62,12 +62,12 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
     if (i >= S.count) { return; }
     let th = thermo_in[i];
     let xi = pos[i].xyz;
-    let hi = radius_of_level(info[i].y);
+    let li = info[i].y;
+    let hi = radius_of_level(li);
     let ti = th.x;
     var sum_a = 0.0;
     var sum_a2 = 0.0;
     var c = 0.0;
-    let li = info[i].y;
     let fi = spiky_factor(li);
     let f0 = spiky_factor(0u);
     let h02 = S.h0 * S.h0;
