@@ -16,7 +16,7 @@ pub struct GridParams {
     pub periodic: u32,
     /// Each cell is cut into this many slices along x; particles are sorted by (cell, slice) and
     /// the cell table has an entry per slice, so a neighbour search can clip each row of cells
-    /// to the x extent of its search sphere (pbf.wgsl). Cell `c` spans table entries
+    /// to the x extent of its search sphere (`row_entries`). Cell `c` spans table entries
     /// `c * x_slices .. (c + 1) * x_slices`.
     pub x_slices: u32,
     /// Radius around a particle's current position that a neighbour search covers, measured to
@@ -29,8 +29,8 @@ pub struct GridParams {
 pub const X_SLICES: u32 = 2;
 
 impl GridParams {
-    /// Cells of edge >= `max_radius` (the search radius); along a periodic axis the cell count divides the extent
-    /// exactly, so wrapping cell indices matches minimum-image distances.
+    /// Cells of edge >= `max_radius` (the search radius); along a periodic axis the cell count
+    /// divides the extent exactly, so wrapping cell indices matches minimum-image distances.
     pub fn new(size: [f64; 3], max_radius: f64, periodic_x: bool, periodic_z: bool) -> Self {
         let dims = size.map(|s| ((s / max_radius).floor() as u32).max(1));
         let cell_size = [0, 1, 2].map(|a| (size[a] / dims[a] as f64) as f32);
