@@ -36,9 +36,13 @@ fn radius_of_level(level: u32) -> f32 {
     return S.h0 * exp2(-f32(level) / 3.0);
 }
 
-// Spiky gradient factor -45 / (pi h^6) of level l: h = h0 2^(-l/3), so (h0 / h)^6 = 4^l.
-fn spiky_factor(level: u32) -> f32 {
-    return -45.0 / (PI * pow(S.h0, 6.0)) * exp2(2.0 * f32(level));
+// Spiky gradient factor -45 / (pi h^6) of level 0 (once per particle, not per pair).
+fn spiky_factor0() -> f32 {
+    return -45.0 / (PI * pow(S.h0, 6.0));
+}
+// ... and of level l from it: h = h0 2^(-l/3), so (h0 / h)^6 = 4^l.
+fn spiky_factor(f0: f32, level: u32) -> f32 {
+    return f0 * exp2(2.0 * f32(level));
 }
 
 // One side of x_ij . gradW_ij: f (h - r)^2 r for r < h (spiky_grad's factor (h - r)^2 / r x_ij,
@@ -68,8 +72,8 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
     var sum_a = 0.0;
     var sum_a2 = 0.0;
     var c = 0.0;
-    let fi = spiky_factor(li);
-    let f0 = spiky_factor(0u);
+    let f0 = spiky_factor0();
+    let fi = spiky_factor(f0, li);
     let h02 = S.h0 * S.h0;
     let ci = cell_coord(xi, grid);
     for (var dz = -1; dz <= 1; dz++) {
@@ -88,7 +92,7 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                     let hj = radius_of_level(lj);
                     let hm = max(hi, hj);
                     if (r2 >= hm * hm) { continue; }
-                    let a = laplacian_coefficient(r2, hi, fi, hj, spiky_factor(lj), S.volume0 * exp2(-f32(lj)));
+                    let a = laplacian_coefficient(r2, hi, fi, hj, spiky_factor(f0, lj), S.volume0 * exp2(-f32(lj)));
                     sum_a += a;
                     sum_a2 += a * a;
                     c += a * (ti - thermo_in[j].x);
