@@ -5,12 +5,31 @@ use crate::error::{Error, Result};
 
 include!(concat!(env!("OUT_DIR"), "/shader_files.rs"));
 
-/// Names of the compute stages (every `.wgsl` outside `shared/`).
+/// (word, replacement) pairs applied to a template's text.
+type Words = &'static [(&'static str, &'static str)];
+
+/// Stages built from a template in `shared/` by replacing words: (stage, template, words).
+/// WGSL has no generics; one gather kernel serves two element types.
+const VARIANTS: &[(&str, &str, Words)] = &[
+    (
+        "permute4.wgsl",
+        "shared/permute.wgsl",
+        &[("ELEM", "vec4<f32>"), ("WIDTH", "4")],
+    ),
+    (
+        "permute2.wgsl",
+        "shared/permute.wgsl",
+        &[("ELEM", "vec2<u32>"), ("WIDTH", "2")],
+    ),
+];
+
+/// Names of the compute stages (every `.wgsl` outside `shared/`, and the template variants).
 pub fn stage_names() -> impl Iterator<Item = &'static str> {
     SHADER_FILES
         .iter()
         .map(|(n, _)| *n)
         .filter(|n| !n.starts_with("shared/"))
+        .chain(VARIANTS.iter().map(|(n, _, _)| *n))
 }
 
 fn raw(name: &str) -> Result<&'static str> {
@@ -23,9 +42,16 @@ fn raw(name: &str) -> Result<&'static str> {
 
 /// The full WGSL text of a stage with its includes expanded.
 pub fn source(name: &str) -> Result<String> {
+    let (file, words): (&str, Words) = VARIANTS
+        .iter()
+        .find(|(n, _, _)| *n == name)
+        .map_or((name, &[]), |(_, t, w)| (*t, *w));
     let mut seen = Vec::new();
     let mut out = String::new();
-    expand(name, &mut seen, &mut out)?;
+    expand(file, &mut seen, &mut out)?;
+    for (word, replacement) in words {
+        out = out.replace(word, replacement);
+    }
     Ok(out)
 }
 
@@ -91,9 +117,14 @@ pub fn compute_pipeline(
 mod tests {
     #[test]
     fn every_shader_compiles_through_naga() {
-        // Shared files are valid modules on their own; stages are checked with their includes.
-        for (name, _) in super::SHADER_FILES {
-            super::validate(name).unwrap_or_else(|e| panic!("{e}"));
+        // Shared files are valid modules on their own (templates only as their variants);
+        // stages are checked with their includes.
+        let templates: Vec<&str> = super::VARIANTS.iter().map(|(_, t, _)| *t).collect();
+        let files = super::SHADER_FILES.iter().map(|(n, _)| *n);
+        for name in files.chain(super::stage_names()) {
+            if !templates.contains(&name) {
+                super::validate(name).unwrap_or_else(|e| panic!("{e}"));
+            }
         }
         assert!(!super::SHADER_FILES.is_empty(), "no shaders found");
     }
