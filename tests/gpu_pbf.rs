@@ -45,27 +45,46 @@ fn rel_err(gpu: &[[f64; 3]], cpu: &[[f64; 3]]) -> f64 {
         / scale
 }
 
-/// A jittered lattice with random levels and velocities (fresh each run: seeded from time).
+/// A jittered lattice with random velocities (fresh each run: seeded from time), squeezed in
+/// y to 80% of its height. A lattice site drawn at level l holds 2^l particles of mass m0/2^l,
+/// so every level sees the same density. Why squeezed: the constraint is unilateral, so a
+/// lattice near rest density would leave almost every lambda at 0 and the comparison would be
+/// of f32 rounding in rho/rho0 - 1 ~ 0 (a CI failure: one compressed particle, C = 3e-4).
 fn random_state(cfg: &ShotConfig, seed: u64, levels: u32) -> ParticleState {
+    const SQUEEZE: [f32; 3] = [1.0, 0.8, 1.0];
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let mut s = nimbus::sim::init::initial_particles(cfg);
-    for i in 0..s.len() {
-        for a in 0..3 {
-            let size = cfg.domain.size[a] as f32;
-            s.pos[i][a] = (s.pos[i][a] + rng.random_range(-0.3..0.3f32)).clamp(0.0, size - 1e-3);
-            s.vel[i][a] = rng.random_range(-1.0..1.0f32);
+    let lattice = nimbus::sim::init::initial_particles(cfg);
+    let mut s = ParticleState::default();
+    for i in 0..lattice.len() {
+        let level = rng.random_range(0..=levels);
+        for _ in 0..1u32 << level {
+            let (mut pos, mut vel) = (lattice.pos[i], lattice.vel[i]);
+            for a in 0..3 {
+                let size = cfg.domain.size[a] as f32;
+                let x = pos[a] * SQUEEZE[a] + rng.random_range(-0.3..0.3f32);
+                pos[a] = x.clamp(0.0, size - 1e-3);
+                vel[a] = rng.random_range(-1.0..1.0f32);
+            }
+            s.pos.push(pos);
+            s.vel.push(vel);
+            s.thermo.push(lattice.thermo[i]);
+            s.info.push([s.info.len() as u32, level]);
+            s.density.push(lattice.density[i]);
         }
-        s.info[i][1] = rng.random_range(0..=levels);
     }
     s
 }
 
+/// A fresh seed each run (printed); `NIMBUS_TEST_SEED` replays a failing one.
 fn fresh_seed() -> u64 {
-    let t = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_nanos() as u64;
-    eprintln!("random seed {t}");
+    let t = match std::env::var("NIMBUS_TEST_SEED") {
+        Ok(s) => s.parse().expect("NIMBUS_TEST_SEED is a u64"),
+        Err(_) => std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap()
+            .as_nanos() as u64,
+    };
+    eprintln!("random seed {t} (replay: NIMBUS_TEST_SEED={t})");
     t
 }
 
@@ -139,6 +158,30 @@ fn kernels_match_the_mirror(levels: u32) {
         .map(|&v| v as f64)
         .collect();
     let as3 = |v: &[f64]| v.iter().map(|&x| [x, 0.0, 0.0]).collect::<Vec<_>>();
+    let as3 = |v: &[f64]| v.iter().map(|&x| [x, 0.0, 0.0]).collect::<Vec<_>>();
+    {
+        let mut w = 0;
+        let mut we = 0.0;
+        for i in 0..lam.len() {
+            let e = (glam[i] - lam[i]).abs();
+            if e > we {
+                we = e;
+                w = i;
+            }
+        }
+        let mx = lam.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        eprintln!(
+            "DBG max|lam| {mx} worst i {w} gpu {} cpu {} gden {} cden {} rho0 {}",
+            glam[w], lam[w], gden[w], den[w], prm.rest_density
+        );
+        let mut v: Vec<f64> = lam.iter().map(|x| x.abs()).collect();
+        v.sort_by(|a, b| b.partial_cmp(a).unwrap());
+        eprintln!(
+            "DBG top {:?} nonzero {}",
+            &v[..8],
+            v.iter().filter(|x| **x > 0.0).count()
+        );
+    }
     let e = rel_err(&as3(&glam), &as3(&lam));
     assert!(e < TOL, "compute_lambda lambda: {e}");
     let e = rel_err(&as3(&gden), &as3(&den));
