@@ -1,8 +1,9 @@
 // Position Based Fluids (Macklin & Mueller 2013) per substep, with per-particle radii and masses
 // (level l: h = h0 2^(-l/3), m = m0 2^(-l)) through the symmetric kernels of eq. 19, and the
 // floor/ceiling boundary particles counting in the density with the fluid particle's mass (eq. 18).
-// Entry points, in order: predict, then per iteration compute_lambda + compute_delta (+ copy), then
-// update_velocity, vorticity (when enabled), viscosity_confine (+ copy).
+// Entry points, in order: predict, then per iteration compute_lambda (pred -> scratch) and
+// compute_delta (scratch -> pred), then update_velocity, vorticity (when enabled),
+// viscosity_confine (+ copy).
 // Mirror: src/sim/reference/pbf.rs (same names).
 //!include shared/common.wgsl
 
@@ -36,18 +37,18 @@ struct PbfParams {
 // positions x at the start of the substep; vorticity omega (xyz, |omega|) after update_velocity
 @group(0) @binding(2) var<storage, read_write> pos: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> vel: array<vec4<f32>>;
-// predicted positions p*
+// predicted positions p* (compute_delta writes the corrected ones here)
 @group(0) @binding(4) var<storage, read_write> pred: array<vec4<f32>>;
-// output of compute_delta (new p*) and viscosity_confine (new v)
+// compute_lambda's output (p*, lambda) that compute_delta reads: the position and the lambda of a
+// neighbour in one load, and no copy back per iteration; viscosity_confine's new v
 @group(0) @binding(5) var<storage, read_write> scratch: array<vec4<f32>>;
-@group(0) @binding(6) var<storage, read_write> lambda: array<f32>;
-@group(0) @binding(7) var<storage, read_write> density: array<f32>;
+@group(0) @binding(6) var<storage, read_write> density: array<f32>;
 // read-only bindings (declared so, the compiler need not assume they alias the written ones)
-@group(0) @binding(8) var<storage, read> info: array<vec2<u32>>;
-@group(0) @binding(9) var<storage, read> cell_start: array<u32>;
+@group(0) @binding(7) var<storage, read> info: array<vec2<u32>>;
+@group(0) @binding(8) var<storage, read> cell_start: array<u32>;
 // boundary particles: xyz, w = temperature; cell-ordered with their own table
-@group(0) @binding(10) var<storage, read> bpos: array<vec4<f32>>;
-@group(0) @binding(11) var<storage, read> bcell_start: array<u32>;
+@group(0) @binding(9) var<storage, read> bpos: array<vec4<f32>>;
+@group(0) @binding(10) var<storage, read> bcell_start: array<u32>;
 
 // min_image with a reciprocal (one multiply instead of a divide per pair; the rounded image is the
 // same for every pair closer than half the domain, i.e. every pair that counts)
@@ -175,11 +176,12 @@ struct Me {
     inv: vec3<f32>,
     wdq: f32,
 }
-fn me_of(i: u32) -> Me {
+// Particle i at position and lambda pl (pred[i] with 0 in compute_lambda, scratch[i] after it)
+fn me_of(i: u32, pl: vec4<f32>) -> Me {
     let li = level_of(i);
     let lv = lv_of(li);
     let hd = prm.scorr_dq * lv.x;
-    return Me(pred[i].xyz, li, lv, lv.x, lv.w, 0.0, 1.0 / grid.domain_size, w_lv(hd * hd, lv));
+    return Me(pl.xyz, li, lv, lv.x, lv.w, pl.w, 1.0 / grid.domain_size, w_lv(hd * hd, lv));
 }
 // Level-0 kernels from the table's first row.
 fn w0(r2: f32) -> f32 {
@@ -229,7 +231,7 @@ fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
 fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= grid.n_particles) { return; }
-    let me = me_of(i);
+    let me = me_of(i, vec4<f32>(pred[i].xyz, 0.0));
     var a = LamAcc(vec3<f32>(0.0), 0.0, 0.0);
     let c = cell_coord(me.p, grid);
     for (var dz = -1; dz <= 1; dz++) {
@@ -251,7 +253,7 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
     // rest without gravity reached the 30 m/s speed clamp within 2 s whatever the relaxation).
     // Air parcels do not pull on each other; s_corr keeps its small repulsion.
     let constraint = max(a.rho / prm.rest_density - 1.0, 0.0);
-    lambda[i] = -constraint / (a.g2 + dot(a.grad, a.grad) + prm.eps);
+    scratch[i] = vec4<f32>(me.p, -constraint / (a.g2 + dot(a.grad, a.grad) + prm.eps));
     density[i] = a.rho;
 }
 
@@ -264,7 +266,8 @@ fn scorr_me(me: Me, r2: f32, lj: u32, lvj: vec4<f32>) -> f32 {
     return -prm.scorr_k * t * me.hi * me.hi;
 }
 fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
-    let xij = min_image_r(me.p - pred[j].xyz, me.inv);
+    let pj = scratch[j];
+    let xij = min_image_r(me.p - pj.xyz, me.inv);
     let r2 = dot(xij, xij);
     if (prm.single_level != 0u) {
         if (r2 < prm.h0 * prm.h0) {
@@ -274,7 +277,7 @@ fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
                 let x = w0(r2) / me.wdq;
                 sc = -prm.scorr_k * pow_n(x) * me.hi * me.hi;
             }
-            let s = me.lam * m + lambda[j] * me.mi + sc * m;
+            let s = me.lam * m + pj.w * me.mi + sc * m;
             *dp += s * gw0(xij, sqrt(r2));
         }
         return;
@@ -285,7 +288,7 @@ fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
         let hm = max(me.hi, lvj.x);
         if (r2 < hm * hm) {
             let mj = lvj.w;
-            let s = me.lam * mj + lambda[j] * me.mi + scorr_me(me, r2, lj, lvj) * mj;
+            let s = me.lam * mj + pj.w * me.mi + scorr_me(me, r2, lj, lvj) * mj;
             *dp += s * gsym(xij, sqrt(r2), me.lv, lvj);
         }
     }
@@ -304,8 +307,7 @@ fn delta_wall(dp: ptr<function, vec3<f32>>, me: Me, k: u32) {
 fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= grid.n_particles) { return; }
-    var me = me_of(i);
-    me.lam = lambda[i];
+    let me = me_of(i, scratch[i]);
     var dp = vec3<f32>(0.0);
     let c = cell_coord(me.p, grid);
     for (var dz = -1; dz <= 1; dz++) {
@@ -321,7 +323,7 @@ fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
             }
         }
     }
-    scratch[i] = vec4<f32>(confine(me.p + dp / prm.rest_density), 0.0);
+    pred[i] = vec4<f32>(confine(me.p + dp / prm.rest_density), 0.0);
 }
 
 @compute @workgroup_size(64)

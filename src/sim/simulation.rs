@@ -4,7 +4,9 @@
 //! - "pbf": `predict` (gravity, speed clamp, p* = x + v dt, wrap/walls);
 //! - "grid": cell keys of p*, stable radix sort of (cell, index), cell table, and every particle
 //!   array (x, p*, thermo, info) gathered into cell order;
-//! - "pbf": `iterations` x (`compute_lambda`, `compute_delta`);
+//! - "pbf": `iterations` x (`compute_lambda`: p* -> (p*, lambda) in the scratch; `compute_delta`:
+//!   scratch -> corrected p*), so a neighbour's position and lambda are one load and no pass
+//!   copies p* back;
 //! - "velocity": `update_velocity`, `vorticity` (if enabled), `viscosity_confine`, x = p*.
 //!
 //! Between `predict` and `update_velocity` the velocity buffer is dead (PBF recomputes v from
@@ -52,7 +54,6 @@ struct Buffers {
     pred: wgpu::Buffer,
     /// 4 u32 arrays of `capacity` for the sort, or one vec4 array of scratch
     pairs: wgpu::Buffer,
-    lambda: wgpu::Buffer,
     density: wgpu::Buffer,
     cell_start: wgpu::Buffer,
     bpos: wgpu::Buffer,
@@ -69,7 +70,6 @@ struct Binds {
     perm4: Vec<(wgpu::BindGroup, wgpu::BindGroup)>,
     perm2: (wgpu::BindGroup, wgpu::BindGroup),
     pbf: wgpu::BindGroup,
-    scratch_to_pred: wgpu::BindGroup,
     scratch_to_vel: wgpu::BindGroup,
     pred_to_pos: wgpu::BindGroup,
 }
@@ -103,8 +103,8 @@ pub enum Buf {
     Pos,
     Vel,
     Pred,
+    /// (p*, lambda) after `Stage::Lambda`, the new v after `Stage::ViscosityConfine`
     Scratch,
-    Lambda,
     Density,
     CellStart,
     Info,
@@ -224,7 +224,6 @@ impl Simulation {
             info,
             pred: storage_zeroed::<[f32; 4]>(dev, "pred", cap),
             pairs: storage_zeroed::<[u32; 4]>(dev, "sort pairs / scratch", cap),
-            lambda: storage_zeroed::<f32>(dev, "lambda", cap),
             density,
             cell_start: storage_zeroed::<u32>(dev, "cell_start", grid.table_len()),
             bpos: storage_init(dev, "boundary pos", &bpos),
@@ -259,7 +258,6 @@ impl Simulation {
                 &[
                     Bind::Uniform,
                     Bind::Uniform,
-                    s4,
                     s4,
                     s4,
                     s4,
@@ -333,7 +331,6 @@ impl Simulation {
                     e(&b.vel),
                     e(&b.pred),
                     e(&b.pairs),
-                    e(&b.lambda),
                     e(&b.density),
                     e(&b.info),
                     e(&b.cell_start),
@@ -342,9 +339,8 @@ impl Simulation {
                 ],
             ),
             // copies do not read `order`; bind an unrelated buffer there to avoid aliasing
-            scratch_to_pred: p4(&b.pairs, &b.pred, e(&b.lambda)),
-            scratch_to_vel: p4(&b.pairs, &b.vel, e(&b.lambda)),
-            pred_to_pos: p4(&b.pred, &b.pos, e(&b.lambda)),
+            scratch_to_vel: p4(&b.pairs, &b.vel, e(&b.density)),
+            pred_to_pos: p4(&b.pred, &b.pos, e(&b.density)),
         };
         let timer = ctx.timestamps.then(|| GpuTimer::new(dev, &ctx.queue));
         let smoothing = SmoothingStage::new(&ctx, cfg)?;
@@ -416,7 +412,6 @@ impl Simulation {
             &b.info,
             &b.pred,
             &b.pairs,
-            &b.lambda,
             &b.density,
             &b.cell_start,
             &b.bpos,
@@ -463,9 +458,6 @@ impl Simulation {
         self.k
             .pbf
             .dispatch(pass, "compute_delta", &self.g.pbf, n, WG);
-        self.k
-            .perm4
-            .dispatch(pass, "copy4", &self.g.scratch_to_pred, n, WG);
     }
 
     fn encode_velocity(&self, pass: &mut wgpu::ComputePass) {
@@ -756,7 +748,6 @@ impl Simulation {
             Buf::Vel => &self.b.vel,
             Buf::Pred => &self.b.pred,
             Buf::Scratch => &self.b.pairs,
-            Buf::Lambda => &self.b.lambda,
             Buf::Density => &self.b.density,
             Buf::CellStart => &self.b.cell_start,
             Buf::Info => &self.b.info,
