@@ -2,9 +2,11 @@
 // A thread owns one cell and reads/writes only particles of the 27 cells around it; cells of
 // one colour are >= 3 cells apart (also across periodic wraps), so no two threads of a pass
 // touch the same particle and the result does not depend on thread scheduling.
-// A cell's slots are processed in rounds of `merge_round.len` (one dispatch each, in order): the
-// same sequence as one pass over the cell, but each invocation stays within lavapipe's budget
-// of 65535 loop iterations per invocation (llvmpipe silently ends longer loops).
+// A cell's merge-marked slots are processed in rounds of `merge_round.len` (one dispatch each, in
+// order): the same sequence as one pass over the cell, but each invocation stays within
+// lavapipe's budget of 65535 loop iterations per invocation (llvmpipe silently ends longer
+// loops). Rounds count marked slots, not slots: only a marked slot scans its neighbourhood, so a
+// crowded cell with few marked particles needs no extra dispatches (~0.1 ms each here).
 //!include shared/common.wgsl
 //!include shared/adaptive.wgsl
 
@@ -26,7 +28,7 @@ struct ColourPass {
 @group(1) @binding(0) var<uniform> colour: ColourPass;
 @group(2) @binding(0) var<uniform> merge_round: MergeRound;
 
-// Slots cell_start + first .. + first + len of every cell in this dispatch.
+// The marked slots of rank first .. first + len (in slot order) of every cell in this dispatch.
 struct MergeRound {
     first: u32,
     len: u32,
@@ -88,10 +90,16 @@ fn adaptive_merge(@builtin(global_invocation_id) gid: vec3<u32>,
     let d = vec3<i32>(grid.dims);
     let cell = u32((c.z * d.y + c.y) * d.x + c.x);
     // One thread pairs the particles of its cell in slot order (deterministic).
-    let begin = cell_start[cell_entry(cell, grid)] + merge_round.first;
-    let end = min(begin + merge_round.len, cell_start[cell_entry(cell + 1u, grid)]);
-    for (var i = begin; i < end; i++) {
-        if (flags[i] != FLAG_MERGE) { continue; }
+    let end = cell_start[cell_entry(cell + 1u, grid)];
+    let last = merge_round.first + merge_round.len;
+    var rank = 0u;
+    for (var i = cell_start[cell_entry(cell, grid)]; i < end && rank < last; i++) {
+        // Marked when the merge phase began: still MERGE, or MERGED / DEAD by a merge since
+        // (only marked particles become either), so the ranks are the same in every round.
+        let f = flags[i];
+        if ((f & (FLAG_MERGE | FLAG_MERGED | FLAG_DEAD)) == 0u) { continue; }
+        rank++;
+        if (rank <= merge_round.first || f != FLAG_MERGE) { continue; }
         let level = info[i].y;
         let xi = pos[i].xyz;
         let best = find_partner(i, xi, level, level_radius(params.h0, level), c);
@@ -111,8 +119,8 @@ fn adaptive_merge(@builtin(global_invocation_id) gid: vec3<u32>,
     }
 }
 
-// Largest cell occupancy (load[0]) and 27-cell neighbourhood (load[1]): the host sizes the
-// merge rounds from them.
+// Largest cell occupancy (load[0]), 27-cell neighbourhood (load[1]) and count of merge-marked
+// particles in a cell (load[2]): the host sizes the merge rounds from them.
 @compute @workgroup_size(64)
 fn cell_load(@builtin(global_invocation_id) gid: vec3<u32>,
              @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -129,6 +137,11 @@ fn cell_load(@builtin(global_invocation_id) gid: vec3<u32>,
             }
         }
     }
-    atomicMax(&load[0], cell_start[cell_entry(c + 1u, grid)] - cell_start[cell_entry(c, grid)]);
+    let begin = cell_start[cell_entry(c, grid)];
+    let end = cell_start[cell_entry(c + 1u, grid)];
+    var marked = 0u;
+    for (var k = begin; k < end; k++) { marked += u32(flags[k] == FLAG_MERGE); }
+    atomicMax(&load[0], end - begin);
     atomicMax(&load[1], nb);
+    atomicMax(&load[2], marked);
 }

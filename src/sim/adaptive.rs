@@ -266,7 +266,7 @@ pub struct AdaptiveStage {
     flags: wgpu::Buffer,
     hole_index: wgpu::Buffer,
     counters: wgpu::Buffer,
-    /// Largest cell occupancy and 27-cell neighbourhood (sizes the merge rounds).
+    /// Largest cell occupancy, 27-cell neighbourhood and merge-marked count (sizes the rounds).
     load: wgpu::Buffer,
     num_cells: u32,
     scan: Vec<ScanLevel>,
@@ -343,12 +343,17 @@ pub struct MergeRound {
 }
 
 /// Rounds that split every cell's merge loop so one invocation stays within [`LOOP_BUDGET`]:
-/// each slot costs at most two scans of its 27-cell neighbourhood (`max_neighbourhood`
-/// particles) plus the cell loops. Rounds run in order, so the result is the one of a single
-/// pass over each cell (the mirror's).
-pub fn merge_rounds(max_occupancy: u32, max_neighbourhood: u32) -> Result<Vec<MergeRound>> {
+/// a round walks at most the cell's `max_occupancy` slots and merges up to `len` marked ones,
+/// each at most two scans of its 27-cell neighbourhood (`max_neighbourhood` particles) plus the
+/// cell loops. Rounds count marked slots (`max_marked` in the fullest cell) and run in order, so
+/// the result is the one of a single pass over each cell (the mirror's).
+pub fn merge_rounds(
+    max_occupancy: u32,
+    max_marked: u32,
+    max_neighbourhood: u32,
+) -> Result<Vec<MergeRound>> {
     let per_slot = 2 * max_neighbourhood as u64 + 100;
-    let len = LOOP_BUDGET / per_slot;
+    let len = LOOP_BUDGET.saturating_sub(max_occupancy as u64) / per_slot;
     if len == 0 {
         return Err(Error::Runtime(format!(
             "adaptive: {max_neighbourhood} particles around one grid cell are more than a merge \
@@ -356,7 +361,7 @@ pub fn merge_rounds(max_occupancy: u32, max_neighbourhood: u32) -> Result<Vec<Me
         )));
     }
     let len = len.min(u32::MAX as u64) as u32;
-    Ok((0..max_occupancy.div_ceil(len))
+    Ok((0..max_marked.div_ceil(len))
         .map(|r| MergeRound {
             first: r * len,
             len,
@@ -654,7 +659,12 @@ impl AdaptiveStage {
             d,
             &p.cell_load,
             0,
-            &[(0, bufs.grid), (6, bufs.cell_start), (8, &self.load)],
+            &[
+                (0, bufs.grid),
+                (6, bufs.cell_start),
+                (7, &self.flags),
+                (8, &self.load),
+            ],
         );
         ctx.queue.write_buffer(&self.load, 0, &[0u8; 16]);
         let t0 = Instant::now();
@@ -674,8 +684,8 @@ impl AdaptiveStage {
         let t1 = Instant::now();
 
         // Phase 2 (merge): coloured passes in rounds, then the compaction of the dead slots.
-        let load: Vec<u32> = buffers::read_back(d, &ctx.queue, &self.load, 2)?;
-        let rounds = merge_rounds(load[0], load[1])?;
+        let load: Vec<u32> = buffers::read_back(d, &ctx.queue, &self.load, 3)?;
+        let rounds = merge_rounds(load[0], load[2], load[1])?;
         let round_groups: Vec<wgpu::BindGroup> = rounds
             .iter()
             .map(|r| {
@@ -820,20 +830,26 @@ mod tests {
 
     #[test]
     fn merge_rounds_cover_the_fullest_cell_within_budget() {
-        assert!(merge_rounds(0, 0).unwrap().is_empty());
-        for (occ, nb) in [(1, 1), (300, 300), (64, 1728), (100, 29_000)] {
-            let r = merge_rounds(occ, nb).unwrap();
+        assert!(merge_rounds(0, 0, 0).unwrap().is_empty());
+        assert!(merge_rounds(90, 0, 1000).unwrap().is_empty());
+        for (occ, marked, nb) in [(1, 1, 1), (300, 300, 300), (64, 5, 1728), (100, 90, 29_000)] {
+            let r = merge_rounds(occ, marked, nb).unwrap();
             let len = r[0].len as u64;
-            assert!(len * (2 * nb as u64 + 100) <= LOOP_BUDGET);
+            assert!(occ as u64 + len * (2 * nb as u64 + 100) <= LOOP_BUDGET);
             assert_eq!(
                 r.iter().map(|x| x.first).collect::<Vec<_>>(),
                 (0..r.len() as u32)
                     .map(|k| k * r[0].len)
                     .collect::<Vec<_>>()
             );
-            assert!(r.last().unwrap().first + r[0].len >= occ);
+            assert!(r.last().unwrap().first + r[0].len >= marked);
         }
-        assert!(matches!(merge_rounds(10, 40_000), Err(Error::Runtime(_))));
+        // a few marked particles in a crowded neighbourhood: one round, not one per slot range
+        assert_eq!(merge_rounds(90, 5, 1000).unwrap().len(), 1);
+        assert!(matches!(
+            merge_rounds(10, 10, 40_000),
+            Err(Error::Runtime(_))
+        ));
     }
 
     #[test]
