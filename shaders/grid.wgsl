@@ -9,10 +9,6 @@
 @group(0) @binding(3) var<storage, read_write> vals: array<u32>;
 @group(0) @binding(4) var<storage, read_write> cell_start: array<u32>;
 
-fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
-    return gid.y * nwg.x * 64u + gid.x;
-}
-
 @compute @workgroup_size(64)
 fn cell_keys(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);

@@ -59,10 +59,6 @@ fn min_image_r(d: vec3<f32>, inv: vec3<f32>) -> vec3<f32> {
     return r;
 }
 
-fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
-    return gid.y * nwg.x * 64u + gid.x;
-}
-
 fn level_of(i: u32) -> u32 {
     return min(info[i].y, 7u);
 }

@@ -62,7 +62,7 @@ fn laplacian_coefficient(r2: f32, hi: f32, fi: f32, hj: f32, fj: f32, volume: f3
 
 @compute @workgroup_size(64)
 fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = gid.x + gid.y * nwg.x * 64u;
+    let i = linear_id(gid, nwg);
     if (i >= S.count) { return; }
     let th = thermo_in[i];
     let xi = pos[i].xyz;

@@ -4,6 +4,7 @@
 //   -> phase transition (eqs. 8-10) -> latent heat (eq. 11).
 // f64 mirror: src/sim/reference/thermo.rs (`thermo_step`); noise mirror: src/sim/noise.rs.
 // No neighbours are read, so every particle is independent (deterministic).
+//!include shared/common.wgsl
 
 // Mirror of sim::thermo::ThermoParams (byte for byte).
 struct ThermoParams {
@@ -38,13 +39,6 @@ struct ThermoParams {
 @group(0) @binding(1) var<storage, read> pos: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> vel: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> thermo: array<vec4<f32>>;
-
-// PCG-RXS-M-XS hash (Jarzynski & Olano 2020); u32 arithmetic wraps.
-fn pcg_hash(v: u32) -> u32 {
-    let state = v * 747796405u + 2891336453u;
-    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
 
 // Lattice value in [0, 1): the top 24 bits are exact in f32, so GPU and mirror agree.
 fn lattice_value(ix: i32, iz: i32, it: i32, seed: u32) -> f32 {
@@ -91,7 +85,7 @@ fn heat_factor(x: f32, z: f32, time: f32) -> f32 {
 
 @compute @workgroup_size(64)
 fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = gid.x + gid.y * nwg.x * 64u;
+    let i = linear_id(gid, nwg);
     if (i >= P.count) { return; }
     let p = pos[i].xyz;
     var u = vel[i];

@@ -40,18 +40,6 @@ fn level_radius(h0: f32, level: u32) -> f32 {
     return h0 * exp2(-f32(level) / 3.0);
 }
 
-// Linear thread index of a 2D dispatch (x up to 65535 workgroups, then rows of y).
-fn thread_index(gid: vec3<u32>, nwg: vec3<u32>, wg: u32) -> u32 {
-    return gid.x + gid.y * nwg.x * wg;
-}
-
-// PCG hash (O'Neill), a well-mixed u32 -> u32.
-fn pcg_hash(v: u32) -> u32 {
-    let state = v * 747796405u + 2891336453u;
-    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
 // Deterministic pseudo-random unit direction of a split, from the particle id only (so a
 // particle splits the same way on every run and machine); uniform on the sphere.
 fn split_dir(id: u32) -> vec3<f32> {

@@ -3,6 +3,23 @@
 
 const PI: f32 = 3.14159265358979;
 
+// Linear thread index of a 2D dispatch (x up to 65535 workgroups, then rows of y) with `wg`
+// threads per workgroup; `linear_id` for the 64-thread workgroups of the particle stages.
+fn thread_index(gid: vec3<u32>, nwg: vec3<u32>, wg: u32) -> u32 {
+    return gid.x + gid.y * nwg.x * wg;
+}
+fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
+    return thread_index(gid, nwg, 64u);
+}
+
+// PCG-RXS-M-XS hash (Jarzynski & Olano 2020), a well-mixed u32 -> u32; u32 arithmetic wraps.
+// Mirror: sim::noise::pcg_hash.
+fn pcg_hash(v: u32) -> u32 {
+    let state = v * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
 // Uniform grid over the domain; x and z may be periodic (minimum image), y is walled.
 struct GridParams {
     domain_min: vec3<f32>,

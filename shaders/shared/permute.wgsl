@@ -3,6 +3,7 @@
 // A template (WGSL has no generics): src/gpu/shaders.rs builds the stages permute4.wgsl
 // (ELEM = vec4<f32>, entry points permute4/copy4) and permute2.wgsl (vec2<u32>, permute2/copy2)
 // from it by replacing ELEM and WIDTH.
+//!include shared/common.wgsl
 
 struct CountParams {
     n: u32,
@@ -15,10 +16,6 @@ struct CountParams {
 @group(0) @binding(1) var<storage, read_write> order: array<u32>;
 @group(0) @binding(2) var<storage, read_write> src: array<ELEM>;
 @group(0) @binding(3) var<storage, read_write> dst: array<ELEM>;
-
-fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
-    return gid.y * nwg.x * 64u + gid.x;
-}
 
 @compute @workgroup_size(64)
 fn permuteWIDTH(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {

@@ -59,11 +59,8 @@ pub fn level_radius(h0: f64, level: u32) -> f64 {
     h0 * (-(level as f64) / 3.0).exp2()
 }
 
-pub fn pcg_hash(v: u32) -> u32 {
-    let state = v.wrapping_mul(747796405).wrapping_add(2891336453);
-    let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277803737);
-    (word >> 22) ^ word
-}
+/// The shaders' `pcg_hash` (shared/common.wgsl); one mirror for noise and split directions.
+pub use crate::sim::noise::pcg_hash;
 
 /// Unit direction of a split from the particle id (uniform on the sphere).
 pub fn split_dir(id: u32) -> [f64; 3] {
