@@ -25,7 +25,8 @@ struct PbfParams {
     // 1 when every particle is on level 0 (no split particles): the pair terms then skip the
     // level look-up and the per-level kernel pairs (same values: eq. 19 of equal radii is W)
     single_level: u32,
-    _p1: f32,
+    // under-density up to this fraction is left alone (solver.expansion_tolerance)
+    expansion_tolerance: f32,
     _p2: f32,
     // per level l: (h_l, poly6 factor 315/(64 pi h^9), spiky factor -45/(pi h^6), m_l): no pow or
     // exp2 per neighbour pair (the dominant cost on CPU Vulkan)
@@ -213,13 +214,17 @@ fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) {
         }
     }
 }
+// Wall particles continue the level-0 lattice and weigh m0 whatever the fluid particle's level
+// (eq. 18 with the fluid's own mass starved split particles: a level-3 particle got 0.07 rho0
+// from the wall instead of 0.5 and was never pushed off it).
 fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
     let xik = min_image_r(me.p - bpos[k].xyz, me.inv);
     let r2 = dot(xik, xik);
     let hm = max(me.hi, prm.h0);
     if (r2 < hm * hm) {
-        (*a).rho += me.mi * wsym(r2, me.lv, prm.lv[0]);
-        (*a).grad += gsym(xik, sqrt(r2), me.lv, prm.lv[0]) * (me.mi / prm.rest_density);
+        let m = prm.lv[0].w;
+        (*a).rho += m * wsym(r2, me.lv, prm.lv[0]);
+        (*a).grad += gsym(xik, sqrt(r2), me.lv, prm.lv[0]) * (m / prm.rest_density);
     }
 }
 
@@ -248,7 +253,13 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
     // is largest, at small r: pairs collapse and accelerate into each other (measured: a box at
     // rest without gravity reached the 30 m/s speed clamp within 2 s whatever the relaxation).
     // Air parcels do not pull on each other; s_corr keeps its small repulsion.
-    let constraint = max(a.rho / prm.rest_density - 1.0, 0.0);
+    var constraint = a.rho / prm.rest_density - 1.0;
+    if (constraint < 0.0) {
+        constraint = min(constraint + prm.expansion_tolerance, 0.0);
+        // split particles: compression only (their eq. 19 density reads low next to coarser
+        // neighbours, and pulling them in clumps them)
+        if (me.li > 0u) { constraint = 0.0; }
+    }
     scratch[i] = vec4<f32>(me.p, -constraint / (a.g2 + dot(a.grad, a.grad) + prm.eps));
     density[i] = a.rho;
 }
@@ -294,7 +305,7 @@ fn delta_wall(dp: ptr<function, vec3<f32>>, me: Me, k: u32) {
     let r2 = dot(xik, xik);
     let hm = max(me.hi, prm.h0);
     if (r2 < hm * hm) {
-        let s = (me.lam + scorr(r2, me.lv, prm.lv[0])) * me.mi;
+        let s = (me.lam + scorr(r2, me.lv, prm.lv[0])) * prm.lv[0].w;
         *dp += s * gsym(xik, sqrt(r2), me.lv, prm.lv[0]);
     }
 }
@@ -326,7 +337,9 @@ fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
 fn update_velocity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= grid.n_particles) { return; }
-    vel[i] = vec4<f32>(min_image(pred[i].xyz - pos[i].xyz, grid) * prm.inv_dt, 0.0);
+    // w: the height gained in this substep, for the adiabatic cooling of eq. 7 (thermo.wgsl)
+    let d = min_image(pred[i].xyz - pos[i].xyz, grid);
+    vel[i] = vec4<f32>(d * prm.inv_dt, d.y);
 }
 
 // Pair terms of the velocity passes for a candidate j with r2 < h0^2: j's level constants and
@@ -441,5 +454,5 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     if (use_vort && le > 0.0) {
         v += prm.dt * prm.vorticity * cross(eta / le, pos[i].xyz);
     }
-    scratch[i] = vec4<f32>(clamp_speed(v), 0.0);
+    scratch[i] = vec4<f32>(clamp_speed(v), vel[i].w);
 }

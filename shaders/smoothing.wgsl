@@ -8,7 +8,9 @@
 //   dC_i/dT_i = S_i = sum_j a_ij, dC_i/dT_k = -a_ik (eq. 16)
 //   lambda_i = -C_i / (S_i^2 + sum_k a_ik^2)        (eq. 17a)
 //   T*_i = T_i + kappa lambda_i S_i                 (eq. 17b)
-// Boundary particles are neighbours with their own fixed temperature (boundary.w), level 0.
+// Walls: insulated (S.fixed_walls = 0: the boundary particles are left out, no heat crosses the
+// floor or the ceiling) or fixed-temperature (neighbours with their own temperature boundary.w,
+// level 0). kappa is the per-iteration share of the configured rate (SmoothParams::new).
 //!include shared/common.wgsl
 
 struct SmoothParams {
@@ -17,7 +19,7 @@ struct SmoothParams {
     kappa: f32,
     epsilon: f32,
     volume0: f32,
-    _pad0: u32,
+    fixed_walls: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -97,6 +99,7 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                     sum_a2 += a * a;
                     c += a * (ti - thermo_in[j].x);
                 }
+                if (S.fixed_walls == 0u) { continue; }
                 let k_end = boundary_cell_start[e.y];
                 for (var k = boundary_cell_start[e.x]; k < k_end; k++) {
                     let b = boundary[k];

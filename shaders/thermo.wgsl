@@ -13,7 +13,7 @@ struct ThermoParams {
     count: u32,
     seed: u32,
     ground_temperature: f32,
-    environment_lapse_rate: f32,
+    lapse_rate: f32,
     adiabatic_lapse_rate: f32,
     heat_source: f32,
     heat_height: f32,
@@ -31,8 +31,18 @@ struct ThermoParams {
     saturation_b: f32,
     saturation_c: f32,
     latent_heat: f32,
+    inversion_base: f32,
+    inversion_depth: f32,
+    inversion_strength: f32,
+    lapse_above: f32,
+    heat_noise: u32,
+    n_sources: u32,
+    size_x: f32,
+    size_z: f32,
+    periodic: u32,
     _pad0: u32,
-    _pad1: u32,
+    // (centre x, centre z, radius, strength K/s)
+    sources: array<vec4<f32>, 8>,
 }
 
 @group(0) @binding(0) var<uniform> P: ThermoParams;
@@ -83,6 +93,37 @@ fn heat_factor(x: f32, z: f32, time: f32) -> f32 {
     return clamp((n - 0.5) * P.noise_contrast + 0.5, 0.0, 1.0);
 }
 
+// Shortest signed distance along a periodic axis (bit set) of extent s.
+fn wrap_delta(d: f32, s: f32, periodic: bool) -> f32 {
+    return select(d, d - s * round(d / s), periodic);
+}
+
+// Heating rate (K/s) at ground point (x, z): the noise pattern and the disc sources
+// (mirror: sim::reference::thermo::heating_rate; falloff: HeatSource::falloff).
+fn heating_rate(x: f32, z: f32, time: f32) -> f32 {
+    var rate = 0.0;
+    if (P.heat_noise != 0u) { rate = P.heat_source * heat_factor(x, z, time); }
+    for (var k = 0u; k < P.n_sources; k++) {
+        let src = P.sources[k];
+        let dx = wrap_delta(x - src.x, P.size_x, (P.periodic & 1u) != 0u);
+        let dz = wrap_delta(z - src.y, P.size_z, (P.periodic & 4u) != 0u);
+        let t = clamp((src.z - sqrt(dx * dx + dz * dz)) / (0.3 * src.z), 0.0, 1.0);
+        rate += src.w * t * t * (3.0 - 2.0 * t);
+    }
+    return rate;
+}
+
+// Environment temperature T0(y): piecewise linear with an optional capping inversion
+// (EnvironmentConfig::temperature).
+fn environment_temperature(y: f32) -> f32 {
+    let below = min(y, P.inversion_base);
+    let inside = clamp(y - P.inversion_base, 0.0, P.inversion_depth);
+    let above = max(y - P.inversion_base - P.inversion_depth, 0.0);
+    var rise = select(0.0, P.inversion_strength, y > P.inversion_base);
+    if (P.inversion_depth > 0.0) { rise = P.inversion_strength * inside / P.inversion_depth; }
+    return P.ground_temperature - P.lapse_rate * below + rise - P.lapse_above * above;
+}
+
 @compute @workgroup_size(64)
 fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
@@ -94,15 +135,17 @@ fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
 
     // eq. 5: dT/dt = Se near the ground, in a noise pattern over the ground that drifts in time.
     if (p.y < P.heat_height) {
-        temp = temp + P.dt * P.heat_source * heat_factor(p.x, p.z, P.time);
+        temp = temp + P.dt * heating_rate(p.x, p.z, P.time);
     }
 
     // eq. 6: F = kb (T - T0) / T0 j - kg w j, applied as a velocity change dt F.
-    let t0 = P.ground_temperature - P.environment_lapse_rate * p.y;
+    let t0 = environment_temperature(p.y);
     u.y = u.y + P.dt * (P.buoyancy * (temp - t0) / t0 - P.cloud_weight * th.z);
 
-    // eq. 7: dT/dt = -Gamma_d u_y (with the velocity after eq. 6).
-    temp = temp - P.adiabatic_lapse_rate * u.y * P.dt;
+    // eq. 7: dT = -Gamma_d dy over the height this substep's move gained (vel.w, written by
+    // pbf.wgsl's update_velocity): T + Gamma_d y is kept exactly by a dry parcel, however the
+    // constraint solve moved it (u_y dt cooled parcels that the solve held in place).
+    temp = temp - P.adiabatic_lapse_rate * u.w;
 
     // eqs. 8-10: w moves towards v - gamma, gamma = min(A exp(B / (T + C)), v + w). The total
     // s = v + w is kept: w is clamped into [0, s] and v = s - w, so neither goes negative.

@@ -92,11 +92,12 @@ fn random_thermo_state(n: usize, seed: u64, cfg: &ShotConfig) -> State {
             rng.random_range(0.0..s[2]) as f32,
             0.0,
         ]);
+        // w: the height gained by the substep's move (eq. 7)
         vel.push([
             rng.random_range(-1.0..1.0f32),
             rng.random_range(-6.0..6.0f32),
             rng.random_range(-1.0..1.0f32),
-            0.0,
+            rng.random_range(-12.0..12.0f32),
         ]);
         let base = initial_thermo(&cfg.physics, y);
         // Temperatures around the environment, vapor from 0.2 to 2.5 times the initial value,
@@ -119,7 +120,18 @@ fn random_thermo_state(n: usize, seed: u64, cfg: &ShotConfig) -> State {
 #[test]
 fn thermo_step_matches_mirror() {
     let ctx = context();
-    let cfg = shot();
+    let mut cfg = shot();
+    // Every term of T0(y) and of the heating: an inversion inside the box and a disc source
+    // across the periodic x face besides the noise.
+    cfg.physics.environment.inversion_height = Some(1500.0);
+    cfg.physics.environment.inversion_strength = 3.0;
+    cfg.physics.environment.lapse_rate_above = Some(0.002);
+    cfg.physics.sources.push(nimbus::config::HeatSource {
+        shape: nimbus::config::SourceShape::Disc,
+        center: [1900.0, 800.0],
+        radius: 400.0,
+        strength: 0.1,
+    });
     let stage = ThermoStage::new(&ctx, &cfg).unwrap();
     let n = 3000;
     let (pos, vel, th) = random_thermo_state(n, 42, &cfg);
@@ -130,10 +142,7 @@ fn thermo_step_matches_mirror() {
         .iter()
         .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
         .collect();
-    let mut vel64: Vec<[f64; 3]> = vel
-        .iter()
-        .map(|v| [v[0] as f64, v[1] as f64, v[2] as f64])
-        .collect();
+    let mut vel64: Vec<[f64; 4]> = vel.iter().map(|v| v.map(|c| c as f64)).collect();
     let mut th64: Vec<[f64; 4]> = th.iter().map(|t| t.map(|v| v as f64)).collect();
     thermo_step(&params, &pos64, &mut vel64, &mut th64);
 
@@ -320,7 +329,7 @@ fn smooth_params(s: &Scene, kappa: f32) -> SmoothParams {
         kappa,
         epsilon: 1e-2,
         volume0: 1000.0,
-        _pad0: 0,
+        fixed_walls: 1,
         _pad1: 0,
         _pad2: 0,
     }

@@ -42,9 +42,15 @@ pub struct OutputConfig {
     /// Simulated seconds per frame.
     #[serde(default = "d_frame_seconds")]
     pub frame_seconds: f64,
-    /// Simulation substeps per frame.
+    /// Fewest simulation substeps per frame; more are taken where `cfl` asks for them.
     #[serde(default = "d_substeps")]
     pub substeps: u32,
+    /// Most substeps per frame the CFL control may take.
+    #[serde(default = "d_max_substeps")]
+    pub max_substeps: u32,
+    /// CFL number: a substep moves no particle farther than `cfl` times its kernel radius.
+    #[serde(default = "d_cfl")]
+    pub cfl: f64,
     /// Digits of the frame number in file names.
     #[serde(default = "d_padding")]
     pub frame_padding: u32,
@@ -62,6 +68,12 @@ fn d_frame_seconds() -> f64 {
 }
 fn d_substeps() -> u32 {
     2
+}
+fn d_max_substeps() -> u32 {
+    64
+}
+fn d_cfl() -> f64 {
+    0.4
 }
 fn d_padding() -> u32 {
     4
@@ -184,8 +196,16 @@ pub struct SolverConfig {
     pub scorr_k: f64,
     pub scorr_n: u32,
     pub scorr_dq: f64,
-    /// XSPH viscosity c.
+    /// XSPH viscosity c: the fraction of the velocity difference to the neighbours' average
+    /// removed per `reference_step` seconds of simulated time.
     pub xsph: f64,
+    /// Under-density (fraction of rho0) the density constraint leaves alone; larger voids are
+    /// filled. Split particles are held against compression only.
+    pub expansion_tolerance: f64,
+    /// Simulated time (s) over which `solver.xsph` and `physics.smoothing.kappa` apply their
+    /// fraction: a substep of dt applies 1 - (1 - c)^(dt / reference_step), so the look does
+    /// not change with the number of substeps.
+    pub reference_step: f64,
     /// Vorticity confinement epsilon (m/s): acceleration = vorticity * (N x omega).
     pub vorticity: f64,
     /// Constant gravity (m/s^2, downward); 0 = none (paper example 1).
@@ -198,11 +218,13 @@ impl Default for SolverConfig {
         Self {
             iterations: 4,
             rest_density: 1.0,
-            relaxation: 1.0e-1,
-            scorr_k: 1.0e-4,
+            relaxation: 1.0,
+            scorr_k: 0.1,
             scorr_n: 4,
             scorr_dq: 0.2,
             xsph: 0.01,
+            reference_step: 4.0,
+            expansion_tolerance: 0.01,
             vorticity: 0.0,
             gravity: 0.0,
             max_speed: 30.0,
@@ -213,14 +235,18 @@ impl Default for SolverConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PhysicsConfig {
-    /// Environment temperature at the floor (K), T0(y) linear in y.
+    /// Environment temperature at the floor (K).
     pub ground_temperature: f64,
-    /// Environment lapse rate (K per metre, positive = cooler aloft).
-    pub environment_lapse_rate: f64,
+    /// Environment temperature profile T0(y) above the floor.
+    pub environment: EnvironmentConfig,
     /// Dry adiabatic lapse rate Gamma_d (K per metre), eq. 7.
     pub adiabatic_lapse_rate: f64,
     /// Ground heating Se (K/s), eq. 5, applied below `heat_height`, modulated by noise.
     pub heat_source: f64,
+    /// Whether the noise pattern heats the ground (`heat_source` x noise); the `sources` add to it.
+    pub heat_noise: bool,
+    /// Heat sources on the ground besides the noise pattern.
+    pub sources: Vec<HeatSource>,
     pub heat_height: f64,
     /// Feature size of the heating noise over the ground (m) and its change rate (1/s).
     pub heat_noise_scale: f64,
@@ -249,9 +275,11 @@ impl Default for PhysicsConfig {
     fn default() -> Self {
         Self {
             ground_temperature: 295.0,
-            environment_lapse_rate: 0.0065,
+            environment: EnvironmentConfig::default(),
             adiabatic_lapse_rate: 0.0098,
             heat_source: 0.15,
+            heat_noise: true,
+            sources: Vec::new(),
             heat_height: 100.0,
             heat_noise_scale: 400.0,
             heat_noise_speed: 0.002,
@@ -270,21 +298,83 @@ impl Default for PhysicsConfig {
     }
 }
 
+/// T0(y): `lapse_rate` up to the inversion base, a rise of `inversion_strength` over
+/// `inversion_depth`, then `lapse_rate_above`; piecewise linear and continuous.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EnvironmentConfig {
+    /// K per metre below the inversion (positive = cooler aloft).
+    pub lapse_rate: f64,
+    /// Height of the inversion base (m); `null` = no inversion.
+    pub inversion_height: Option<f64>,
+    /// Thickness of the inversion layer (m).
+    pub inversion_depth: f64,
+    /// Warming across the inversion layer (K).
+    pub inversion_strength: f64,
+    /// K per metre above the inversion; `null` = `lapse_rate`.
+    pub lapse_rate_above: Option<f64>,
+}
+impl Default for EnvironmentConfig {
+    fn default() -> Self {
+        Self {
+            lapse_rate: 0.0065,
+            inversion_height: None,
+            inversion_depth: 100.0,
+            inversion_strength: 0.0,
+            lapse_rate_above: None,
+        }
+    }
+}
+
+/// A heat source on the ground, applied like `heat_source` to the particles below
+/// `heat_height`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeatSource {
+    pub shape: SourceShape,
+    /// Centre (x, z) on the ground (m).
+    pub center: [f64; 2],
+    /// Radius (m): full strength out to 0.7 radius, falling smoothly to 0 at the radius.
+    pub radius: f64,
+    /// Heating at full strength (K/s).
+    pub strength: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SourceShape {
+    Disc,
+}
+
+/// How the walls take part in the temperature smoothing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WallHeat {
+    /// No heat crosses the floor or the ceiling.
+    Insulated,
+    /// The wall particles hold the environment temperature of their wall.
+    Fixed,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SmoothingConfig {
     pub enabled: bool,
-    /// kappa of eq. 17b.
+    /// Heat exchange with the floor and the ceiling.
+    pub walls: WallHeat,
+    /// kappa of eq. 17b: the fraction of the smoothing correction applied per
+    /// `solver.reference_step` seconds of simulated time.
     pub kappa: f64,
     /// epsilon of eq. 13 (m^2).
     pub epsilon: f64,
-    /// Smoothing iterations per substep.
+    /// Jacobi iterations per substep; each applies its share of kappa.
     pub iterations: u32,
 }
 impl Default for SmoothingConfig {
     fn default() -> Self {
         Self {
             enabled: true,
+            walls: WallHeat::Insulated,
             kappa: 0.1,
             epsilon: 1.0e-2,
             iterations: 1,
@@ -452,5 +542,40 @@ pub struct CheckpointConfig {
 impl Default for CheckpointConfig {
     fn default() -> Self {
         Self { every: 10, keep: 3 }
+    }
+}
+
+impl EnvironmentConfig {
+    /// Lapse rate above the inversion.
+    pub fn lapse_above(&self) -> f64 {
+        self.lapse_rate_above.unwrap_or(self.lapse_rate)
+    }
+    /// Environment temperature T0(y) (K) for a ground temperature `ground` (K).
+    pub fn temperature(&self, ground: f64, y: f64) -> f64 {
+        let Some(base) = self.inversion_height else {
+            return ground - self.lapse_rate * y;
+        };
+        let below = y.min(base);
+        let inside = (y - base).clamp(0.0, self.inversion_depth);
+        let above = (y - base - self.inversion_depth).max(0.0);
+        let rise = if self.inversion_depth > 0.0 {
+            self.inversion_strength * inside / self.inversion_depth
+        } else if y > base {
+            self.inversion_strength
+        } else {
+            0.0
+        };
+        ground - self.lapse_rate * below + rise - self.lapse_above() * above
+    }
+}
+
+impl HeatSource {
+    /// Fraction in [0, 1] of the source's strength at ground point (x, z), with the shortest
+    /// periodic distance `d` (x, z) from the centre: 1 inside 0.7 radius, a smoothstep to 0 at
+    /// the radius.
+    pub fn falloff(radius: f64, dx: f64, dz: f64) -> f64 {
+        let r = (dx * dx + dz * dz).sqrt();
+        let t = ((radius - r) / (0.3 * radius)).clamp(0.0, 1.0);
+        t * t * (3.0 - 2.0 * t)
     }
 }

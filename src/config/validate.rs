@@ -154,6 +154,25 @@ fn check_output(k: &mut Checks, o: &OutputConfig) {
     k.within("output.fps", o.fps, 1.0e-3, 1000.0);
     k.positive("output.frame_seconds", o.frame_seconds);
     k.uint_within("output.substeps", o.substeps, 1, 1000);
+    k.uint_within("output.max_substeps", o.max_substeps, 1, 1000);
+    if o.max_substeps < o.substeps {
+        k.fail(
+            &["output.max_substeps", "output.substeps"],
+            format!(
+                "max_substeps ({}) is below substeps ({}), the fewest substeps per frame",
+                o.max_substeps, o.substeps
+            ),
+        );
+    }
+    if k.finite("output.cfl", o.cfl) && !(o.cfl > 0.0 && o.cfl <= 1.0) {
+        k.fail(
+            &["output.cfl"],
+            format!(
+                "expected a number in (0, 1] (kernel radii per substep), got {}",
+                num(o.cfl)
+            ),
+        );
+    }
     k.uint_within("output.frame_padding", o.frame_padding, 1, 10);
     if (1..=10).contains(&o.frame_padding) && digits(o.frames.end) > o.frame_padding {
         k.fail(
@@ -318,6 +337,7 @@ fn check_solver(k: &mut Checks, s: &SolverConfig, c: &ShotConfig) {
         );
     }
     k.within("solver.xsph", s.xsph, 0.0, 1.0);
+    k.positive("solver.reference_step", s.reference_step);
     k.non_negative("solver.vorticity", s.vorticity);
     k.non_negative("solver.gravity", s.gravity);
     k.positive("solver.max_speed", s.max_speed);
@@ -335,7 +355,52 @@ fn check_solver(k: &mut Checks, s: &SolverConfig, c: &ShotConfig) {
 
 fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
     k.positive("physics.ground_temperature", p.ground_temperature);
-    k.finite("physics.environment_lapse_rate", p.environment_lapse_rate);
+    let env = &p.environment;
+    k.finite("physics.environment.lapse_rate", env.lapse_rate);
+    if let Some(h) = env.inversion_height {
+        k.non_negative("physics.environment.inversion_height", h);
+    }
+    k.non_negative("physics.environment.inversion_depth", env.inversion_depth);
+    k.finite(
+        "physics.environment.inversion_strength",
+        env.inversion_strength,
+    );
+    if let Some(l) = env.lapse_rate_above {
+        k.finite("physics.environment.lapse_rate_above", l);
+    }
+    if p.sources.len() > crate::sim::thermo::MAX_SOURCES {
+        k.fail(
+            &["physics.sources"],
+            format!(
+                "{} sources; at most {} are supported",
+                p.sources.len(),
+                crate::sim::thermo::MAX_SOURCES
+            ),
+        );
+    }
+    for (i, src) in p.sources.iter().enumerate() {
+        let key = |f: &str| format!("physics.sources[{i}].{f}");
+        k.positive(&key("radius"), src.radius);
+        k.non_negative(&key("strength"), src.strength);
+        for (a, (&c, &size)) in src
+            .center
+            .iter()
+            .zip([c.domain.size[0], c.domain.size[2]].iter())
+            .enumerate()
+        {
+            if k.finite(&key("center"), c) && !(0.0..=size).contains(&c) {
+                k.fail(
+                    &[&key("center")],
+                    format!(
+                        "centre {} m is outside the domain along {} [0, {}]",
+                        num(c),
+                        ["x", "z"][a],
+                        num(size)
+                    ),
+                );
+            }
+        }
+    }
     k.non_negative("physics.adiabatic_lapse_rate", p.adiabatic_lapse_rate);
     k.non_negative("physics.heat_source", p.heat_source);
     k.non_negative("physics.heat_height", p.heat_height);
@@ -362,12 +427,18 @@ fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
 
     // The environment must stay above absolute zero and above -C (eq. 10 divides by T + C).
     let height = c.domain.size[1];
-    let top = p.ground_temperature - p.environment_lapse_rate * height;
-    let coldest = p.ground_temperature.min(top);
+    let mut coldest = p.ground_temperature;
+    let mut marks = vec![height];
+    if let Some(h) = env.inversion_height {
+        marks.extend([h, h + env.inversion_depth]);
+    }
+    for y in marks.into_iter().filter(|&y| y <= height) {
+        coldest = coldest.min(env.temperature(p.ground_temperature, y));
+    }
     if coldest.is_finite() && height.is_finite() && height > 0.0 {
         if coldest <= 0.0 {
             k.fail(
-                &["physics.environment_lapse_rate", "physics.ground_temperature"],
+                &["physics.environment.lapse_rate", "physics.ground_temperature"],
                 format!(
                     "the environment reaches {} K at the top of the domain ({} m); it must stay above 0 K",
                     num(coldest),
@@ -604,8 +675,8 @@ mod tests {
             (|c| c.physics.phase_rate = 10.0, "physics.phase_rate"),
             (|c| c.physics.saturation_c = -400.0, "physics.saturation_c"),
             (
-                |c| c.physics.environment_lapse_rate = 10.0,
-                "physics.environment_lapse_rate",
+                |c| c.physics.environment.lapse_rate = 10.0,
+                "physics.environment.lapse_rate",
             ),
             (|c| c.physics.initial_speed = 100.0, "physics.initial_speed"),
             (

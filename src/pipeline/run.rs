@@ -152,6 +152,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions) -> Result<()> {
         stats,
         pending_stats: Vec::new(),
     };
+    let initial_layers = crate::sim::diagnostics::initial_layer_mass(cfg);
     let result = (|| -> Result<()> {
         for frame in first_frame..=end {
             let t0 = Instant::now();
@@ -162,6 +163,12 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions) -> Result<()> {
             let clock = sim.clock();
             let mut diagnostics = report.diagnostics.clone();
             diagnostics.extend(crate::sim::diagnostics::cloud_diagnostics(&state, cfg));
+            diagnostics.extend(crate::sim::diagnostics::atmosphere_diagnostics(
+                &state,
+                cfg,
+                &initial_layers,
+                clock.time,
+            ));
             loop_state.pending_stats.push(FrameStats {
                 frame,
                 sim_time: clock.time,

@@ -114,6 +114,187 @@ pub fn cloud_diagnostics(state: &ParticleState, cfg: &ShotConfig) -> BTreeMap<St
     out
 }
 
+/// Horizontal layers of the per-layer mass ratio.
+pub const MASS_LAYERS: usize = 10;
+
+/// Initial mass of each of [`MASS_LAYERS`] equal horizontal layers (units of m0), from the
+/// initial lattice (`sim::init::lattice`) spread as in [`spread_over_layers`]: the reference of
+/// `layer_mass_ratio_*`.
+pub fn initial_layer_mass(cfg: &ShotConfig) -> Vec<f64> {
+    let (n, d) = crate::sim::init::lattice(cfg);
+    let mut out = vec![0.0; MASS_LAYERS];
+    let per_row = (n[0] * n[2]) as f64;
+    for j in 0..n[1] {
+        let y = (j as f64 + 0.5) * d[1];
+        spread_over_layers(&mut out, cfg.domain.size[1], y, d[1], per_row);
+    }
+    out
+}
+
+/// Adds `mass` to the layers, spread with a tent of half-width s (s = the particle's spacing,
+/// d 2^(-l/3); cloud-in-cell weights) clipped to the box and renormalised: a lattice fills the
+/// height evenly, and a row that moves a metre across a layer face moves a metre's worth of
+/// mass, not the whole row (with ~2.4 rows a layer, counting whole rows swings a layer's mass by
+/// 30%, and a box of width s still by a few percent where the packing changes near a wall).
+fn spread_over_layers(layers: &mut [f64], height: f64, y: f64, s: f64, mass: f64) {
+    // cumulative weight of the tent centred at y below height u
+    let cdf = |u: f64| {
+        let t = ((u - y) / s).clamp(-1.0, 1.0);
+        if t < 0.0 {
+            0.5 * (1.0 + t) * (1.0 + t)
+        } else {
+            1.0 - 0.5 * (1.0 - t) * (1.0 - t)
+        }
+    };
+    let inside = cdf(height) - cdf(0.0);
+    let dz = height / layers.len() as f64;
+    if inside <= 0.0 {
+        let k = ((y.clamp(0.0, height) / dz) as usize).min(layers.len() - 1);
+        layers[k] += mass;
+        return;
+    }
+    let lo = ((y - s).max(0.0) / dz) as usize;
+    let hi = (((y + s).min(height) / dz) as usize).min(layers.len() - 1);
+    for (k, layer) in layers.iter_mut().enumerate().take(hi + 1).skip(lo) {
+        let w = cdf((k + 1) as f64 * dz) - cdf(k as f64 * dz);
+        *layer += mass * w / inside;
+    }
+}
+
+/// Mass of each layer now over its initial mass (`initial_layer_mass`); layers with no initial
+/// mass are left out.
+pub fn layer_mass_ratios(state: &ParticleState, cfg: &ShotConfig, initial: &[f64]) -> Vec<f64> {
+    let mut layers = vec![0.0; MASS_LAYERS];
+    for (p, info) in state.pos.iter().zip(&state.info) {
+        let level = info[1] as f64;
+        let spacing = cfg.domain.spacing * (-level / 3.0).exp2();
+        spread_over_layers(
+            &mut layers,
+            cfg.domain.size[1],
+            p[1] as f64,
+            spacing,
+            (-level).exp2(),
+        );
+    }
+    layers
+        .iter()
+        .zip(initial)
+        .filter(|(_, &m0)| m0 > 0.0)
+        .map(|(&m, &m0)| m / m0)
+        .collect()
+}
+
+/// Height below which `q` of the cloud mass lies (mass-weighted quantile of y; `pts` is
+/// (y, cloud mass), sorted here).
+fn cloud_quantile(pts: &mut [(f64, f64)], total: f64, q: f64) -> f64 {
+    pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut acc = 0.0;
+    for &(y, m) in pts.iter() {
+        acc += m;
+        if acc >= q * total {
+            return y;
+        }
+    }
+    pts.last().map_or(0.0, |p| p.0)
+}
+
+/// Diagnostics of the air itself, so that a failing atmosphere shows in stats.jsonl without
+/// reading VDBs (docs/PHYSICS.md "Diagnostics"). Keys:
+/// - `layer_mass_ratio_min`, `layer_mass_ratio_max`: over [`MASS_LAYERS`] equal horizontal
+///   layers, mass now / initial mass (1 in a box that neither drains nor piles up);
+/// - `cloud_ceiling_fraction`: cloud mass within one level-0 kernel radius h0 of the ceiling,
+///   as a fraction of all cloud mass; `cloud_top10_fraction`: in the top 10% of the height;
+///   `cloud_face_fraction`: within h0 of a periodic face (x or z);
+/// - `cloud_base`, `cloud_top` (m): heights below which 1% and 99% of the cloud mass lie (0
+///   without cloud);
+/// - `static_energy_mean` (K): mass-weighted mean of the liquid-water static temperature
+///   T + Gamma_d y - Q w, which only heating and mixing with the walls change: its rise from
+///   one frame to the next is the heat that stayed in the air;
+/// - `heat_input_mean` (K): the mass-weighted mean heating of this frame, estimated as the
+///   heating rate of eq. 5 (with the sources) at the frame-end state times frame_seconds;
+/// - `clamped_particles`: particles at the speed clamp (|v| >= 0.999 solver.max_speed).
+pub fn atmosphere_diagnostics(
+    state: &ParticleState,
+    cfg: &ShotConfig,
+    initial_layers: &[f64],
+    time: f64,
+) -> BTreeMap<String, f64> {
+    let p = &cfg.physics;
+    let size = cfg.domain.size;
+    let h0 = cfg.domain.spacing * cfg.domain.kernel_ratio;
+    let periodic = [
+        cfg.domain.periodic.contains(&crate::config::Axis::X),
+        cfg.domain.periodic.contains(&crate::config::Axis::Z),
+    ];
+    let heat = crate::sim::thermo::ThermoParams::new(cfg, state.len() as u32, 1.0, time);
+    let max_speed = cfg.solver.max_speed;
+    let (mut cloud, mut ceiling, mut top10, mut face) = (0.0, 0.0, 0.0, 0.0);
+    let (mut mass, mut energy, mut heating) = (0.0, 0.0, 0.0);
+    let mut clamped = 0usize;
+    let mut cloud_pts = Vec::new();
+    for i in 0..state.len() {
+        let m = (-(state.info[i][1] as f64)).exp2();
+        let q = state.pos[i].map(|v| v as f64);
+        let th = state.thermo[i].map(|v| v as f64);
+        let v = state.vel[i].map(|v| v as f64);
+        mass += m;
+        energy += m * (th[0] + p.adiabatic_lapse_rate * q[1] - p.latent_heat * th[2]);
+        heating += m * crate::sim::reference::thermo::heating_rate(&heat, [q[0], q[1], q[2]]);
+        if (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() >= 0.999 * max_speed {
+            clamped += 1;
+        }
+        let w = m * th[2];
+        if w > 0.0 {
+            cloud += w;
+            cloud_pts.push((q[1], w));
+            if q[1] > size[1] - h0 {
+                ceiling += w;
+            }
+            if q[1] > 0.9 * size[1] {
+                top10 += w;
+            }
+            let near = |a: usize| q[a] < h0 || q[a] > size[a] - h0;
+            if (periodic[0] && near(0)) || (periodic[1] && near(2)) {
+                face += w;
+            }
+        }
+    }
+    let ratios = layer_mass_ratios(state, cfg, initial_layers);
+    let frac = |x: f64| if cloud > 0.0 { x / cloud } else { 0.0 };
+    let mut out = BTreeMap::new();
+    let min = ratios.iter().copied().fold(f64::INFINITY, f64::min);
+    let max = ratios.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    out.insert(
+        "layer_mass_ratio_min".into(),
+        if ratios.is_empty() { 1.0 } else { min },
+    );
+    out.insert(
+        "layer_mass_ratio_max".into(),
+        if ratios.is_empty() { 1.0 } else { max },
+    );
+    out.insert("cloud_ceiling_fraction".into(), frac(ceiling));
+    out.insert("cloud_top10_fraction".into(), frac(top10));
+    out.insert("cloud_face_fraction".into(), frac(face));
+    let (base, top) = if cloud > 0.0 {
+        (
+            cloud_quantile(&mut cloud_pts, cloud, 0.01),
+            cloud_quantile(&mut cloud_pts, cloud, 0.99),
+        )
+    } else {
+        (0.0, 0.0)
+    };
+    out.insert("cloud_base".into(), base);
+    out.insert("cloud_top".into(), top);
+    let mean = |x: f64| if mass > 0.0 { x / mass } else { 0.0 };
+    out.insert("static_energy_mean".into(), mean(energy));
+    out.insert(
+        "heat_input_mean".into(),
+        mean(heating) * cfg.output.frame_seconds,
+    );
+    out.insert("clamped_particles".into(), clamped as f64);
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

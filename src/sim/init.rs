@@ -59,9 +59,9 @@ pub fn hash_uniform(seed: u64, index: u64, draw: u64) -> f64 {
     (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
 }
 
-/// Environment temperature T0(y) = ground - lapse * y.
+/// Environment temperature T0(y) (`physics.environment`).
 pub fn environment_temperature(cfg: &ShotConfig, y: f64) -> f64 {
-    cfg.physics.ground_temperature - cfg.physics.environment_lapse_rate * y
+    crate::sim::thermo::environment_temperature(&cfg.physics, y)
 }
 
 /// Saturation mixing ratio of eq. 10.

@@ -20,17 +20,21 @@ pub struct PbfParams {
     pub max_speed: f32,
     /// 1 when every particle is on level 0: the shader skips the per-pair level look-up.
     pub single_level: u32,
-    pub _pad: [f32; 2],
+    /// Under-density up to this fraction of rho0 is not corrected (`solver.expansion_tolerance`).
+    pub expansion_tolerance: f32,
+    pub _pad: f32,
     /// Per level l (0..8): (h_l, 315 / (64 pi h_l^9), -45 / (pi h_l^6), m_l).
     pub levels: [[f32; 4]; 8],
 }
 
 impl PbfParams {
+    /// The parameters at the shot's fewest substeps (`output.substeps`); [`Self::set_dt`]
+    /// changes the substep.
     pub fn for_shot(cfg: &ShotConfig) -> Self {
         let s = &cfg.solver;
         let h0 = crate::sim::init::kernel_radius(cfg);
         let dt = cfg.output.frame_seconds / cfg.output.substeps as f64;
-        Self {
+        let mut p = Self {
             dt: dt as f32,
             inv_dt: (1.0 / dt) as f32,
             rest_density: s.rest_density as f32,
@@ -45,7 +49,8 @@ impl PbfParams {
             gravity: s.gravity as f32,
             max_speed: s.max_speed as f32,
             single_level: 0,
-            _pad: [0.0; 2],
+            expansion_tolerance: s.expansion_tolerance as f32,
+            _pad: 0.0,
             levels: std::array::from_fn(|l| {
                 let h = h0 * (-(l as f64) / 3.0).exp2();
                 let pi = std::f64::consts::PI;
@@ -56,6 +61,22 @@ impl PbfParams {
                     (crate::sim::init::particle_mass(cfg) * (-(l as f64)).exp2()) as f32,
                 ]
             }),
-        }
+        };
+        p.set_dt(cfg, dt);
+        p
+    }
+
+    /// A substep of `dt` seconds: dt, 1/dt and the XSPH fraction of this substep,
+    /// `1 - (1 - solver.xsph)^(dt / solver.reference_step)`, and the s_corr strength
+    /// `solver.scorr_k dt / solver.reference_step`.
+    pub fn set_dt(&mut self, cfg: &ShotConfig, dt: f64) {
+        self.dt = dt as f32;
+        self.inv_dt = (1.0 / dt) as f32;
+        let share = dt / cfg.solver.reference_step;
+        self.xsph = crate::sim::smoothing::rate_share(cfg.solver.xsph, share) as f32;
+        // s_corr acts in every iteration of every substep, and its pushes add up like a
+        // stiffness: at 4x the substeps the same k held a heated layer in place (docs/PHYSICS.md
+        // "Substeps"); so k is per reference_step too
+        self.scorr_k = (cfg.solver.scorr_k * share) as f32;
     }
 }

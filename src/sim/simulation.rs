@@ -113,7 +113,9 @@ pub enum Buf {
 pub struct Simulation {
     ctx: Arc<Context>,
     clock: SimClock,
-    substeps: u32,
+    cfg: ShotConfig,
+    /// max over particles of |v| / h (1/s) in the newest state: the CFL control's input
+    speed_ratio: f64,
     iterations: u32,
     count: u32,
     capacity: u32,
@@ -362,7 +364,8 @@ impl Simulation {
             thermo,
             adaptive,
             clock,
-            substeps: cfg.output.substeps,
+            cfg: cfg.clone(),
+            speed_ratio: speed_ratio(&state.vel, &state.info, params.h0 as f64),
             iterations: cfg.solver.iterations,
             count: n as u32,
             capacity,
@@ -481,7 +484,9 @@ impl Simulation {
             .dispatch(pass, "copy4", &self.g.pred_to_pos, n, WG);
     }
 
-    fn encode_phase(&self, phase: &str, pass: &mut wgpu::ComputePass) {
+    /// `measure`: after the solve, one more density pass, so that the density the frame reports
+    /// is that of the corrected positions.
+    fn encode_phase(&self, phase: &str, pass: &mut wgpu::ComputePass, measure: bool) {
         match phase {
             "predict" => self.encode_predict(pass),
             "grid" => self.encode_grid(pass),
@@ -489,9 +494,28 @@ impl Simulation {
                 for _ in 0..self.iterations {
                     self.encode_iteration(pass);
                 }
+                if measure {
+                    self.k
+                        .pbf
+                        .dispatch(pass, "compute_lambda", &self.g.pbf, self.threads(), WG);
+                }
             }
             _ => self.encode_velocity(pass),
         }
+    }
+
+    /// Substeps for the next frame: the fewest (`output.substeps`) or as many as keep the
+    /// largest displacement per substep at `output.cfl` kernel radii, at most
+    /// `output.max_substeps`. A function of the state alone, so a resumed run takes the same.
+    pub fn substeps_for_next_frame(&self) -> u32 {
+        let o = &self.cfg.output;
+        let need = (self.speed_ratio * o.frame_seconds / o.cfl).ceil();
+        let need = if need.is_finite() {
+            need.min(u32::MAX as f64) as u32
+        } else {
+            u32::MAX
+        };
+        need.clamp(o.substeps, o.max_substeps.max(o.substeps))
     }
 
     fn wait(&self) -> Result<()> {
@@ -502,7 +526,8 @@ impl Simulation {
             .map_err(|e| Error::Runtime(format!("GPU poll failed: {e}")))
     }
 
-    /// Advances one frame: `output.substeps` substeps of dt = frame_seconds / substeps.
+    /// Advances one frame: [`Self::substeps_for_next_frame`] substeps of dt = frame_seconds /
+    /// substeps.
     pub fn step_frame(&mut self) -> Result<FrameReport> {
         // (phase, timing label)
         const PHASES: [(&str, &str); 4] = [
@@ -515,12 +540,21 @@ impl Simulation {
         let ctx = self.ctx.clone();
         let dev = &ctx.device;
         let mut last_error = (0.0, 0.0);
-        for sub in 0..self.substeps {
+        let substeps = self.substeps_for_next_frame();
+        let dt = self.cfg.output.frame_seconds / substeps as f64;
+        if self.params.dt != dt as f32 {
+            self.params.set_dt(&self.cfg, dt);
+            self.ctx
+                .queue
+                .write_buffer(&self.b.params_u, 0, bytemuck::bytes_of(&self.params));
+        }
+        for sub in 0..substeps {
+            let last = sub + 1 == substeps;
             if let Some(mut timer) = self.timer.take() {
                 let mut enc = dev.create_command_encoder(&Default::default());
                 for (phase, label) in PHASES {
                     let mut pass = timer.pass(&mut enc, label);
-                    self.encode_phase(phase, &mut pass);
+                    self.encode_phase(phase, &mut pass, last);
                 }
                 self.ctx.queue.submit([enc.finish()]);
                 self.timer = Some(timer);
@@ -530,7 +564,7 @@ impl Simulation {
                     let mut enc = dev.create_command_encoder(&Default::default());
                     {
                         let mut pass = enc.begin_compute_pass(&Default::default());
-                        self.encode_phase(phase, &mut pass);
+                        self.encode_phase(phase, &mut pass, last);
                     }
                     self.ctx.queue.submit([enc.finish()]);
                     self.wait()?;
@@ -545,7 +579,7 @@ impl Simulation {
             self.cloud_physics(&mut report)?;
             self.clock.step += 1;
             self.clock.time += self.params.dt as f64;
-            if sub + 1 == self.substeps {
+            if last {
                 // Read before split/merge, which move particles without their densities.
                 let density: Vec<f32> =
                     read_back(dev, &self.ctx.queue, &self.b.density, self.count as usize)?;
@@ -560,6 +594,16 @@ impl Simulation {
             report.phase_ms.extend(timer.collect(dev)?);
         }
         self.clock.frame += 1;
+        let (n, q) = (self.count as usize, &self.ctx.queue);
+        let vel: Vec<[f32; 4]> = read_back(dev, q, &self.b.vel, n)?;
+        let info: Vec<[u32; 2]> = read_back(dev, q, &self.b.info, n)?;
+        self.speed_ratio = speed_ratio(&vel, &info, self.params.h0 as f64);
+        report
+            .diagnostics
+            .insert("substeps".into(), substeps as f64);
+        report
+            .diagnostics
+            .insert("cfl_max".into(), self.speed_ratio * dt);
         let (mean, max) = last_error;
         report.diagnostics.insert("density_error_mean".into(), mean);
         report.diagnostics.insert("density_error_max".into(), max);
@@ -591,6 +635,7 @@ impl Simulation {
                 boundary_cell_start: &b.bcell_start,
             },
             self.count,
+            self.params.dt as f64,
         );
         self.ctx.queue.submit([enc.finish()]);
         self.wait()?;
@@ -783,6 +828,18 @@ impl Simulation {
             .queue
             .write_buffer(self.buffer(which), 0, bytemuck::cast_slice(data));
     }
+}
+
+/// max over particles of |v_i| / h_i (1/s), h_i = h0 2^(-l/3): times dt, the largest
+/// displacement per substep in kernel radii.
+pub fn speed_ratio(vel: &[[f32; 4]], info: &[[u32; 2]], h0: f64) -> f64 {
+    vel.iter()
+        .zip(info)
+        .map(|(v, i)| {
+            let s = (v[0] as f64).hypot(v[1] as f64).hypot(v[2] as f64);
+            s / (h0 * (-(i[1] as f64) / 3.0).exp2())
+        })
+        .fold(0.0, f64::max)
 }
 
 /// Mean and max of |rho / rho0 - 1| (summed in f64 in index order: deterministic).

@@ -26,27 +26,33 @@ pub struct SmoothParams {
     pub count: u32,
     /// Level-0 kernel radius h0 (m); level l has h0 2^(-l/3).
     pub h0: f32,
-    /// kappa of eq. 17b.
+    /// kappa of eq. 17b for one iteration: the share of the configured rate (see `new`).
     pub kappa: f32,
     /// epsilon of eq. 13 (m^2).
     pub epsilon: f32,
     /// Level-0 particle volume m0 / rho0 = spacing^3 (m^3); level l has volume0 2^-l.
     pub volume0: f32,
-    pub _pad0: u32,
+    /// 1: the walls hold their temperature; 0: insulated walls (no heat crosses them).
+    pub fixed_walls: u32,
     pub _pad1: u32,
     pub _pad2: u32,
 }
 
 impl SmoothParams {
-    pub fn new(cfg: &ShotConfig, count: u32) -> Self {
+    /// Parameters of one iteration in a substep of `dt` seconds: `physics.smoothing.kappa` is
+    /// the fraction applied per `solver.reference_step` seconds, so an iteration applies
+    /// `1 - (1 - kappa)^(dt / (reference_step iterations))` and a frame smooths as much at 2
+    /// substeps as at 8 (docs/PHYSICS.md "Substeps").
+    pub fn new(cfg: &ShotConfig, count: u32, dt: f64) -> Self {
         let s = &cfg.physics.smoothing;
+        let share = dt / (cfg.solver.reference_step * s.iterations.max(1) as f64);
         Self {
             count,
             h0: (cfg.domain.spacing * cfg.domain.kernel_ratio) as f32,
-            kappa: s.kappa as f32,
+            kappa: rate_share(s.kappa, share) as f32,
             epsilon: s.epsilon as f32,
             volume0: cfg.domain.spacing.powi(3) as f32,
-            _pad0: 0,
+            fixed_walls: (s.walls == crate::config::WallHeat::Fixed) as u32,
             _pad1: 0,
             _pad2: 0,
         }
@@ -102,14 +108,16 @@ impl SmoothingStage {
         }
     }
 
-    /// Records the configured number of iterations for the first `count` particles.
+    /// Records the configured number of iterations for the first `count` particles, for a
+    /// substep of `dt` seconds.
     pub fn encode(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
         bufs: &SmoothingBuffers,
         count: u32,
+        dt: f64,
     ) {
-        let params = SmoothParams::new(&self.cfg, count);
+        let params = SmoothParams::new(&self.cfg, count, dt);
         let iterations = self.iterations();
         self.encode_params(encoder, bufs, &params, iterations);
     }
@@ -168,6 +176,15 @@ impl SmoothingStage {
             encoder.copy_buffer_to_buffer(scratch, 0, bufs.thermo, 0, bytes);
         }
     }
+}
+
+/// The fraction a relaxation applies over `share` reference intervals when it applies `c` over
+/// one: `1 - (1 - c)^share` (c = 1 stays 1).
+pub fn rate_share(c: f64, share: f64) -> f64 {
+    if c >= 1.0 {
+        return 1.0;
+    }
+    -((share * (-c).ln_1p()).exp_m1())
 }
 
 #[cfg(test)]

@@ -39,7 +39,8 @@ pub struct ThermoParams {
     pub count: u32,
     pub seed: u32,
     pub ground_temperature: f32,
-    pub environment_lapse_rate: f32,
+    /// Environment lapse rate below the inversion (K/m).
+    pub lapse_rate: f32,
     pub adiabatic_lapse_rate: f32,
     pub heat_source: f32,
     pub heat_height: f32,
@@ -57,9 +58,28 @@ pub struct ThermoParams {
     pub saturation_b: f32,
     pub saturation_c: f32,
     pub latent_heat: f32,
-    pub _pad0: u32,
-    pub _pad1: u32,
+    /// Inversion base (m; 3e38 without inversion), depth (m), warming across it (K), lapse
+    /// rate above it (K/m): T0(y) of `EnvironmentConfig::temperature`.
+    pub inversion_base: f32,
+    pub inversion_depth: f32,
+    pub inversion_strength: f32,
+    pub lapse_above: f32,
+    /// 1 when the noise pattern heats (`physics.heat_noise`).
+    pub heat_noise: u32,
+    /// Live entries of `sources`.
+    pub n_sources: u32,
+    /// Domain extent in x and z (m) and the periodic bits of `GridParams` (the shortest
+    /// distance to a source centre wraps across periodic faces).
+    pub size_x: f32,
+    pub size_z: f32,
+    pub periodic: u32,
+    pub _pad: u32,
+    /// Heat sources: (centre x, centre z, radius, strength K/s).
+    pub sources: [[f32; 4]; MAX_SOURCES],
 }
+
+/// Most entries of `physics.sources`.
+pub const MAX_SOURCES: usize = 8;
 
 impl ThermoParams {
     /// Parameters of one substep of length `dt` (s) starting at simulated time `time` (s).
@@ -73,7 +93,7 @@ impl ThermoParams {
             count,
             seed: noise::fold_seed(cfg.seed),
             ground_temperature: p.ground_temperature as f32,
-            environment_lapse_rate: p.environment_lapse_rate as f32,
+            lapse_rate: p.environment.lapse_rate as f32,
             adiabatic_lapse_rate: p.adiabatic_lapse_rate as f32,
             heat_source: p.heat_source as f32,
             heat_height: p.heat_height as f32,
@@ -90,15 +110,33 @@ impl ThermoParams {
             saturation_b: p.saturation_b as f32,
             saturation_c: p.saturation_c as f32,
             latent_heat: p.latent_heat as f32,
-            _pad0: 0,
-            _pad1: 0,
+            inversion_base: p.environment.inversion_height.map_or(3.0e38, |h| h as f32),
+            inversion_depth: p.environment.inversion_depth as f32,
+            inversion_strength: p.environment.inversion_strength as f32,
+            lapse_above: p.environment.lapse_above() as f32,
+            heat_noise: p.heat_noise as u32,
+            n_sources: p.sources.len().min(MAX_SOURCES) as u32,
+            size_x: cfg.domain.size[0] as f32,
+            size_z: cfg.domain.size[2] as f32,
+            periodic: crate::sim::grid_params::GridParams::for_shot(cfg).periodic,
+            _pad: 0,
+            sources: std::array::from_fn(|k| {
+                p.sources.get(k).map_or([0.0; 4], |s| {
+                    [
+                        s.center[0] as f32,
+                        s.center[1] as f32,
+                        s.radius as f32,
+                        s.strength as f32,
+                    ]
+                })
+            }),
         }
     }
 }
 
-/// Environment temperature T0(y) (K): linear, warmest at the floor (y = 0).
+/// Environment temperature T0(y) (K): `physics.environment` above `ground_temperature`.
 pub fn environment_temperature(p: &PhysicsConfig, y: f64) -> f64 {
-    p.ground_temperature - p.environment_lapse_rate * y
+    p.environment.temperature(p.ground_temperature, y)
 }
 
 /// Saturation vapor content A exp(B / (T + C)) (kg/kg), the first term of eq. 10.
@@ -219,7 +257,7 @@ mod tests {
 
     #[test]
     fn params_layout_matches_wgsl() {
-        assert_eq!(std::mem::size_of::<ThermoParams>(), 96);
+        assert_eq!(std::mem::size_of::<ThermoParams>(), 256);
     }
 
     #[test]

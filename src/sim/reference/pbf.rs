@@ -107,7 +107,8 @@ pub fn compute_lambda(sc: &Scene, pred: &[V3]) -> (Vec<f64>, Vec<f64>) {
     let mut lam = Vec::with_capacity(pred.len());
     let mut den = Vec::with_capacity(pred.len());
     for (i, &p) in pred.iter().enumerate() {
-        let (hi, mi) = (sc.h(i), sc.m(i));
+        let hi = sc.h(i);
+        let m0 = sc.prm.m0 as f64;
         let mut rho = 0.0;
         let mut grad_i = [0.0; 3];
         let mut sum2 = 0.0;
@@ -128,14 +129,21 @@ pub fn compute_lambda(sc: &Scene, pred: &[V3]) -> (Vec<f64>, Vec<f64>) {
             if r2 >= hi.max(h0).powi(2) {
                 return;
             }
-            rho += mi * poly6_sym(r2, hi, h0);
+            // wall particles weigh m0 whatever the fluid particle's level
+            rho += m0 * poly6_sym(r2, hi, h0);
             grad_i = add(
                 grad_i,
-                scale(spiky_grad_sym(xik, r2.sqrt(), hi, h0), mi / rho0),
+                scale(spiky_grad_sym(xik, r2.sqrt(), hi, h0), m0 / rho0),
             );
         });
-        // unilateral, as the shader: only compression is corrected
-        let c = (rho / rho0 - 1.0).max(0.0);
+        let mut c = rho / rho0 - 1.0;
+        // the under-density tolerance, and compression only for split particles (the shader)
+        if c < 0.0 {
+            c = (c + sc.prm.expansion_tolerance as f64).min(0.0);
+            if sc.level[i] > 0 {
+                c = 0.0;
+            }
+        }
         lam.push(-c / (sum2 + dot(grad_i, grad_i) + sc.prm.eps as f64));
         den.push(rho);
     }
@@ -166,7 +174,7 @@ pub fn compute_delta(sc: &Scene, pred: &[V3], lambda: &[f64]) -> Vec<V3> {
                 if r2 >= hi.max(h0).powi(2) {
                     return;
                 }
-                let s = (li + sc.scorr(r2, hi, h0)) * mi;
+                let s = (li + sc.scorr(r2, hi, h0)) * sc.prm.m0 as f64;
                 dp = add(dp, scale(spiky_grad_sym(xik, r2.sqrt(), hi, h0), s));
             });
             confine(sc.grid, add(p, scale(dp, 1.0 / rho0)))

@@ -52,6 +52,9 @@ pub fn constraint_terms(input: &SmoothInput, i: usize) -> (f64, f64, f64) {
         sum_a2 += a * a;
         c += a * (ti - input.temperature[j]);
     });
+    if p.fixed_walls == 0 {
+        return (sum_a, sum_a2, c);
+    }
     let bpos: Vec<[f64; 3]> = input.boundary.iter().map(|b| [b[0], b[1], b[2]]).collect();
     for_each_neighbor(
         input.grid,
@@ -170,7 +173,7 @@ mod tests {
             kappa,
             epsilon: 1e-2,
             volume0: 1.0,
-            _pad0: 0,
+            fixed_walls: 1,
             _pad1: 0,
             _pad2: 0,
         }

@@ -26,24 +26,69 @@ pub fn heat_factor(p: &ThermoParams, x: f64, z: f64, time: f64) -> f64 {
     ((n - 0.5) * p.noise_contrast as f64 + 0.5).clamp(0.0, 1.0)
 }
 
-/// One particle: `pos` read, `vel` and `thermo` = (T, v, w, E) updated in place.
+/// Shortest signed distance along an axis of extent `s`, wrapped when periodic.
+fn wrap_delta(d: f64, s: f64, periodic: bool) -> f64 {
+    if periodic {
+        d - s * (d / s).round()
+    } else {
+        d
+    }
+}
+
+/// Ground heating rate of eq. 5 (K/s) at a position, at the time in `p`: the noise pattern
+/// and the disc sources (mirror of `heating_rate`, below `heat_height` only).
+pub fn heating_rate(p: &ThermoParams, pos: [f64; 3]) -> f64 {
+    if pos[1] >= p.heat_height as f64 {
+        return 0.0;
+    }
+    let mut rate = 0.0;
+    if p.heat_noise != 0 {
+        rate = p.heat_source as f64 * heat_factor(p, pos[0], pos[2], p.time as f64);
+    }
+    for src in &p.sources[..p.n_sources as usize] {
+        let s = src.map(|v| v as f64);
+        let dx = wrap_delta(pos[0] - s[0], p.size_x as f64, p.periodic & 1 != 0);
+        let dz = wrap_delta(pos[2] - s[1], p.size_z as f64, p.periodic & 4 != 0);
+        rate += s[3] * crate::config::HeatSource::falloff(s[2], dx, dz);
+    }
+    rate
+}
+
+/// Environment temperature T0(y) of the parameters (mirror of `environment_temperature`).
+pub fn environment_temperature(p: &ThermoParams, y: f64) -> f64 {
+    let base = p.inversion_base as f64;
+    let depth = p.inversion_depth as f64;
+    let strength = p.inversion_strength as f64;
+    let below = y.min(base);
+    let inside = (y - base).clamp(0.0, depth);
+    let above = (y - base - depth).max(0.0);
+    let rise = if depth > 0.0 {
+        strength * inside / depth
+    } else if y > base {
+        strength
+    } else {
+        0.0
+    };
+    p.ground_temperature as f64 - p.lapse_rate as f64 * below + rise - p.lapse_above as f64 * above
+}
+
+/// One particle: `pos` read, `vel` (xyz, w = the height gained by this substep's move) and
+/// `thermo` = (T, v, w, E) updated in place.
 pub fn thermo_step_particle(
     p: &ThermoParams,
     pos: [f64; 3],
-    vel: &mut [f64; 3],
+    vel: &mut [f64; 4],
     th: &mut [f64; 4],
 ) {
     let dt = p.dt as f64;
     let mut temp = th[0];
     // eq. 5
-    if pos[1] < p.heat_height as f64 {
-        temp += dt * p.heat_source as f64 * heat_factor(p, pos[0], pos[2], p.time as f64);
-    }
+    temp += dt * heating_rate(p, pos);
     // eq. 6
-    let t0 = p.ground_temperature as f64 - p.environment_lapse_rate as f64 * pos[1];
+    let t0 = environment_temperature(p, pos[1]);
     vel[1] += dt * (p.buoyancy as f64 * (temp - t0) / t0 - p.cloud_weight as f64 * th[2]);
-    // eq. 7
-    temp -= p.adiabatic_lapse_rate as f64 * vel[1] * dt;
+    // eq. 7, over the height gained by the move
+    temp -= p.adiabatic_lapse_rate as f64 * vel[3];
     // eqs. 8-10
     let (v, w) = (th[1], th[2]);
     let s = v + w;
@@ -59,7 +104,7 @@ pub fn thermo_step_particle(
 pub fn thermo_step(
     p: &ThermoParams,
     pos: &[[f64; 3]],
-    vel: &mut [[f64; 3]],
+    vel: &mut [[f64; 4]],
     thermo: &mut [[f64; 4]],
 ) {
     let n = p.count as usize;
@@ -107,8 +152,15 @@ mod tests {
                 ]
             })
             .collect();
-        let mut vel: Vec<[f64; 3]> = (0..500)
-            .map(|_| [0.0, rng.random_range(-5.0..5.0), 0.0])
+        let mut vel: Vec<[f64; 4]> = (0..500)
+            .map(|_| {
+                [
+                    0.0,
+                    rng.random_range(-5.0..5.0),
+                    0.0,
+                    rng.random_range(-5.0..5.0),
+                ]
+            })
             .collect();
         let mut th: Vec<[f64; 4]> = (0..500)
             .map(|_| {
@@ -165,12 +217,12 @@ mod tests {
         let pos: Vec<[f64; 3]> = (0..n)
             .map(|k| [13.0 * k as f64, 10.0 * k as f64, 7.0 * k as f64])
             .collect();
-        let mut vel = vec![[0.0; 3]; n];
+        let mut vel = vec![[0.0; 4]; n];
         // Exactly the environment (the f32 rounding of T0 would be a 1e-5 K excess).
         let mut th: Vec<[f64; 4]> = pos
             .iter()
             .map(|q| {
-                let t0 = p.ground_temperature as f64 - p.environment_lapse_rate as f64 * q[1];
+                let t0 = super::environment_temperature(&p, q[1]);
                 let v = initial_thermo(&cfg.physics, q[1])[1] as f64;
                 [t0, v, 0.0, 0.0]
             })
@@ -280,7 +332,7 @@ mod tests {
     }
 
     /// A single particle starting in the heated layer at the hottest spot of the noise pattern,
-    /// with the section 5 initial state; per step `thermo_step` then the move `y += u_y dt`.
+    /// with the section 5 initial state; per step the move `y += u_y dt`, then `thermo_step`.
     /// Returns the trajectory and the first step with cloud (w > 0).
     pub(crate) fn parcel_trace(
         cfg: &ShotConfig,
@@ -303,13 +355,15 @@ mod tests {
         let init = initial_thermo(&cfg.physics, y0);
         let mut th = [init[0] as f64, init[1] as f64, 0.0, 0.0];
         let mut pos = [best.0, y0, best.1];
-        let mut vel = [0.0; 3];
+        let mut vel = [0.0; 4];
         let mut trace = Vec::new();
         let mut base = None;
         for step in 0..steps {
+            // the move, then the thermodynamics of the height it gained (the substep's order)
+            pos[1] += vel[1] * dt;
+            vel[3] = vel[1] * dt;
             let p = ThermoParams::new(cfg, 1, dt, step as f64 * dt);
             thermo_step_particle(&p, pos, &mut vel, &mut th);
-            pos[1] += vel[1] * dt;
             if th[2] > 0.0 && base.is_none() {
                 base = Some(step);
             }
