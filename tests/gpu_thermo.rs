@@ -131,6 +131,9 @@ fn thermo_step_matches_mirror() {
         center: [1900.0, 800.0],
         radius: 400.0,
         strength: 0.1,
+        start: 100.0,
+        end: Some(300.0),
+        ramp: 50.0,
     });
     let stage = ThermoStage::new(&ctx, &cfg).unwrap();
     let n = 3000;

@@ -338,6 +338,15 @@ pub struct HeatSource {
     pub radius: f64,
     /// Heating at full strength (K/s).
     pub strength: f64,
+    /// Simulated time it switches on (s).
+    #[serde(default)]
+    pub start: f64,
+    /// Simulated time it switches off (s); `None` = never.
+    #[serde(default)]
+    pub end: Option<f64>,
+    /// Smoothstep fade in after `start` and out before `end` (s).
+    #[serde(default)]
+    pub ramp: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -570,6 +579,30 @@ impl EnvironmentConfig {
 }
 
 impl HeatSource {
+    /// The schedule's factor in [0, 1] at simulated time `t` (s).
+    pub fn envelope(&self, t: f64) -> f64 {
+        let smooth = |x: f64| {
+            let x = x.clamp(0.0, 1.0);
+            x * x * (3.0 - 2.0 * x)
+        };
+        let ramp = |d: f64| {
+            if self.ramp > 0.0 {
+                smooth(d / self.ramp)
+            } else {
+                (d >= 0.0) as u8 as f64
+            }
+        };
+        let on = ramp(t - self.start);
+        let off = self.end.map_or(1.0, |e| {
+            if self.ramp > 0.0 {
+                smooth((e - t) / self.ramp)
+            } else {
+                (t < e) as u8 as f64
+            }
+        });
+        on * off
+    }
+
     /// Fraction in [0, 1] of the source's strength at ground point (x, z), with the shortest
     /// periodic distance `d` (x, z) from the centre: 1 inside 0.7 radius, a smoothstep to 0 at
     /// the radius.

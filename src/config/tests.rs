@@ -445,3 +445,34 @@ fn every_key_is_documented() {
         );
     }
 }
+
+#[test]
+fn heat_source_schedule_ramps_in_and_out() {
+    let src = HeatSource {
+        shape: SourceShape::Disc,
+        center: [0.0, 0.0],
+        radius: 100.0,
+        strength: 1.0,
+        start: 100.0,
+        end: Some(300.0),
+        ramp: 50.0,
+    };
+    assert_eq!(src.envelope(99.0), 0.0);
+    assert_eq!(src.envelope(125.0), 0.5);
+    assert_eq!(src.envelope(200.0), 1.0);
+    assert_eq!(src.envelope(275.0), 0.5);
+    assert_eq!(src.envelope(301.0), 0.0);
+    let always = HeatSource {
+        end: None,
+        ramp: 0.0,
+        start: 0.0,
+        ..src
+    };
+    assert_eq!(always.envelope(0.0), 1.0);
+    assert_eq!(always.envelope(1e6), 1.0);
+    // the falloff: full strength inside 0.7 radius, nothing outside
+    assert_eq!(HeatSource::falloff(100.0, 60.0, 0.0), 1.0);
+    assert_eq!(HeatSource::falloff(100.0, 0.0, 100.0), 0.0);
+    let mid = HeatSource::falloff(100.0, 85.0, 0.0);
+    assert!((mid - 0.5).abs() < 1e-12, "{mid}");
+}

@@ -382,6 +382,24 @@ fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
         let key = |f: &str| format!("physics.sources[{i}].{f}");
         k.positive(&key("radius"), src.radius);
         k.non_negative(&key("strength"), src.strength);
+        k.non_negative(&key("start"), src.start);
+        k.non_negative(&key("ramp"), src.ramp);
+        if let Some(end) = src.end {
+            if k.finite(&key("end"), end)
+                && src.start.is_finite()
+                && src.ramp.is_finite()
+                && end < src.start + 2.0 * src.ramp
+            {
+                k.fail(
+                    &[&key("end")],
+                    format!(
+                        "end {} s leaves no room for the ramps: it must be at least start + 2 ramp = {} s",
+                        num(end),
+                        num(src.start + 2.0 * src.ramp)
+                    ),
+                );
+            }
+        }
         for (a, (&c, &size)) in src
             .center
             .iter()

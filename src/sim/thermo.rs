@@ -126,7 +126,8 @@ impl ThermoParams {
                         s.center[0] as f32,
                         s.center[1] as f32,
                         s.radius as f32,
-                        s.strength as f32,
+                        // the schedule at the substep's midpoint, computed here in f64
+                        (s.strength * s.envelope(time + 0.5 * dt)) as f32,
                     ]
                 })
             }),
