@@ -1,6 +1,7 @@
 //! `nimbus` command line: parse, call into the library, map errors to exit codes.
 use clap::{Parser, Subcommand};
 use nimbus::error::{exit, Error, Result};
+use nimbus::pipeline::lock::{Create, RunLock};
 use nimbus::pipeline::{self, LogFormat, RunOptions, Start};
 use std::path::{Path, PathBuf};
 
@@ -32,6 +33,11 @@ enum Command {
         /// change; simulation keys may not).
         #[arg(long)]
         resume: bool,
+        /// Start over in a run directory that holds an earlier run: removes only the files
+        /// that run's manifest and checkpoints list as nimbus's own (a directory holding any
+        /// other file is refused).
+        #[arg(long, conflicts_with = "resume")]
+        force: bool,
         /// Progress output: a bar/plain lines, or JSON lines for farm logs.
         #[arg(long, value_enum, default_value = "human")]
         log_format: LogFormat,
@@ -142,8 +148,9 @@ fn main() {
             out,
             set,
             resume,
+            force,
             log_format,
-        } => run(&config, out, &set, resume, log_format),
+        } => run(&config, out, &set, resume, force, log_format),
         Command::Resume {
             out_dir,
             log_format,
@@ -190,14 +197,25 @@ fn run(
     out: Option<PathBuf>,
     set: &[String],
     resume: bool,
+    force: bool,
     log: LogFormat,
 ) -> Result<()> {
     let cfg = nimbus::config::load(config, set)?;
     let out_dir = out.unwrap_or_else(|| PathBuf::from(&cfg.output.dir));
+    let create = if resume {
+        Create::No
+    } else {
+        Create::IfMissing
+    };
+    let lock = RunLock::acquire(&out_dir, create, "run")?;
     if resume {
         refuse_changed_simulation(&cfg, &out_dir)?;
     }
-    let start = if resume { Start::Resume } else { Start::Fresh };
+    let start = if resume {
+        Start::Resume
+    } else {
+        Start::Fresh { force }
+    };
     pipeline::run(
         &cfg,
         &RunOptions {
@@ -205,10 +223,12 @@ fn run(
             log,
             start,
         },
+        &lock,
     )
 }
 
 fn resume(out_dir: &Path, log: LogFormat) -> Result<()> {
+    let lock = RunLock::acquire(out_dir, Create::No, "resume")?;
     let cfg = config_of_run(out_dir, &[])?;
     pipeline::run(
         &cfg,
@@ -217,6 +237,7 @@ fn resume(out_dir: &Path, log: LogFormat) -> Result<()> {
             log,
             start: Start::Resume,
         },
+        &lock,
     )
 }
 
@@ -266,6 +287,7 @@ fn read_prefix(file: &Path, n: usize) -> Result<Vec<u8>> {
 }
 
 fn preview(out_dir: &Path, set: &[String]) -> Result<()> {
+    let _lock = RunLock::acquire(out_dir, Create::No, "preview")?;
     let cfg = config_of_run(out_dir, set)?;
     let written = pipeline::rerender::rerender_previews(out_dir, &cfg)?;
     println!(

@@ -1,6 +1,7 @@
 //! The frame loop: the GPU simulates frame N+1 while a writer thread splats and writes frame N
 //! (a bounded queue of one frame keeps memory bounded). Checkpoints are written after the writer
 //! has caught up, so every frame up to a checkpoint is on disk before the checkpoint exists.
+use super::lock::RunLock;
 use super::naming::{self, resume_command};
 use super::progress::{LogFormat, Progress};
 use super::records::{FrameStats, Manifest, StatsLog};
@@ -18,8 +19,9 @@ use std::time::Instant;
 
 /// How a run starts.
 pub enum Start {
-    /// A new run: the simulation starts at the first frame.
-    Fresh,
+    /// A new run: the simulation starts at the first frame. The directory must be empty of
+    /// runs (see `run_dir`); with `force`, an earlier run's own files are removed first.
+    Fresh { force: bool },
     /// Go on from the newest valid checkpoint in the run directory.
     Resume,
 }
@@ -30,9 +32,23 @@ pub struct RunOptions {
     pub start: Start,
 }
 
-/// Runs (or resumes) a shot into `opts.out_dir`.
-pub fn run(cfg: &ShotConfig, opts: &RunOptions) -> Result<()> {
+/// Runs (or resumes) a shot into `opts.out_dir`, which `lock` must hold.
+pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     let run_dir = opts.out_dir.as_path();
+    if lock.dir() != run_dir {
+        return Err(Error::Runtime(format!(
+            "internal: {} is run without its lock",
+            run_dir.display()
+        )));
+    }
+    // Checked before anything is written (a refused run leaves the directory as it was).
+    match opts.start {
+        Start::Fresh { force } => super::run_dir::prepare_fresh(run_dir, force)?,
+        // Under the lock every temporary file is a leftover of a process that died.
+        Start::Resume => {
+            checkpoint::remove_temp_files(run_dir)?;
+        }
+    }
     for d in naming::DIRS {
         std::fs::create_dir_all(run_dir.join(d)).map_err(|e| Error::io(run_dir.join(d), e))?;
     }
@@ -42,12 +58,8 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions) -> Result<()> {
 
     // What to resume from, decided before the GPU is opened (bad input fails fast).
     let resumed: Option<checkpoint::Checkpoint> = match opts.start {
-        Start::Fresh => {
-            clear_checkpoints(&ckpt_dir)?;
-            None
-        }
+        Start::Fresh { .. } => None,
         Start::Resume => {
-            checkpoint::remove_temp_files(run_dir)?;
             let (found, skipped) = checkpoint::find_resumable(&ckpt_dir, &sim_hash)?;
             for s in &skipped {
                 eprintln!("warning: skipped checkpoint: {s}");
@@ -304,24 +316,12 @@ fn write_checkpoint(
     checkpoint::write_and_prune(dir, &ck, cfg.checkpoint.keep.max(1) as usize)
 }
 
-/// A fresh run must not later resume from a checkpoint of an earlier, different run.
-fn clear_checkpoints(dir: &Path) -> Result<()> {
-    let entries = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
-    for e in entries.flatten() {
-        let p = e.path();
-        if p.is_file() {
-            std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
-        }
-    }
-    Ok(())
-}
-
-/// SIGINT/SIGTERM set a flag: the loop finishes the frame, checkpoints and exits 130.
+/// SIGINT/SIGTERM/SIGHUP set a flag: the loop finishes the frame, checkpoints and exits 130.
 /// A second signal ends the process at once.
 fn install_signal_handlers() -> Result<Arc<AtomicBool>> {
-    use signal_hook::consts::{SIGINT, SIGTERM};
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
     let flag = Arc::new(AtomicBool::new(false));
-    for sig in [SIGINT, SIGTERM] {
+    for sig in [SIGINT, SIGTERM, SIGHUP] {
         signal_hook::flag::register_conditional_shutdown(sig, 130, flag.clone())
             .and_then(|_| signal_hook::flag::register(sig, flag.clone()))
             .map_err(|e| Error::Runtime(format!("cannot install signal handlers: {e}")))?;
