@@ -6,6 +6,12 @@ use super::schema::*;
 pub const MAX_PARTICLES: f64 = 50.0e6;
 /// Allocated capacity (initial count x adaptive.capacity_factor) above which a shot is refused.
 pub const MAX_CAPACITY: f64 = 100.0e6;
+/// Largest frame number: frame + 1 and frame counts stay far from u32 wrap, and every frame
+/// number fits an i32 (renderers' frame type) and 10 digits of padding.
+pub const MAX_FRAME: u32 = 999_999_999;
+/// Longest shot name in bytes: `<shot>.<10 digits>.<ext>` stays under the 255-byte file-name
+/// limit of common file systems.
+pub const MAX_SHOT_BYTES: usize = 200;
 /// Voxels per axis of the export grid above which a shot is refused.
 pub const MAX_VOXELS_PER_AXIS: f64 = 65536.0;
 
@@ -133,6 +139,15 @@ fn check_names(k: &mut Checks, c: &ShotConfig) {
             ),
         );
     }
+    if s.len() > MAX_SHOT_BYTES {
+        k.fail(
+            &["shot"],
+            format!(
+                "the shot name prefixes every output file name: at most {MAX_SHOT_BYTES} bytes, got {}",
+                s.len()
+            ),
+        );
+    }
     if c.output.dir.trim().is_empty() {
         k.fail(
             &["output.dir"],
@@ -142,6 +157,17 @@ fn check_names(k: &mut Checks, c: &ShotConfig) {
 }
 
 fn check_output(k: &mut Checks, o: &OutputConfig) {
+    for (key, f) in [
+        ("output.frames.start", o.frames.start),
+        ("output.frames.end", o.frames.end),
+    ] {
+        if f > MAX_FRAME {
+            k.fail(
+                &[key],
+                format!("expected a frame number from 0 to {MAX_FRAME}, got {f}"),
+            );
+        }
+    }
     if o.frames.end < o.frames.start {
         k.fail(
             &["output.frames.end", "output.frames.start"],

@@ -6,6 +6,7 @@ pub mod records;
 pub mod rerender;
 pub mod run;
 pub mod run_dir;
+pub mod watchdog;
 pub mod writer;
 
 pub use progress::LogFormat;

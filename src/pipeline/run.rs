@@ -66,6 +66,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
             }
             match found {
                 Some((path, ck)) => {
+                    check_resume_frame(cfg, &path, ck.header.frame)?;
                     eprintln!(
                         "resuming from {} (frame {})",
                         path.display(),
@@ -100,15 +101,17 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                 );
             }
             // The header holds the last completed frame; the clock counts the next one.
+            // Bounded by check_resume_frame: frame <= frames.end <= config::MAX_FRAME.
+            let next = ck.header.frame + 1;
             let clock = SimClock {
-                frame: ck.header.frame + 1,
+                frame: next,
                 step: ck.header.step,
                 time: ck.header.time,
                 next_id: ck.header.next_id,
             };
             (
                 Simulation::from_state(ctx.clone(), cfg, &ck.state, clock)?,
-                ck.header.frame + 1,
+                next,
             )
         }
     };
@@ -170,7 +173,16 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
             progress.phase(frame, "simulate", 0);
             let report = sim.step_frame()?;
             crate::fault::during_frame(frame);
-            let state = Arc::new(sim.state()?);
+            let mut state = sim.state()?;
+            crate::fault::poison_state(frame, &mut state);
+            // Before the frame is written or checkpointed: a diverged state reaches no file.
+            if let Some(what) = super::watchdog::check(&state, cfg) {
+                return Err(Error::Runtime(format!(
+                    "simulation diverged at frame {frame}: {what}; frames before it and the \
+                     last good checkpoint are kept"
+                )));
+            }
+            let state = Arc::new(state);
             let clock = sim.clock();
             let mut diagnostics = report.diagnostics.clone();
             diagnostics.extend(crate::sim::diagnostics::cloud_diagnostics(&state, cfg));
@@ -280,6 +292,29 @@ impl LoopState {
         }
         Ok(())
     }
+}
+
+/// A checkpoint resumes only inside the frame range: one past `frames.end` (the range was
+/// lowered after it was written) or before `frames.start` is refused before anything is written.
+fn check_resume_frame(cfg: &ShotConfig, path: &Path, frame: u32) -> Result<()> {
+    let (start, end) = (cfg.output.frames.start, cfg.output.frames.end);
+    if frame > end {
+        return Err(Error::InvalidInput(format!(
+            "{}: cannot resume: the newest usable checkpoint holds frame {frame}, past \
+             output.frames.end = {end}; the run already went beyond that end: raise \
+             output.frames.end to {frame} or more (nimbus run CONFIG --out DIR --resume --set \
+             output.frames.end=N)",
+            path.display()
+        )));
+    }
+    if frame < start {
+        return Err(Error::InvalidInput(format!(
+            "{}: cannot resume: the checkpoint holds frame {frame}, before output.frames.start = \
+             {start}",
+            path.display()
+        )));
+    }
+    Ok(())
 }
 
 fn send(tx: &SyncSender<FrameJob>, job: FrameJob) -> Result<()> {
