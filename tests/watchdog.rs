@@ -49,3 +49,19 @@ fn a_nan_state_exits_3_and_keeps_the_last_good_checkpoint() {
     assert!(o.status.success(), "{}", text(&o));
     assert_eq!(checksums(&out), checksums(&reference));
 }
+
+/// `output.frame_seconds: 1e-50` used to run to NaN with exit 0; validate now refuses it.
+#[test]
+fn time_steps_that_underflow_f32_are_refused_by_validate() {
+    for v in ["1e-50", "1e-30", "1e30"] {
+        let o = nimbus()
+            .arg("validate")
+            .arg(sample("tiny.yaml"))
+            .args(["--set", &format!("output.frame_seconds={v}")])
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2), "{v}: {}", text(&o));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("--set output.frame_seconds:"), "{err}");
+    }
+}

@@ -11,7 +11,8 @@ mod validate;
 pub use hash::{full_hash, sim_hash, sim_key_diff, NON_SIM_KEYS};
 pub use schema::*;
 pub use validate::{
-    lattice_count, MAX_CAPACITY, MAX_FRAME, MAX_PARTICLES, MAX_SHOT_BYTES, MAX_VOXELS_PER_AXIS,
+    float_values, lattice_count, FloatRange, FLOAT_RANGES, MAX_CAPACITY, MAX_FRAME, MAX_LEVEL,
+    MAX_MIN_DISTANCE, MAX_PARTICLES, MAX_SHOT_BYTES, MAX_VOXELS_PER_AXIS,
 };
 
 use crate::error::{Error, Result};
