@@ -266,6 +266,22 @@ fn refuse_changed_simulation(cfg: &nimbus::config::ShotConfig, out_dir: &Path) -
 }
 
 fn inspect(file: &Path) -> Result<()> {
+    // A directory, FIFO or device is a path error (exit 2), and is never read.
+    match std::fs::metadata(file) {
+        Ok(m) if m.is_file() => {}
+        Ok(m) => {
+            return Err(Error::InvalidInput(format!(
+                "{}: {}, not a .vdb, .exr or checkpoint file",
+                file.display(),
+                if m.is_dir() {
+                    "is a directory"
+                } else {
+                    "is not a regular file"
+                }
+            )))
+        }
+        Err(e) => return Err(Error::InvalidInput(format!("{}: {e}", file.display()))),
+    }
     let head = read_prefix(file, 16)?;
     let text = if nimbus::io::checkpoint::is_checkpoint(&head) {
         nimbus::io::checkpoint::describe(file)?
