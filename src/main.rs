@@ -229,7 +229,11 @@ fn run(
 
 fn resume(out_dir: &Path, log: LogFormat) -> Result<()> {
     let lock = RunLock::acquire(out_dir, Create::No, "resume")?;
-    let cfg = config_of_run(out_dir, &[])?;
+    let cfg = if out_dir.join(pipeline::records::MANIFEST).exists() {
+        config_of_run(out_dir, &[])?
+    } else {
+        config_of_checkpoints(out_dir)?
+    };
     pipeline::run(
         &cfg,
         &RunOptions {
@@ -248,6 +252,35 @@ fn config_of_run(out_dir: &Path, set: &[String]) -> Result<nimbus::config::ShotC
         .map_err(|e| Error::Runtime(e.to_string()))?;
     let origin = out_dir.join(pipeline::records::MANIFEST);
     nimbus::config::load_str(&text, &origin.to_string_lossy(), set)
+}
+
+/// The config recorded in the newest valid checkpoint (a run whose manifest.json was lost).
+fn config_of_checkpoints(out_dir: &Path) -> Result<nimbus::config::ShotConfig> {
+    use nimbus::io::checkpoint;
+    let dir = out_dir.join("checkpoints");
+    let mut list = checkpoint::list_checkpoints(&dir)?;
+    list.reverse();
+    for (_, path) in list {
+        let Some(cfg) = checkpoint::read_checkpoint(&path)
+            .ok()
+            .and_then(|ck| checkpoint::config_of(&ck))
+        else {
+            continue;
+        };
+        // Loaded through validation like any config; the checkpoint names it in errors.
+        let text = serde_json::to_string_pretty(&cfg).map_err(|e| Error::Runtime(e.to_string()))?;
+        let cfg = nimbus::config::load_str(&text, &path.to_string_lossy(), &[])?;
+        eprintln!(
+            "note: {} is missing; resuming with the config recorded in {}",
+            out_dir.join(pipeline::records::MANIFEST).display(),
+            path.display()
+        );
+        return Ok(cfg);
+    }
+    Err(Error::InvalidInput(format!(
+        "{}: not a nimbus run directory: no manifest.json, and no checkpoint that records its config",
+        out_dir.display()
+    )))
 }
 
 /// `run --resume` with a config whose simulation keys differ from the run's is refused.

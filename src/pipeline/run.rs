@@ -60,11 +60,15 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     let resumed: Option<checkpoint::Checkpoint> = match opts.start {
         Start::Fresh { .. } => None,
         Start::Resume => {
-            let (found, skipped) = checkpoint::find_resumable(&ckpt_dir, &sim_hash)?;
+            let scan = checkpoint::scan_resumable(&ckpt_dir, &sim_hash)?;
+            let skipped: Vec<String> = scan.skipped.iter().map(|s| s.to_string()).collect();
             for s in &skipped {
                 eprintln!("warning: skipped checkpoint: {s}");
             }
-            match found {
+            if scan.found.is_none() && scan.config_changed() {
+                return Err(changed_keys_error(cfg, &scan));
+            }
+            match scan.found {
                 Some((path, ck)) => {
                     check_resume_frame(cfg, &path, ck.header.frame)?;
                     eprintln!(
@@ -119,6 +123,20 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     let writer = FrameWriter::new(cfg, run_dir)?;
     let mut manifest = match (&resumed, Manifest::load(run_dir)) {
         (Some(_), Ok(m)) => m,
+        (Some(_), Err(_)) => {
+            // Resuming without a manifest: rebuild it from the frame files on disk.
+            let mut m = writer.new_manifest(cfg, &adapter, &sim_hash)?;
+            let rebuilt = writer.records_on_disk(cfg.output.frames.start, first_frame)?;
+            eprintln!(
+                "note: {} rebuilt from the files on disk ({} frames found)",
+                run_dir.join(super::records::MANIFEST).display(),
+                rebuilt.len()
+            );
+            for rec in rebuilt {
+                m.record_frame(rec);
+            }
+            m
+        }
         _ => writer.new_manifest(cfg, &adapter, &sim_hash)?,
     };
     manifest.adapter = adapter.clone();
@@ -294,6 +312,33 @@ impl LoopState {
     }
 }
 
+/// No checkpoint matches the config's simulation keys: name every key that differs from the
+/// newest checkpoint that records its config.
+fn changed_keys_error(cfg: &ShotConfig, scan: &checkpoint::ResumeScan) -> Error {
+    for s in &scan.skipped {
+        if !matches!(s.reason, checkpoint::SkipReason::ConfigMismatch { .. }) {
+            continue;
+        }
+        if let Some(recorded) = checkpoint::read_checkpoint(&s.path)
+            .ok()
+            .and_then(|ck| checkpoint::config_of(&ck))
+        {
+            let diff = config::sim_key_diff(&recorded, cfg);
+            if !diff.is_empty() {
+                return Error::InvalidInput(format!(
+                    "{}: cannot resume: simulation keys differ from the checkpoint's: {}",
+                    s.path.display(),
+                    diff.join(", ")
+                ));
+            }
+        }
+    }
+    Error::InvalidInput(
+        "cannot resume: the simulation config differs from every checkpoint's (see the warnings above)"
+            .into(),
+    )
+}
+
 /// A checkpoint resumes only inside the frame range: one past `frames.end` (the range was
 /// lowered after it was written) or before `frames.start` is refused before anything is written.
 fn check_resume_frame(cfg: &ShotConfig, path: &Path, frame: u32) -> Result<()> {
@@ -346,7 +391,12 @@ fn write_checkpoint(
             next_id: clock.next_id,
         },
         state: state.clone(),
-        extra: Default::default(),
+        // The resolved config, so a run whose manifest was lost can still be resumed.
+        extra: [(
+            checkpoint::CONFIG_SECTION.to_string(),
+            serde_json::to_vec_pretty(cfg).map_err(|e| Error::Runtime(e.to_string()))?,
+        )]
+        .into(),
     };
     checkpoint::write_and_prune(dir, &ck, cfg.checkpoint.keep.max(1) as usize)
 }

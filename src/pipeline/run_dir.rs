@@ -2,7 +2,7 @@
 //!
 //! nimbus's own files in a run directory are: `.lock`; `manifest.json` when it parses as a
 //! nimbus manifest; then, by that manifest, every file it lists, every frame file named by its
-//! shot (`vdb/<shot>.<digits>.vdb`, `exr/<shot>.<digits>.exr`, `preview/<shot>.<digits>.png|exr`,
+//! shot (the shot the newest checkpoint records when the manifest is lost) (`vdb/<shot>.<digits>.vdb`, `exr/<shot>.<digits>.exr`, `preview/<shot>.<digits>.png|exr`,
 //! a frame written just before a kill is not listed yet) and `preview/contact_sheet.png`;
 //! `stats.jsonl` when the manifest is nimbus's or every line is a stats line; checkpoint files
 //! (`checkpoints/ckpt_<digits>.nck` starting with the checkpoint magic); and temporary files
@@ -48,6 +48,20 @@ pub fn survey(dir: &Path) -> Result<Contents> {
         manifest: Manifest::load(dir).ok().filter(|m| m.tool == "nimbus"),
         ..Default::default()
     };
+    // The shot whose frame files are nimbus's: the manifest's, or (manifest lost) the one the
+    // newest checkpoint records.
+    let shot = match &c.manifest {
+        Some(m) => Some(m.shot.clone()),
+        None => checkpoint::list_checkpoints(&dir.join("checkpoints"))?
+            .iter()
+            .rev()
+            .find_map(|(_, p)| {
+                checkpoint::read_checkpoint(p)
+                    .ok()
+                    .and_then(|ck| checkpoint::config_of(&ck))
+            })
+            .map(|cfg| cfg.shot),
+    };
     let listed: BTreeSet<&str> = c
         .manifest
         .iter()
@@ -63,9 +77,7 @@ pub fn survey(dir: &Path) -> Result<Contents> {
                 || (rel == MANIFEST && c.manifest.is_some())
                 || (rel == STATS && (c.manifest.is_some() || stats_only(&dir.join(&rel))))
                 || listed.contains(rel.as_str())
-                || c.manifest
-                    .as_ref()
-                    .is_some_and(|m| frame_file_of(&m.shot, &rel))
+                || shot.as_ref().is_some_and(|s| frame_file_of(s, &rel))
                 || own_checkpoint(dir, &rel, &mut c.checkpoints));
         if mine {
             own.push(rel);
