@@ -229,11 +229,7 @@ fn run(
 
 fn resume(out_dir: &Path, log: LogFormat) -> Result<()> {
     let lock = RunLock::acquire(out_dir, Create::No, "resume")?;
-    let cfg = if out_dir.join(pipeline::records::MANIFEST).exists() {
-        config_of_run(out_dir, &[])?
-    } else {
-        config_of_checkpoints(out_dir)?
-    };
+    let cfg = recorded_config(out_dir)?;
     pipeline::run(
         &cfg,
         &RunOptions {
@@ -252,6 +248,15 @@ fn config_of_run(out_dir: &Path, set: &[String]) -> Result<nimbus::config::ShotC
         .map_err(|e| Error::Runtime(e.to_string()))?;
     let origin = out_dir.join(pipeline::records::MANIFEST);
     nimbus::config::load_str(&text, &origin.to_string_lossy(), set)
+}
+
+/// The run's config: from its manifest, or from its newest checkpoint when the manifest is lost.
+fn recorded_config(out_dir: &Path) -> Result<nimbus::config::ShotConfig> {
+    if out_dir.join(pipeline::records::MANIFEST).exists() {
+        config_of_run(out_dir, &[])
+    } else {
+        config_of_checkpoints(out_dir)
+    }
 }
 
 /// The config recorded in the newest valid checkpoint (a run whose manifest.json was lost).
@@ -285,7 +290,7 @@ fn config_of_checkpoints(out_dir: &Path) -> Result<nimbus::config::ShotConfig> {
 
 /// `run --resume` with a config whose simulation keys differ from the run's is refused.
 fn refuse_changed_simulation(cfg: &nimbus::config::ShotConfig, out_dir: &Path) -> Result<()> {
-    let recorded = config_of_run(out_dir, &[])?;
+    let recorded = recorded_config(out_dir)?;
     let diff = nimbus::config::sim_key_diff(&recorded, cfg);
     if diff.is_empty() {
         Ok(())

@@ -74,3 +74,19 @@ fn a_resume_refused_over_changed_simulation_keys_names_them() {
         "{err}"
     );
 }
+
+/// `run CONFIG --resume` also works without the manifest, and still names changed keys.
+#[test]
+fn run_resume_without_a_manifest_uses_the_checkpoint_config() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    crash_at(&out, "frame:4");
+    std::fs::remove_file(out.join("manifest.json")).unwrap();
+    let o = run_tiny(&out, &["--resume", "--set", "seed=4"]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("seed"), "{}", text(&o));
+    let o = run_tiny(&out, &["--resume"]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(manifest(&out)["complete"].as_bool().unwrap());
+    assert_eq!(manifest(&out)["frames"].as_array().unwrap().len(), 8);
+}
