@@ -84,7 +84,11 @@ fn run_resume_without_a_manifest_uses_the_checkpoint_config() {
     std::fs::remove_file(out.join("manifest.json")).unwrap();
     let o = run_tiny(&out, &["--resume", "--set", "seed=4"]);
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("seed"), "{}", text(&o));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("seed"),
+        "{}",
+        text(&o)
+    );
     let o = run_tiny(&out, &["--resume"]);
     assert!(o.status.success(), "{}", text(&o));
     assert!(manifest(&out)["complete"].as_bool().unwrap());
