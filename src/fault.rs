@@ -1,13 +1,15 @@
 //! Fault injection for the crash tests: `NIMBUS_FAULT=rename:PATTERN:N` aborts the process (as
 //! a SIGKILL would) just before the N-th atomic rename of a file whose path contains PATTERN,
 //! i.e. with the temporary file fully written; `NIMBUS_FAULT=frame:N` aborts in the middle of
-//! simulating frame N. Unset (always, outside tests) it costs one relaxed load.
+//! simulating frame N; `NIMBUS_FAULT=nan:N` makes the temperature of particle 0 NaN in the state
+//! read back after frame N (for the divergence watchdog). Unset (always, outside tests) it costs one relaxed load.
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::OnceLock;
 
 enum Fault {
     Rename { pattern: String, nth: u32 },
     Frame(u32),
+    Nan(u32),
 }
 
 fn fault() -> Option<&'static Fault> {
@@ -21,6 +23,7 @@ fn fault() -> Option<&'static Fault> {
                 nth: n.parse().ok()?,
             }),
             ["frame", n] => Some(Fault::Frame(n.parse().ok()?)),
+            ["nan", n] => Some(Fault::Nan(n.parse().ok()?)),
             _ => None,
         }
     })
@@ -46,6 +49,18 @@ pub fn during_frame(frame: u32) {
         if *n == frame {
             eprintln!("NIMBUS_FAULT: aborting while simulating frame {frame}");
             std::process::abort();
+        }
+    }
+}
+
+/// Called by the frame loop on the state read back after a frame.
+pub fn poison_state(frame: u32, state: &mut crate::sim::ParticleState) {
+    if let Some(Fault::Nan(n)) = fault() {
+        if *n == frame {
+            if let Some(t) = state.thermo.first_mut() {
+                eprintln!("NIMBUS_FAULT: temperature of particle 0 set to NaN after frame {frame}");
+                t[0] = f32::NAN;
+            }
         }
     }
 }

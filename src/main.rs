@@ -1,6 +1,7 @@
 //! `nimbus` command line: parse, call into the library, map errors to exit codes.
 use clap::{Parser, Subcommand};
 use nimbus::error::{exit, Error, Result};
+use nimbus::pipeline::lock::{Create, RunLock};
 use nimbus::pipeline::{self, LogFormat, RunOptions, Start};
 use std::path::{Path, PathBuf};
 
@@ -32,6 +33,11 @@ enum Command {
         /// change; simulation keys may not).
         #[arg(long)]
         resume: bool,
+        /// Start over in a run directory that holds an earlier run: removes only the files
+        /// that run's manifest and checkpoints list as nimbus's own (a directory holding any
+        /// other file is refused).
+        #[arg(long, conflicts_with = "resume")]
+        force: bool,
         /// Progress output: a bar/plain lines, or JSON lines for farm logs.
         #[arg(long, value_enum, default_value = "human")]
         log_format: LogFormat,
@@ -142,8 +148,9 @@ fn main() {
             out,
             set,
             resume,
+            force,
             log_format,
-        } => run(&config, out, &set, resume, log_format),
+        } => run(&config, out, &set, resume, force, log_format),
         Command::Resume {
             out_dir,
             log_format,
@@ -190,14 +197,25 @@ fn run(
     out: Option<PathBuf>,
     set: &[String],
     resume: bool,
+    force: bool,
     log: LogFormat,
 ) -> Result<()> {
     let cfg = nimbus::config::load(config, set)?;
     let out_dir = out.unwrap_or_else(|| PathBuf::from(&cfg.output.dir));
+    let create = if resume {
+        Create::No
+    } else {
+        Create::IfMissing
+    };
+    let lock = RunLock::acquire(&out_dir, create, "run")?;
     if resume {
         refuse_changed_simulation(&cfg, &out_dir)?;
     }
-    let start = if resume { Start::Resume } else { Start::Fresh };
+    let start = if resume {
+        Start::Resume
+    } else {
+        Start::Fresh { force }
+    };
     pipeline::run(
         &cfg,
         &RunOptions {
@@ -205,11 +223,13 @@ fn run(
             log,
             start,
         },
+        &lock,
     )
 }
 
 fn resume(out_dir: &Path, log: LogFormat) -> Result<()> {
-    let cfg = config_of_run(out_dir, &[])?;
+    let lock = RunLock::acquire(out_dir, Create::No, "resume")?;
+    let cfg = recorded_config(out_dir)?;
     pipeline::run(
         &cfg,
         &RunOptions {
@@ -217,6 +237,7 @@ fn resume(out_dir: &Path, log: LogFormat) -> Result<()> {
             log,
             start: Start::Resume,
         },
+        &lock,
     )
 }
 
@@ -229,9 +250,47 @@ fn config_of_run(out_dir: &Path, set: &[String]) -> Result<nimbus::config::ShotC
     nimbus::config::load_str(&text, &origin.to_string_lossy(), set)
 }
 
+/// The run's config: from its manifest, or from its newest checkpoint when the manifest is lost.
+fn recorded_config(out_dir: &Path) -> Result<nimbus::config::ShotConfig> {
+    if out_dir.join(pipeline::records::MANIFEST).exists() {
+        config_of_run(out_dir, &[])
+    } else {
+        config_of_checkpoints(out_dir)
+    }
+}
+
+/// The config recorded in the newest valid checkpoint (a run whose manifest.json was lost).
+fn config_of_checkpoints(out_dir: &Path) -> Result<nimbus::config::ShotConfig> {
+    use nimbus::io::checkpoint;
+    let dir = out_dir.join("checkpoints");
+    let mut list = checkpoint::list_checkpoints(&dir)?;
+    list.reverse();
+    for (_, path) in list {
+        let Some(cfg) = checkpoint::read_checkpoint(&path)
+            .ok()
+            .and_then(|ck| checkpoint::config_of(&ck))
+        else {
+            continue;
+        };
+        // Loaded through validation like any config; the checkpoint names it in errors.
+        let text = serde_json::to_string_pretty(&cfg).map_err(|e| Error::Runtime(e.to_string()))?;
+        let cfg = nimbus::config::load_str(&text, &path.to_string_lossy(), &[])?;
+        eprintln!(
+            "note: {} is missing; resuming with the config recorded in {}",
+            out_dir.join(pipeline::records::MANIFEST).display(),
+            path.display()
+        );
+        return Ok(cfg);
+    }
+    Err(Error::InvalidInput(format!(
+        "{}: not a nimbus run directory: no manifest.json, and no checkpoint that records its config",
+        out_dir.display()
+    )))
+}
+
 /// `run --resume` with a config whose simulation keys differ from the run's is refused.
 fn refuse_changed_simulation(cfg: &nimbus::config::ShotConfig, out_dir: &Path) -> Result<()> {
-    let recorded = config_of_run(out_dir, &[])?;
+    let recorded = recorded_config(out_dir)?;
     let diff = nimbus::config::sim_key_diff(&recorded, cfg);
     if diff.is_empty() {
         Ok(())
@@ -245,6 +304,22 @@ fn refuse_changed_simulation(cfg: &nimbus::config::ShotConfig, out_dir: &Path) -
 }
 
 fn inspect(file: &Path) -> Result<()> {
+    // A directory, FIFO or device is a path error (exit 2), and is never read.
+    match std::fs::metadata(file) {
+        Ok(m) if m.is_file() => {}
+        Ok(m) => {
+            return Err(Error::InvalidInput(format!(
+                "{}: {}, not a .vdb, .exr or checkpoint file",
+                file.display(),
+                if m.is_dir() {
+                    "is a directory"
+                } else {
+                    "is not a regular file"
+                }
+            )))
+        }
+        Err(e) => return Err(Error::InvalidInput(format!("{}: {e}", file.display()))),
+    }
     let head = read_prefix(file, 16)?;
     let text = if nimbus::io::checkpoint::is_checkpoint(&head) {
         nimbus::io::checkpoint::describe(file)?
@@ -266,6 +341,7 @@ fn read_prefix(file: &Path, n: usize) -> Result<Vec<u8>> {
 }
 
 fn preview(out_dir: &Path, set: &[String]) -> Result<()> {
+    let _lock = RunLock::acquire(out_dir, Create::No, "preview")?;
     let cfg = config_of_run(out_dir, set)?;
     let written = pipeline::rerender::rerender_previews(out_dir, &cfg)?;
     println!(

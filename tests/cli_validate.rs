@@ -253,3 +253,41 @@ fn pipelines_and_samples_validate() {
         );
     }
 }
+
+/// Case 3 of issue 13: a device, a FIFO (with a writer feeding it forever), a directory and a
+/// file over 1 MiB are one-line errors with exit 2, within a second, without reading them.
+#[test]
+fn configs_must_be_bounded_regular_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("fifo.yaml");
+    let ok = Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(ok.success());
+    // A writer that never stops (it ends when the FIFO's reader side is gone or at test end).
+    let mut feeder = Command::new("sh")
+        .arg("-c")
+        .arg(format!("yes 'a: 1' > '{}'", fifo.display()))
+        .spawn()
+        .unwrap();
+    let big = dir.path().join("big.yaml");
+    std::fs::write(&big, "# x\n".repeat(300_000)).unwrap();
+    let cases = [
+        ("/dev/zero".to_string(), "not a regular file"),
+        ("/dev/urandom".to_string(), "not a regular file"),
+        (fifo.display().to_string(), "not a regular file"),
+        (dir.path().display().to_string(), "is a directory"),
+        (big.display().to_string(), "1048576-byte limit"),
+    ];
+    for (path, why) in cases {
+        let t0 = std::time::Instant::now();
+        let o = nimbus(&["validate", &path]);
+        let secs = t0.elapsed().as_secs_f64();
+        let lines = stderr_lines(&o);
+        assert_eq!(o.status.code(), Some(2), "{path}: {lines:?}");
+        assert_eq!(lines.len(), 1, "{path}: {lines:?}");
+        assert!(lines[0].starts_with(&format!("{path}: ")), "{lines:?}");
+        assert!(lines[0].contains(why), "{path}: {lines:?}");
+        assert!(secs < 1.0, "{path} took {secs} s");
+    }
+    let _ = feeder.kill();
+    let _ = feeder.wait();
+}

@@ -61,9 +61,26 @@ fn scaled_config(origin: &str, text: &str, scale: f64) -> Result<ShotConfig> {
         d.size[1],
         side(d.size[2])
     );
+    // The heating keeps its pattern (what makes the scene the scene): the heat sources move
+    // and shrink with the width, and the noise keeps at least 2 cells per periodic axis (at a
+    // quarter width, a 600 m noise over 832 m was one cell: uniform heating that only varied in
+    // time, and differed from seed to seed).
+    let (sx, sz) = (side(d.size[0]), side(d.size[2]));
+    let mut overrides = vec![size, "adaptive.enabled=true".into()];
+    let noise = full.physics.heat_noise_scale.min(0.5 * sx.min(sz));
+    overrides.push(format!("physics.heat_noise_scale={noise}"));
+    let f = sx / d.size[0];
+    for (i, src) in full.physics.sources.iter().enumerate() {
+        overrides.push(format!(
+            "physics.sources[{i}].center=[{},{}]",
+            src.center[0] * sx / d.size[0],
+            src.center[1] * sz / d.size[2]
+        ));
+        overrides.push(format!("physics.sources[{i}].radius={}", src.radius * f));
+    }
     // The voxel size only matters for validation (the bench exports nothing); the spacing is a
     // multiple of it in the shots, so every scaled extent stays a whole number of voxels.
-    crate::config::load_str(text, origin, &[size, "adaptive.enabled=true".into()])
+    crate::config::load_str(text, origin, &overrides)
 }
 
 fn non_adaptive(cfg: &ShotConfig) -> Result<ShotConfig> {
@@ -310,6 +327,15 @@ mod tests {
         assert!(a.adaptive.enabled);
         // 3200 * 0.25 = 800 m -> 12.5 spacings, rounded to 13 (832 m); height kept.
         assert_eq!(a.domain.size, [832.0, 1600.0, 832.0]);
+        // ... and the heating noise keeps 2 cells per axis
+        assert_eq!(a.physics.heat_noise_scale, 416.0);
+        let (cell, period) = crate::sim::noise::lattice_for_extent(832.0, 416.0);
+        assert_eq!((cell, period), (416.0, 2));
+        // example 2's patches move and shrink with the width
+        let (_, origin2, text2) = SCENARIOS[1];
+        let b = scaled_config(origin2, text2, 0.25).unwrap();
+        assert_eq!(b.physics.sources[0].center, [208.0, 208.0]);
+        assert_eq!(b.physics.sources[0].radius, 104.0);
         let n = non_adaptive(&a).unwrap();
         assert!(!n.adaptive.enabled);
         // Level-3 particles: h = h0 2^-1, so the spacing halves.

@@ -163,7 +163,7 @@ mod tests {
             "output.fps=30",
             "output.frame_padding=6",
             "output.preview.enabled=true",
-            "export.voxel_size=3",
+            "export.voxel_size=4",
             "export.vdb.compression=zip",
             "checkpoint.every=2",
             "gpu.adapter=nvidia",

@@ -10,27 +10,72 @@ mod validate;
 
 pub use hash::{full_hash, sim_hash, sim_key_diff, NON_SIM_KEYS};
 pub use schema::*;
-pub use validate::{lattice_count, MAX_CAPACITY, MAX_PARTICLES, MAX_VOXELS_PER_AXIS};
+pub use validate::{
+    float_values, lattice_count, FloatRange, FLOAT_RANGES, MAX_CAPACITY, MAX_FRAME, MAX_LEVEL,
+    MAX_MIN_DISTANCE, MAX_PARTICLES, MAX_SHOT_BYTES, MAX_VOXELS_PER_AXIS,
+};
 
 use crate::error::{Error, Result};
 use node::{Key, Node, Pos, Val};
 use std::collections::HashMap;
 use std::path::Path;
 
+/// Largest config file accepted (bytes): a shot config is a few kilobytes.
+pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
 /// Reads, parses, overrides (`--set key.path=value`, in order), deserializes and validates.
+/// The file must be a regular file of at most [`MAX_CONFIG_BYTES`] (a directory, FIFO or device
+/// is refused at once, without reading it).
 pub fn load(path: &Path, overrides: &[String]) -> Result<ShotConfig> {
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|e| {
-        let why = match e.kind() {
-            std::io::ErrorKind::NotFound => "no such file".to_string(),
-            std::io::ErrorKind::PermissionDenied => "permission denied".to_string(),
-            std::io::ErrorKind::IsADirectory => "is a directory, not a config file".to_string(),
-            _ => e.to_string(),
-        };
-        Error::Config(format!("{name}: cannot read config: {why}"))
-    })?;
+    let bytes = read_bounded(path)
+        .map_err(|why| Error::Config(format!("{name}: cannot read config: {why}")))?;
     let text = decode(&name, &bytes)?;
     load_str(&text, &name, overrides)
+}
+
+/// The bytes of a regular file of at most [`MAX_CONFIG_BYTES`], or why not.
+fn read_bounded(path: &Path) -> std::result::Result<Vec<u8>, String> {
+    use std::io::Read;
+    let words = |e: std::io::Error| match e.kind() {
+        std::io::ErrorKind::NotFound => "no such file".to_string(),
+        std::io::ErrorKind::PermissionDenied => "permission denied".to_string(),
+        std::io::ErrorKind::IsADirectory => "is a directory, not a config file".to_string(),
+        _ => e.to_string(),
+    };
+    let kind = |m: &std::fs::Metadata| -> std::result::Result<(), String> {
+        let t = m.file_type();
+        if t.is_dir() {
+            return Err("is a directory, not a config file".into());
+        }
+        if !t.is_file() {
+            return Err(
+                "not a regular file (a FIFO, socket or device); configs must be regular files"
+                    .into(),
+            );
+        }
+        if m.len() > MAX_CONFIG_BYTES {
+            return Err(format!(
+                "{} bytes is larger than the {MAX_CONFIG_BYTES}-byte limit of a config file",
+                m.len()
+            ));
+        }
+        Ok(())
+    };
+    // stat before open: opening a FIFO would block until someone writes to it.
+    kind(&std::fs::metadata(path).map_err(words)?)?;
+    let f = std::fs::File::open(path).map_err(words)?;
+    kind(&f.metadata().map_err(words)?)?;
+    let mut bytes = Vec::new();
+    f.take(MAX_CONFIG_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(words)?;
+    if bytes.len() as u64 > MAX_CONFIG_BYTES {
+        return Err(format!(
+            "larger than the {MAX_CONFIG_BYTES}-byte limit of a config file"
+        ));
+    }
+    Ok(bytes)
 }
 
 /// Like [`load`] for text already in memory; `origin` names it in errors.

@@ -5,12 +5,24 @@ use std::fs::{self, File};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-/// Suffix of temporary files; leftovers with it are cleaned on resume.
+/// Suffix of temporary files; leftovers with it are cleaned under the run-directory lock.
 pub const TMP_SUFFIX: &str = ".nimbus-tmp";
 
+/// A fresh temporary name beside `path`, unique per process and call:
+/// `<name>.<pid>-<random hex>.nimbus-tmp`.
 pub fn tmp_path(path: &Path) -> PathBuf {
+    use std::hash::{BuildHasher, Hasher};
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    // RandomState is seeded from the OS once per process; the counter makes each call differ.
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u64(COUNTER.fetch_add(1, Ordering::Relaxed));
     let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(TMP_SUFFIX);
+    name.push(format!(
+        ".{}-{:016x}{TMP_SUFFIX}",
+        std::process::id(),
+        h.finish()
+    ));
     path.with_file_name(name)
 }
 
@@ -61,7 +73,7 @@ mod tests {
         write_atomic(&p, b"one").unwrap();
         write_atomic(&p, b"two").unwrap();
         assert_eq!(fs::read(&p).unwrap(), b"two");
-        assert!(!tmp_path(&p).exists());
+        assert_eq!(leftovers(dir.path()), 0);
     }
 
     #[test]
@@ -72,6 +84,27 @@ mod tests {
         let err = write_atomic_with(&p, |_| Err(std::io::Error::other("disk full"))).unwrap_err();
         assert!(err.to_string().contains("disk full"));
         assert_eq!(fs::read(&p).unwrap(), b"good");
-        assert!(!tmp_path(&p).exists());
+        assert_eq!(leftovers(dir.path()), 0);
+    }
+
+    fn leftovers(dir: &Path) -> usize {
+        fs::read_dir(dir)
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().ends_with(TMP_SUFFIX))
+            .count()
+    }
+
+    #[test]
+    fn temp_names_are_unique_and_carry_the_pid() {
+        let p = Path::new("d/a.bin");
+        let (a, b) = (tmp_path(p), tmp_path(p));
+        assert_ne!(a, b);
+        let name = a.file_name().unwrap().to_string_lossy().to_string();
+        assert!(
+            name.starts_with(&format!("a.bin.{}-", std::process::id())),
+            "{name}"
+        );
+        assert!(name.ends_with(TMP_SUFFIX), "{name}");
     }
 }

@@ -70,6 +70,15 @@ pub const MAGIC: &[u8; 8] = b"NIMBUSCK";
 pub const FORMAT_VERSION: u32 = 1;
 /// File name extension.
 pub const EXTENSION: &str = "nck";
+/// Extra section holding the run's resolved config as JSON (written by the frame loop).
+pub const CONFIG_SECTION: &str = "config";
+
+/// The resolved config a checkpoint records, if it has one that still loads.
+pub fn config_of(ck: &Checkpoint) -> Option<crate::config::ShotConfig> {
+    let bytes = ck.extra.get(CONFIG_SECTION)?;
+    serde_json::from_slice(bytes).ok()
+}
+
 /// Names of the particle-array sections, in file order; extra sections may not use them.
 pub const STATE_SECTIONS: [&str; 5] = ["pos", "vel", "thermo", "info", "density"];
 

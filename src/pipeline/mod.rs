@@ -1,9 +1,12 @@
 //! The frame loop Simulate (GPU) -> Splat (CPU) -> Write, checkpoint policy, progress, records.
+pub mod lock;
 pub mod naming;
 pub mod progress;
 pub mod records;
 pub mod rerender;
 pub mod run;
+pub mod run_dir;
+pub mod watchdog;
 pub mod writer;
 
 pub use progress::LogFormat;

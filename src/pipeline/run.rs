@@ -1,6 +1,7 @@
 //! The frame loop: the GPU simulates frame N+1 while a writer thread splats and writes frame N
 //! (a bounded queue of one frame keeps memory bounded). Checkpoints are written after the writer
 //! has caught up, so every frame up to a checkpoint is on disk before the checkpoint exists.
+use super::lock::RunLock;
 use super::naming::{self, resume_command};
 use super::progress::{LogFormat, Progress};
 use super::records::{FrameStats, Manifest, StatsLog};
@@ -18,8 +19,9 @@ use std::time::Instant;
 
 /// How a run starts.
 pub enum Start {
-    /// A new run: the simulation starts at the first frame.
-    Fresh,
+    /// A new run: the simulation starts at the first frame. The directory must be empty of
+    /// runs (see `run_dir`); with `force`, an earlier run's own files are removed first.
+    Fresh { force: bool },
     /// Go on from the newest valid checkpoint in the run directory.
     Resume,
 }
@@ -30,9 +32,23 @@ pub struct RunOptions {
     pub start: Start,
 }
 
-/// Runs (or resumes) a shot into `opts.out_dir`.
-pub fn run(cfg: &ShotConfig, opts: &RunOptions) -> Result<()> {
+/// Runs (or resumes) a shot into `opts.out_dir`, which `lock` must hold.
+pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     let run_dir = opts.out_dir.as_path();
+    if lock.dir() != run_dir {
+        return Err(Error::Runtime(format!(
+            "internal: {} is run without its lock",
+            run_dir.display()
+        )));
+    }
+    // Checked before anything is written (a refused run leaves the directory as it was).
+    match opts.start {
+        Start::Fresh { force } => super::run_dir::prepare_fresh(run_dir, force)?,
+        // Under the lock every temporary file is a leftover of a process that died.
+        Start::Resume => {
+            checkpoint::remove_temp_files(run_dir)?;
+        }
+    }
     for d in naming::DIRS {
         std::fs::create_dir_all(run_dir.join(d)).map_err(|e| Error::io(run_dir.join(d), e))?;
     }
@@ -42,18 +58,19 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions) -> Result<()> {
 
     // What to resume from, decided before the GPU is opened (bad input fails fast).
     let resumed: Option<checkpoint::Checkpoint> = match opts.start {
-        Start::Fresh => {
-            clear_checkpoints(&ckpt_dir)?;
-            None
-        }
+        Start::Fresh { .. } => None,
         Start::Resume => {
-            checkpoint::remove_temp_files(run_dir)?;
-            let (found, skipped) = checkpoint::find_resumable(&ckpt_dir, &sim_hash)?;
+            let scan = checkpoint::scan_resumable(&ckpt_dir, &sim_hash)?;
+            let skipped: Vec<String> = scan.skipped.iter().map(|s| s.to_string()).collect();
             for s in &skipped {
                 eprintln!("warning: skipped checkpoint: {s}");
             }
-            match found {
+            if scan.found.is_none() && scan.config_changed() {
+                return Err(changed_keys_error(cfg, &scan));
+            }
+            match scan.found {
                 Some((path, ck)) => {
+                    check_resume_frame(cfg, &path, ck.header.frame)?;
                     eprintln!(
                         "resuming from {} (frame {})",
                         path.display(),
@@ -88,15 +105,17 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions) -> Result<()> {
                 );
             }
             // The header holds the last completed frame; the clock counts the next one.
+            // Bounded by check_resume_frame: frame <= frames.end <= config::MAX_FRAME.
+            let next = ck.header.frame + 1;
             let clock = SimClock {
-                frame: ck.header.frame + 1,
+                frame: next,
                 step: ck.header.step,
                 time: ck.header.time,
                 next_id: ck.header.next_id,
             };
             (
                 Simulation::from_state(ctx.clone(), cfg, &ck.state, clock)?,
-                ck.header.frame + 1,
+                next,
             )
         }
     };
@@ -104,6 +123,20 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions) -> Result<()> {
     let writer = FrameWriter::new(cfg, run_dir)?;
     let mut manifest = match (&resumed, Manifest::load(run_dir)) {
         (Some(_), Ok(m)) => m,
+        (Some(_), Err(_)) => {
+            // Resuming without a manifest: rebuild it from the frame files on disk.
+            let mut m = writer.new_manifest(cfg, &adapter, &sim_hash)?;
+            let rebuilt = writer.records_on_disk(cfg.output.frames.start, first_frame)?;
+            eprintln!(
+                "note: {} rebuilt from the files on disk ({} frames found)",
+                run_dir.join(super::records::MANIFEST).display(),
+                rebuilt.len()
+            );
+            for rec in rebuilt {
+                m.record_frame(rec);
+            }
+            m
+        }
         _ => writer.new_manifest(cfg, &adapter, &sim_hash)?,
     };
     manifest.adapter = adapter.clone();
@@ -159,7 +192,16 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions) -> Result<()> {
             progress.phase(frame, "simulate", 0);
             let report = sim.step_frame()?;
             crate::fault::during_frame(frame);
-            let state = Arc::new(sim.state()?);
+            let mut state = sim.state()?;
+            crate::fault::poison_state(frame, &mut state);
+            // Before the frame is written or checkpointed: a diverged state reaches no file.
+            if let Some(what) = super::watchdog::check(&state, cfg) {
+                return Err(Error::Runtime(format!(
+                    "simulation diverged at frame {frame}: {what}; frames before it and the \
+                     last good checkpoint are kept"
+                )));
+            }
+            let state = Arc::new(state);
             let clock = sim.clock();
             let mut diagnostics = report.diagnostics.clone();
             diagnostics.extend(crate::sim::diagnostics::cloud_diagnostics(&state, cfg));
@@ -277,6 +319,56 @@ impl LoopState {
     }
 }
 
+/// No checkpoint matches the config's simulation keys: name every key that differs from the
+/// newest checkpoint that records its config.
+fn changed_keys_error(cfg: &ShotConfig, scan: &checkpoint::ResumeScan) -> Error {
+    for s in &scan.skipped {
+        if !matches!(s.reason, checkpoint::SkipReason::ConfigMismatch { .. }) {
+            continue;
+        }
+        if let Some(recorded) = checkpoint::read_checkpoint(&s.path)
+            .ok()
+            .and_then(|ck| checkpoint::config_of(&ck))
+        {
+            let diff = config::sim_key_diff(&recorded, cfg);
+            if !diff.is_empty() {
+                return Error::InvalidInput(format!(
+                    "{}: cannot resume: simulation keys differ from the checkpoint's: {}",
+                    s.path.display(),
+                    diff.join(", ")
+                ));
+            }
+        }
+    }
+    Error::InvalidInput(
+        "cannot resume: the simulation config differs from every checkpoint's (see the warnings above)"
+            .into(),
+    )
+}
+
+/// A checkpoint resumes only inside the frame range: one past `frames.end` (the range was
+/// lowered after it was written) or before `frames.start` is refused before anything is written.
+fn check_resume_frame(cfg: &ShotConfig, path: &Path, frame: u32) -> Result<()> {
+    let (start, end) = (cfg.output.frames.start, cfg.output.frames.end);
+    if frame > end {
+        return Err(Error::InvalidInput(format!(
+            "{}: cannot resume: the newest usable checkpoint holds frame {frame}, past \
+             output.frames.end = {end}; the run already went beyond that end: raise \
+             output.frames.end to {frame} or more (nimbus run CONFIG --out DIR --resume --set \
+             output.frames.end=N)",
+            path.display()
+        )));
+    }
+    if frame < start {
+        return Err(Error::InvalidInput(format!(
+            "{}: cannot resume: the checkpoint holds frame {frame}, before output.frames.start = \
+             {start}",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
 fn send(tx: &SyncSender<FrameJob>, job: FrameJob) -> Result<()> {
     tx.send(job)
         .map_err(|_| Error::Runtime("the writer thread stopped unexpectedly".into()))
@@ -306,29 +398,22 @@ fn write_checkpoint(
             next_id: clock.next_id,
         },
         state: state.clone(),
-        extra: Default::default(),
+        // The resolved config, so a run whose manifest was lost can still be resumed.
+        extra: [(
+            checkpoint::CONFIG_SECTION.to_string(),
+            serde_json::to_vec_pretty(cfg).map_err(|e| Error::Runtime(e.to_string()))?,
+        )]
+        .into(),
     };
     checkpoint::write_and_prune(dir, &ck, cfg.checkpoint.keep.max(1) as usize)
 }
 
-/// A fresh run must not later resume from a checkpoint of an earlier, different run.
-fn clear_checkpoints(dir: &Path) -> Result<()> {
-    let entries = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
-    for e in entries.flatten() {
-        let p = e.path();
-        if p.is_file() {
-            std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
-        }
-    }
-    Ok(())
-}
-
-/// SIGINT/SIGTERM set a flag: the loop finishes the frame, checkpoints and exits 130.
+/// SIGINT/SIGTERM/SIGHUP set a flag: the loop finishes the frame, checkpoints and exits 130.
 /// A second signal ends the process at once.
 fn install_signal_handlers() -> Result<Arc<AtomicBool>> {
-    use signal_hook::consts::{SIGINT, SIGTERM};
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
     let flag = Arc::new(AtomicBool::new(false));
-    for sig in [SIGINT, SIGTERM] {
+    for sig in [SIGINT, SIGTERM, SIGHUP] {
         signal_hook::flag::register_conditional_shutdown(sig, 130, flag.clone())
             .and_then(|_| signal_hook::flag::register(sig, flag.clone()))
             .map_err(|e| Error::Runtime(format!("cannot install signal handlers: {e}")))?;

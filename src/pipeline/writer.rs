@@ -164,6 +164,45 @@ impl FrameWriter {
         })
     }
 
+    /// The files a frame of this config has, in the order of its manifest record.
+    pub fn frame_files(&self, frame: u32) -> Vec<PathBuf> {
+        let c = &self.cfg;
+        let pad = c.output.frame_padding;
+        let f = |kind: &str, ext: &str| frame_file(&self.run_dir, kind, &c.shot, frame, pad, ext);
+        let mut v = Vec::new();
+        if c.export.vdb.enabled {
+            v.push(f("vdb", "vdb"));
+        }
+        if c.export.exr.enabled {
+            v.push(f("exr", "exr"));
+        }
+        if self.preview.is_some() && !c.export.grids.density.is_empty() {
+            v.push(f("preview", "png"));
+            if c.output.preview.exr {
+                v.push(f("preview", "exr"));
+            }
+        }
+        v
+    }
+
+    /// Records of the frames `start..before` whose files are all on disk, with the sizes and
+    /// checksums read from disk (a manifest rebuilt after it was lost).
+    pub fn records_on_disk(&self, start: u32, before: u32) -> Result<Vec<FrameRecord>> {
+        let mut out = Vec::new();
+        for frame in start..before {
+            let files = self.frame_files(frame);
+            if files.is_empty() || !files.iter().all(|p| p.is_file()) {
+                continue;
+            }
+            let files = files
+                .iter()
+                .map(|p| file_record(&self.run_dir, p))
+                .collect::<Result<Vec<_>>>()?;
+            out.push(FrameRecord { frame, files });
+        }
+        Ok(out)
+    }
+
     /// The grids of a frame under their configured names, with their aliases.
     fn vdb_file(&self, grids: SplatGrids, frame: u32) -> VdbFile {
         let names = &self.cfg.export.grids;

@@ -7,8 +7,9 @@
 //!    `n` in [0, 1] is the hash value noise of [`crate::sim::noise`] over the ground, drifting in
 //!    time at `heat_noise_speed` lattice cells per second and stretched by `heat_noise_contrast`;
 //! 2. buoyancy and cloud weight, eq. 6: `u_y += dt (kb (T - T0(y)) / T0(y) - kg w)` with the
-//!    environment `T0(y) = ground_temperature - environment_lapse_rate y`;
-//! 3. adiabatic cooling, eq. 7: `T -= Gamma_d u_y dt` (with u_y after step 2);
+//!    environment `T0(y)` of `physics.environment` (with its optional capping inversion);
+//! 3. adiabatic cooling, eq. 7: `T -= Gamma_d dy` over the height `dy` the substep's move gained
+//!    (`vel.w`, written by pbf.wgsl's `update_velocity`);
 //! 4. phase transition, eqs. 8-10: `w* = clamp(w + f (v - gamma), 0, v + w)`, `v* = (v + w) - w*`
 //!    with `gamma = min(A exp(B / (T + C)), v + w)` and `f = 1 - exp(-alpha dt)` (the exact
 //!    solution of the linear relaxation of eq. 9 over one step, so `f` stays below 1 for any dt;

@@ -1,0 +1,260 @@
+//! What a run directory holds, and preparing one for a fresh `run` without losing work.
+//!
+//! nimbus's own files in a run directory are: `.lock`; `manifest.json` when it parses as a
+//! nimbus manifest; then, by that manifest, every file it lists, every frame file named by its
+//! shot (the shot the newest checkpoint records when the manifest is lost) (`vdb/<shot>.<digits>.vdb`, `exr/<shot>.<digits>.exr`, `preview/<shot>.<digits>.png|exr`,
+//! a frame written just before a kill is not listed yet) and `preview/contact_sheet.png`;
+//! `stats.jsonl` when the manifest is nimbus's or every line is a stats line; checkpoint files
+//! (`checkpoints/ckpt_<digits>.nck` starting with the checkpoint magic); and temporary files
+//! (`*.nimbus-tmp`, stale once the lock is held). Everything else is foreign.
+//!
+//! A fresh `run` into a directory holding a run is refused (resume it, or `--force`); with
+//! `--force` only nimbus's own files are removed. A directory holding any foreign file is
+//! refused with or without `--force`: nothing nimbus did not write is ever deleted.
+use super::lock::LOCK_FILE;
+use super::naming::resume_command;
+use super::records::{FrameStats, Manifest, MANIFEST, STATS};
+use crate::error::{Error, Result};
+use crate::io::atomic::TMP_SUFFIX;
+use crate::io::checkpoint;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// The files of a run directory, sorted into nimbus's own and foreign ones (paths relative to
+/// the directory, `/`-separated).
+#[derive(Debug, Default)]
+pub struct Contents {
+    pub own: Vec<String>,
+    pub foreign: Vec<String>,
+    /// The manifest, when it is nimbus's.
+    pub manifest: Option<Manifest>,
+    /// Frames of the checkpoint files found.
+    pub checkpoints: Vec<u32>,
+}
+
+impl Contents {
+    /// Whether the directory holds (part of) a nimbus run: a manifest, checkpoints or stats.
+    pub fn holds_run(&self) -> bool {
+        self.manifest.is_some()
+            || !self.checkpoints.is_empty()
+            || self.own.iter().any(|p| p == STATS)
+    }
+}
+
+/// Sorts every file under `dir` (symlinks are not followed, and are foreign).
+pub fn survey(dir: &Path) -> Result<Contents> {
+    let files = walk(dir)?;
+    let mut c = Contents {
+        manifest: Manifest::load(dir).ok().filter(|m| m.tool == "nimbus"),
+        ..Default::default()
+    };
+    // The shot whose frame files are nimbus's: the manifest's, or (manifest lost) the one the
+    // newest checkpoint records.
+    let shot = match &c.manifest {
+        Some(m) => Some(m.shot.clone()),
+        None => checkpoint::list_checkpoints(&dir.join("checkpoints"))?
+            .iter()
+            .rev()
+            .find_map(|(_, p)| {
+                checkpoint::read_checkpoint(p)
+                    .ok()
+                    .and_then(|ck| checkpoint::config_of(&ck))
+            })
+            .map(|cfg| cfg.shot),
+    };
+    let listed: BTreeSet<&str> = c
+        .manifest
+        .iter()
+        .flat_map(|m| m.frames.iter())
+        .flat_map(|f| f.files.iter().map(|r| r.path.as_str()))
+        .collect();
+    let mut own = Vec::new();
+    let mut foreign = Vec::new();
+    for (rel, is_file) in files {
+        let mine = is_file
+            && (rel == LOCK_FILE
+                || rel.ends_with(TMP_SUFFIX)
+                || (rel == MANIFEST && c.manifest.is_some())
+                || (rel == STATS && (c.manifest.is_some() || stats_only(&dir.join(&rel))))
+                || listed.contains(rel.as_str())
+                || shot.as_ref().is_some_and(|s| frame_file_of(s, &rel))
+                || own_checkpoint(dir, &rel, &mut c.checkpoints));
+        if mine {
+            own.push(rel);
+        } else {
+            foreign.push(rel);
+        }
+    }
+    c.own = own;
+    c.foreign = foreign;
+    Ok(c)
+}
+
+/// Makes `dir` (locked by the caller) ready for a fresh run: nothing to do when it holds no
+/// files; refused when it holds a run (unless `force`: then that run's files are removed) or
+/// any foreign file.
+pub fn prepare_fresh(dir: &Path, force: bool) -> Result<()> {
+    let c = survey(dir)?;
+    if !c.foreign.is_empty() {
+        let shown: Vec<&str> = c.foreign.iter().take(3).map(String::as_str).collect();
+        let more = c.foreign.len().saturating_sub(shown.len());
+        return Err(Error::InvalidInput(format!(
+            "{}: holds {} file(s) nimbus did not write ({}{}); a run goes into a new or empty \
+             directory or over its own earlier run, and nimbus never deletes other files: \
+             choose another --out",
+            dir.display(),
+            c.foreign.len(),
+            shown.join(", "),
+            if more > 0 {
+                format!(", and {more} more")
+            } else {
+                String::new()
+            }
+        )));
+    }
+    if c.holds_run() && !force {
+        let what = match &c.manifest {
+            Some(m) => format!(
+                "shot '{}', {} of frames {}..={} written{}",
+                m.shot,
+                m.frames.len(),
+                m.frame_start,
+                m.frame_end,
+                if m.complete { ", complete" } else { "" }
+            ),
+            None => "no manifest".into(),
+        };
+        let ck = match c.checkpoints.iter().max() {
+            Some(f) => format!(", newest checkpoint frame {f}"),
+            None => String::new(),
+        };
+        return Err(Error::InvalidInput(format!(
+            "{d}: already holds a nimbus run ({what}{ck}); to go on with it: {resume}; to start \
+             over, deleting that run's files: add --force",
+            d = dir.display(),
+            resume = resume_command(dir)
+        )));
+    }
+    let mut removed = 0;
+    for rel in &c.own {
+        if rel == LOCK_FILE {
+            continue;
+        }
+        let p = dir.join(rel);
+        std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+        removed += 1;
+    }
+    if removed > 0 {
+        eprintln!(
+            "note: removed {removed} file(s) of an earlier run in {}",
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
+/// `kind/<shot>.<digits>.<ext>` with the extensions nimbus writes there, or the contact sheet.
+fn frame_file_of(shot: &str, rel: &str) -> bool {
+    if rel == "preview/contact_sheet.png" {
+        return true;
+    }
+    let Some((kind, name)) = rel.split_once('/') else {
+        return false;
+    };
+    let exts: &[&str] = match kind {
+        "vdb" => &["vdb"],
+        "exr" => &["exr"],
+        "preview" => &["png", "exr"],
+        _ => return false,
+    };
+    let Some(rest) = name.strip_prefix(shot).and_then(|r| r.strip_prefix('.')) else {
+        return false;
+    };
+    let Some((digits, ext)) = rest.split_once('.') else {
+        return false;
+    };
+    !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()) && exts.contains(&ext)
+}
+
+fn own_checkpoint(dir: &Path, rel: &str, frames: &mut Vec<u32>) -> bool {
+    let Some(name) = rel.strip_prefix("checkpoints/") else {
+        return false;
+    };
+    let Some(frame) = checkpoint::frame_of_name(name) else {
+        return false;
+    };
+    let mut head = [0u8; 8];
+    let ok = std::fs::File::open(dir.join(rel))
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
+        .is_ok()
+        && checkpoint::is_checkpoint(&head);
+    if ok {
+        frames.push(frame);
+    }
+    ok
+}
+
+/// Whether every line of the file is a nimbus stats line (an empty file is).
+fn stats_only(p: &Path) -> bool {
+    std::fs::read_to_string(p).is_ok_and(|t| {
+        t.lines()
+            .all(|l| serde_json::from_str::<FrameStats>(l).is_ok())
+    })
+}
+
+/// (relative path, is a regular file) of everything below `dir` but directories.
+fn walk(dir: &Path) -> Result<Vec<(String, bool)>> {
+    let mut out = Vec::new();
+    let mut stack: Vec<PathBuf> = vec![PathBuf::new()];
+    while let Some(rel) = stack.pop() {
+        let abs = dir.join(&rel);
+        let rd = std::fs::read_dir(&abs).map_err(|e| Error::io(&abs, e))?;
+        for entry in rd {
+            let entry = entry.map_err(|e| Error::io(&abs, e))?;
+            let ft = entry.file_type().map_err(|e| Error::io(entry.path(), e))?;
+            let r = rel.join(entry.file_name());
+            if ft.is_dir() {
+                stack.push(r);
+            } else {
+                out.push((r.to_string_lossy().replace('\\', "/"), ft.is_file()));
+            }
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_files_follow_the_naming() {
+        assert!(frame_file_of("tiny", "vdb/tiny.0003.vdb"));
+        assert!(frame_file_of("tiny", "preview/tiny.0003.exr"));
+        assert!(frame_file_of("tiny", "preview/contact_sheet.png"));
+        assert!(!frame_file_of("tiny", "vdb/tiny.0003.exr"));
+        assert!(!frame_file_of("tiny", "vdb/other.0003.vdb"));
+        assert!(!frame_file_of("tiny", "vdb/tiny.x3.vdb"));
+        assert!(!frame_file_of("tiny", "notes/tiny.0003.vdb"));
+    }
+
+    #[test]
+    fn empty_and_new_dirs_are_ready() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(dir.path().join("vdb")).unwrap();
+        std::fs::write(dir.path().join(LOCK_FILE), "").unwrap();
+        prepare_fresh(dir.path(), false).unwrap();
+    }
+
+    #[test]
+    fn foreign_files_refuse_even_with_force_and_stay() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(dir.path().join("checkpoints")).unwrap();
+        let f = dir.path().join("checkpoints/notes.txt");
+        std::fs::write(&f, "mine").unwrap();
+        let e = prepare_fresh(dir.path(), true).unwrap_err();
+        assert!(e.to_string().contains("checkpoints/notes.txt"), "{e}");
+        assert_eq!(std::fs::read(&f).unwrap(), b"mine");
+    }
+}
