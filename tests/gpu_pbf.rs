@@ -264,6 +264,16 @@ fn a_box_at_rest_under_gravity_settles() {
     );
 }
 
+/// Largest particle speed (m/s) of the simulation's state.
+fn max_speed(sim: &Simulation) -> f32 {
+    sim.state()
+        .unwrap()
+        .vel
+        .iter()
+        .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
+        .fold(0.0f32, f32::max)
+}
+
 /// Without gravity or heating, a lattice given random velocities must calm down (XSPH), not gain
 /// energy: with a two-sided density constraint and no expansion tolerance, under-dense pairs
 /// pulled together and reached the 30 m/s clamp within 2 s.
@@ -281,19 +291,11 @@ fn a_stirred_box_without_gravity_calms_down() {
          physics: {initial_speed: 0.5, heat_source: 0.0, buoyancy: 0.0}\n",
     );
     let mut sim = Simulation::new(ctx(), &cfg).unwrap();
-    let vmax = |sim: &Simulation| {
-        sim.state()
-            .unwrap()
-            .vel
-            .iter()
-            .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
-            .fold(0.0f32, f32::max)
-    };
-    let v0 = vmax(&sim);
+    let v0 = max_speed(&sim);
     for _ in 0..20 {
         sim.step_frame().unwrap();
     }
-    let v1 = vmax(&sim);
+    let v1 = max_speed(&sim);
     eprintln!("max speed {v0} m/s -> {v1} m/s after 2 s");
     assert!(v1 < v0, "the box gained speed: {v0} -> {v1} m/s");
 }
@@ -310,21 +312,13 @@ fn a_stirred_box_at_the_shots_time_step_stays_calm() {
          physics: {initial_speed: 0.5, heat_source: 0.0, buoyancy: 0.0}\n",
     );
     let mut sim = Simulation::new(ctx(), &cfg).unwrap();
-    let vmax = |sim: &Simulation| {
-        sim.state()
-            .unwrap()
-            .vel
-            .iter()
-            .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
-            .fold(0.0f32, f32::max)
-    };
-    let v0 = vmax(&sim);
+    let v0 = max_speed(&sim);
     let mut worst_error = 0.0f64;
     for _ in 0..40 {
         let d = sim.step_frame().unwrap().diagnostics;
         worst_error = worst_error.max(d["density_error_mean"]);
     }
-    let v1 = vmax(&sim);
+    let v1 = max_speed(&sim);
     eprintln!("max speed {v0} m/s -> {v1} m/s after 16 s; mean density error <= {worst_error}");
     assert!(v1 < 1.25 * v0, "the box boils: {v0} -> {v1} m/s");
     assert!(worst_error < 0.01, "mean density error {worst_error}");

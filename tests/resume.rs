@@ -98,7 +98,7 @@ fn sigint_checkpoints_exits_130_and_resumes() {
     while !out.join("stats.jsonl").exists() && t0.elapsed().as_secs() < 120 {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
-    unsafe_kill(child.id(), 2);
+    kill(child.id(), "INT");
     let o = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     // The signal comes after frame 1 of 8 (each takes a good fraction of a second here).
@@ -107,15 +107,6 @@ fn sigint_checkpoints_exits_130_and_resumes() {
     let r = resume(&out);
     assert!(r.status.success(), "{}", text(&r));
     assert_eq!(&checksums(&out), ref_sums);
-}
-
-fn unsafe_kill(pid: u32, sig: i32) {
-    let ok = std::process::Command::new("kill")
-        .arg(format!("-{sig}"))
-        .arg(pid.to_string())
-        .status()
-        .unwrap();
-    assert!(ok.success());
 }
 
 #[test]

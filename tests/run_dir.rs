@@ -46,15 +46,6 @@ fn resume(out: &Path) -> std::process::Command {
     c
 }
 
-fn kill(pid: u32, sig: &str) {
-    let ok = std::process::Command::new("kill")
-        .arg(format!("-{sig}"))
-        .arg(pid.to_string())
-        .status()
-        .unwrap();
-    assert!(ok.success());
-}
-
 /// Waits until `n` lines are in stats.jsonl (n frames on disk).
 fn wait_frames(out: &Path, n: usize) {
     let t0 = Instant::now();

@@ -211,6 +211,9 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                 &initial_layers,
                 clock.time,
             ));
+            if let Some(msg) = time_step_warning(frame, &diagnostics, cfg) {
+                progress.note("warning", &msg);
+            }
             loop_state.pending_stats.push(FrameStats {
                 frame,
                 sim_time: clock.time,
@@ -419,4 +422,31 @@ fn install_signal_handlers() -> Result<Arc<AtomicBool>> {
             .map_err(|e| Error::Runtime(format!("cannot install signal handlers: {e}")))?;
     }
     Ok(flag)
+}
+
+/// The speed clamp firing, or a frame that needed more substeps than `output.max_substeps`, is
+/// never silent: one warning line for the frame.
+fn time_step_warning(
+    frame: u32,
+    d: &std::collections::BTreeMap<String, f64>,
+    cfg: &ShotConfig,
+) -> Option<String> {
+    let clamped = d.get("clamped_particles").copied().unwrap_or(0.0);
+    let cfl = d.get("cfl_max").copied().unwrap_or(0.0);
+    let substeps = d.get("substeps").copied().unwrap_or(0.0);
+    let mut parts = Vec::new();
+    if clamped > 0.0 {
+        parts.push(format!(
+            "{clamped:.0} particles at the speed clamp solver.max_speed = {} m/s",
+            cfg.solver.max_speed
+        ));
+    }
+    // the CFL control chose the substeps from the frame's start; at the cap it cannot follow
+    if substeps >= cfg.output.max_substeps as f64 && cfl > cfg.output.cfl {
+        parts.push(format!(
+            "particles moved {cfl:.2} kernel radii per substep (output.cfl {}): raise output.max_substeps ({})",
+            cfg.output.cfl, cfg.output.max_substeps
+        ));
+    }
+    (!parts.is_empty()).then(|| format!("warning: frame {frame}: {}", parts.join("; ")))
 }

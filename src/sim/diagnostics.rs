@@ -1,4 +1,4 @@
-//! Cloud diagnostics of a read-back state, for stats.jsonl (see docs/SMOOTHING.md).
+//! Cloud and atmosphere diagnostics of a read-back state, for stats.jsonl (docs/PHYSICS.md).
 //!
 //! All sums are f64 in particle index order, so the same state gives the same numbers. The
 //! neighbour counts of the isolation measure are integers computed per particle in parallel

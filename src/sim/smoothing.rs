@@ -1,12 +1,13 @@
 //! Temperature smoothing as a constraint (paper section 4.1, eqs. 12-17); see
-//! docs/SMOOTHING.md for what it does and how the isolation diagnostic measures it.
+//! docs/PHYSICS.md for what it does and how the isolation diagnostic measures it.
 //!
 //! One Jacobi iteration (shaders/smoothing.wgsl, entry `smooth_temperature`; f64 mirror
 //! `sim::reference::smoothing::smooth_temperature`) reads the temperatures and writes the
 //! smoothed ones into a scratch buffer owned by the stage, which is then copied back into
 //! `thermo`; `physics.smoothing.iterations` such iterations run per substep, none when
 //! `physics.smoothing.enabled` is false. Neighbours come from the cell table (27 cells,
-//! minimum-image displacement); boundary particles take part with their fixed temperature.
+//! minimum-image displacement); with `physics.smoothing.walls: fixed` the boundary particles take
+//! part with their fixed temperature, by default (insulated) they are left out.
 //!
 //! Usage: `let mut stage = SmoothingStage::new(&ctx, &cfg)?;` once, then per substep
 //! `stage.encode(&mut encoder, &SmoothingBuffers { .. }, count)`. The scratch buffer grows to

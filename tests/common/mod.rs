@@ -82,3 +82,14 @@ pub fn stats_without_timings(out: &Path) -> Vec<serde_json::Value> {
         })
         .collect()
 }
+
+/// Sends signal `sig` (a name: INT, TERM, HUP, KILL) to a process with kill(1).
+#[allow(dead_code)] // not every test binary signals
+pub fn kill(pid: u32, sig: &str) {
+    let ok = std::process::Command::new("kill")
+        .arg(format!("-{sig}"))
+        .arg(pid.to_string())
+        .status()
+        .unwrap();
+    assert!(ok.success());
+}

@@ -192,6 +192,12 @@ mod tests {
         }
     }
 
+    /// Standard deviation of a field.
+    fn spread(t: &[f64]) -> f64 {
+        let mean = t.iter().sum::<f64>() / t.len() as f64;
+        (t.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / t.len() as f64).sqrt()
+    }
+
     fn norm2(v: &[f64]) -> f64 {
         v.iter().map(|c| c * c).sum()
     }
@@ -243,10 +249,6 @@ mod tests {
             .iter()
             .map(|p| if p[0] < 4.0 { 290.0 } else { 300.0 })
             .collect();
-        let spread = |t: &[f64]| {
-            let mean = t.iter().sum::<f64>() / t.len() as f64;
-            (t.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / t.len() as f64).sqrt()
-        };
         let run = |dt: f64, substeps: usize, per_substep: bool| {
             let mut p = SmoothParams::new(&cfg, s.pos.len() as u32, dt);
             if per_substep {
@@ -282,10 +284,6 @@ mod tests {
             .iter()
             .map(|p| if p[0] < 4.0 { 290.0 } else { 300.0 })
             .collect();
-        let spread = |t: &[f64]| {
-            let mean = t.iter().sum::<f64>() / t.len() as f64;
-            (t.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / t.len() as f64).sqrt()
-        };
         let run = |kappa: f32, iterations: usize| {
             let p = params(&s, kappa);
             let mut t = t0.clone();
