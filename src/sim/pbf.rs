@@ -68,7 +68,7 @@ impl PbfParams {
 
     /// A substep of `dt` seconds: dt, 1/dt and the XSPH fraction of this substep,
     /// `1 - (1 - solver.xsph)^(dt / solver.reference_step)`, and the s_corr strength
-    /// `solver.scorr_k dt / solver.reference_step`.
+    /// `solver.scorr_k min(dt / solver.reference_step, 1)`.
     pub fn set_dt(&mut self, cfg: &ShotConfig, dt: f64) {
         self.dt = dt as f32;
         self.inv_dt = (1.0 / dt) as f32;
@@ -77,6 +77,7 @@ impl PbfParams {
         // s_corr acts in every iteration of every substep, and its pushes add up like a
         // stiffness: at 4x the substeps the same k held a heated layer in place (docs/PHYSICS.md
         // "Substeps"); so k is per reference_step too
-        self.scorr_k = (cfg.solver.scorr_k * share) as f32;
+        // (never above k itself: a substep longer than reference_step does not push harder)
+        self.scorr_k = (cfg.solver.scorr_k * share.min(1.0)) as f32;
     }
 }
