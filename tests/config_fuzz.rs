@@ -2,7 +2,7 @@
 //! mutated (other types, empty, huge and tiny numbers, NaN and infinities, deep nesting, values
 //! scaled around the original). Every mutation must give either `validate` exit 0, or exit 2
 //! with one line `FILE[:LINE:COL]: KEY: reason`; never a panic or any other exit code. A seeded
-//! sample of the mutations that validate (up to 25k particles: samples and quickstart) is run for one
+//! sample of the mutations that validate (up to 30k particles: samples and quickstart) is run for one
 //! frame, which must succeed: validate never says ok about a shot that run refuses.
 //! `NIMBUS_TEST_SEED=N` replays a seed, `NIMBUS_FUZZ_RUNS=N` runs N shots (default 30); the
 //! counts are printed.
@@ -207,7 +207,7 @@ fn every_mutation_validates_cleanly_or_is_refused_with_a_position_key_and_reason
                     .and_then(|s| s.rsplit(' ').next())
                     .and_then(|n| n.parse().ok())
                     .unwrap_or(u64::MAX);
-                if particles <= 25_000 {
+                if particles <= 30_000 {
                     ok_small.push((p.clone(), key.clone()));
                 }
             }

@@ -540,6 +540,7 @@ impl Simulation {
         let ctx = self.ctx.clone();
         let dev = &ctx.device;
         let mut last_error = (0.0, 0.0);
+        let mut last_compression = (0.0, 0.0);
         let substeps = self.substeps_for_next_frame();
         let dt = self.cfg.output.frame_seconds / substeps as f64;
         if self.params.dt != dt as f32 {
@@ -583,7 +584,9 @@ impl Simulation {
                 // Read before split/merge, which move particles without their densities.
                 let density: Vec<f32> =
                     read_back(dev, &self.ctx.queue, &self.b.density, self.count as usize)?;
-                last_error = density_error(&density, self.params.rest_density as f64);
+                let rho0 = self.params.rest_density as f64;
+                last_error = density_error(&density, rho0);
+                last_compression = compression_error(&density, rho0);
             }
             self.adapt(&mut report)?;
         }
@@ -607,6 +610,13 @@ impl Simulation {
         let (mean, max) = last_error;
         report.diagnostics.insert("density_error_mean".into(), mean);
         report.diagnostics.insert("density_error_max".into(), max);
+        let (mean, max) = last_compression;
+        report
+            .diagnostics
+            .insert("density_compression_mean".into(), mean);
+        report
+            .diagnostics
+            .insert("density_compression_max".into(), max);
         report
             .diagnostics
             .insert("particles".into(), self.count as f64);
@@ -840,6 +850,13 @@ pub fn speed_ratio(vel: &[[f32; 4]], info: &[[u32; 2]], h0: f64) -> f64 {
             s / (h0 * (-(i[1] as f64) / 3.0).exp2())
         })
         .fold(0.0, f64::max)
+}
+
+/// Mean and max of max(rho / rho0 - 1, 0), the over-density alone: the part every particle's
+/// constraint corrects (split particles correct nothing else).
+pub fn compression_error(density: &[f32], rho0: f64) -> (f64, f64) {
+    let over: Vec<f32> = density.iter().map(|&d| d.max(rho0 as f32)).collect();
+    density_error(&over, rho0)
 }
 
 /// Mean and max of |rho / rho0 - 1| (summed in f64 in index order: deterministic).
