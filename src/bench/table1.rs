@@ -191,12 +191,13 @@ fn run(
             break;
         }
     }
-    let substeps = cfg.output.substeps.max(1) as u64;
     for f in 0..frames {
         let t0 = std::time::Instant::now();
         let rep = sim.step_frame()?;
         r.wall_ms += t0.elapsed().as_secs_f64() * 1e3;
-        r.substeps += substeps;
+        // the CFL control may take more than output.substeps
+        let substeps = rep.diagnostics.get("substeps").copied();
+        r.substeps += substeps.unwrap_or(cfg.output.substeps as f64).max(1.0) as u64;
         for (k, v) in &rep.phase_ms {
             *r.phase_ms.entry(k.clone()).or_insert(0.0) += v;
         }
