@@ -116,7 +116,7 @@ fn a_heated_parcel_rises_to_its_level_of_neutral_buoyancy() {
 /// with the fluid particle's own mass gave a level-3 particle 0.07 rho0 from the wall instead of
 /// 0.5), so after 4 s none is left on a plane and those next to the walls are not compressed.
 /// Measured: nearest 0.097 m from a wall, rho/rho0 - 1 mean -0.028, max 0.0004; with the wall
-/// weighted by the fluid particle's mass: 0.000 m (still on the planes), mean -0.16. 4 density
+/// weighted by the fluid particle's mass: 0.004 m (on the planes still), mean -0.16. 4 density
 /// iterations a substep (reference_step = dt, the shots' h/dt) and a weak s_corr (0.002): with
 /// the full s_corr (0.1 a substep) some particles stay on a plane (docs/PHYSICS.md "Known
 /// limits").
