@@ -8,6 +8,7 @@
 use crate::config::ShotConfig;
 use crate::sim::grid_params::GridParams;
 use crate::sim::reference::kernels::poly6;
+use crate::sim::thermo::environment_temperature;
 use crate::sim::ParticleState;
 
 /// Particles per axis of the initial lattice and its spacing per axis: `round(size / d)` cells
@@ -59,11 +60,6 @@ pub fn hash_uniform(seed: u64, index: u64, draw: u64) -> f64 {
     (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
 }
 
-/// Environment temperature T0(y) (`physics.environment`).
-pub fn environment_temperature(cfg: &ShotConfig, y: f64) -> f64 {
-    crate::sim::thermo::environment_temperature(&cfg.physics, y)
-}
-
 /// Saturation mixing ratio of eq. 10.
 pub fn saturation(cfg: &ShotConfig, t: f64) -> f64 {
     let p = &cfg.physics;
@@ -100,7 +96,7 @@ pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
                     speed * cos_t,
                     speed * sin_t * phi.sin(),
                 ];
-                let t = environment_temperature(cfg, p[1]);
+                let t = environment_temperature(&cfg.physics, p[1]);
                 let vapor = cfg.physics.initial_vapor * saturation(cfg, t);
                 s.pos.push([p[0] as f32, p[1] as f32, p[2] as f32, 0.0]);
                 s.vel.push([v[0] as f32, v[1] as f32, v[2] as f32, 0.0]);
@@ -120,8 +116,8 @@ pub fn boundary_particles(cfg: &ShotConfig, grid: &GridParams) -> (Vec<[f32; 4]>
     let h = kernel_radius(cfg);
     let layers = ((h / d[1] - 0.5).ceil() as usize).max(1);
     let size_y = cfg.domain.size[1];
-    let t_floor = environment_temperature(cfg, 0.0);
-    let t_ceil = environment_temperature(cfg, size_y);
+    let t_floor = environment_temperature(&cfg.physics, 0.0);
+    let t_ceil = environment_temperature(&cfg.physics, size_y);
     let mut pts: Vec<[f64; 4]> = Vec::new();
     for (wall, t) in [(0, t_floor), (1, t_ceil)] {
         for l in 0..layers {
