@@ -27,7 +27,8 @@ struct PbfParams {
     single_level: u32,
     // under-density up to this fraction is left alone (solver.expansion_tolerance)
     expansion_tolerance: f32,
-    _p2: f32,
+    // the share of that correction split particles get (solver.split_expansion_weight)
+    split_expansion_weight: f32,
     // per level l: (h_l, poly6 factor 315/(64 pi h^9), spiky factor -45/(pi h^6), m_l): no pow or
     // exp2 per neighbour pair (the dominant cost on CPU Vulkan)
     lv: array<vec4<f32>, 8>,
@@ -162,6 +163,8 @@ struct LamAcc {
     grad: vec3<f32>,
     rho: f32,
     g2: f32,
+    // a wall particle is within the kernel
+    near_wall: bool,
 }
 struct Me {
     p: vec3<f32>,
@@ -225,6 +228,7 @@ fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
         let m = prm.lv[0].w;
         (*a).rho += m * wsym(r2, me.lv, prm.lv[0]);
         (*a).grad += gsym(xik, sqrt(r2), me.lv, prm.lv[0]) * (m / prm.rest_density);
+        (*a).near_wall = true;
     }
 }
 
@@ -233,7 +237,7 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
     let i = linear_id(gid, nwg);
     if (i >= grid.n_particles) { return; }
     let me = me_of(i, vec4<f32>(pred[i].xyz, 0.0));
-    var a = LamAcc(vec3<f32>(0.0), 0.0, 0.0);
+    var a = LamAcc(vec3<f32>(0.0), 0.0, 0.0, false);
     let c = cell_coord(me.p, grid);
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
@@ -256,9 +260,13 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
     var constraint = a.rho / prm.rest_density - 1.0;
     if (constraint < 0.0) {
         constraint = min(constraint + prm.expansion_tolerance, 0.0);
-        // split particles: compression only (their eq. 19 density reads low next to coarser
-        // neighbours, and pulling them in clumps them)
-        if (me.li > 0u) { constraint = 0.0; }
+        // Split particles get a share of it: their eq. 19 density is noisy next to coarser
+        // neighbours; pulled in fully they clump (particles at the speed clamp in quickstart),
+        // not at all they sit 2.7% under-dense (quickstart frame 48, level 3). Next to a wall,
+        // none: a pulled split particle is held on the clamp plane.
+        var w = prm.split_expansion_weight;
+        if (a.near_wall) { w = 0.0; }
+        if (me.li > 0u) { constraint = constraint * w; }
     }
     scratch[i] = vec4<f32>(me.p, -constraint / (a.g2 + dot(a.grad, a.grad) + prm.eps));
     density[i] = a.rho;

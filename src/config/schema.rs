@@ -200,8 +200,11 @@ pub struct SolverConfig {
     /// removed per `reference_step` seconds of simulated time.
     pub xsph: f64,
     /// Under-density (fraction of rho0) the density constraint leaves alone; larger voids are
-    /// filled. Split particles are held against compression only.
+    /// filled. Split particles get `split_expansion_weight` of the rest.
     pub expansion_tolerance: f64,
+    /// The share of the under-density correction (beyond `expansion_tolerance`) that split
+    /// particles get: 0 = compression only, 1 = two-sided like level 0.
+    pub split_expansion_weight: f64,
     /// Simulated time (s) over which `solver.xsph` and `physics.smoothing.kappa` apply their
     /// fraction: a substep of dt applies 1 - (1 - c)^(dt / reference_step), so the look does
     /// not change with the number of substeps.
@@ -225,6 +228,7 @@ impl Default for SolverConfig {
             xsph: 0.01,
             reference_step: 4.0,
             expansion_tolerance: 0.01,
+            split_expansion_weight: 0.25,
             vorticity: 0.0,
             gravity: 0.0,
             max_speed: 30.0,

@@ -22,7 +22,8 @@ pub struct PbfParams {
     pub single_level: u32,
     /// Under-density up to this fraction of rho0 is not corrected (`solver.expansion_tolerance`).
     pub expansion_tolerance: f32,
-    pub _pad: f32,
+    /// The share of that correction split particles get (`solver.split_expansion_weight`).
+    pub split_expansion_weight: f32,
     /// Per level l (0..8): (h_l, 315 / (64 pi h_l^9), -45 / (pi h_l^6), m_l).
     pub levels: [[f32; 4]; 8],
 }
@@ -50,7 +51,7 @@ impl PbfParams {
             max_speed: s.max_speed as f32,
             single_level: 0,
             expansion_tolerance: s.expansion_tolerance as f32,
-            _pad: 0.0,
+            split_expansion_weight: s.split_expansion_weight as f32,
             levels: std::array::from_fn(|l| {
                 let h = h0 * (-(l as f64) / 3.0).exp2();
                 let pi = std::f64::consts::PI;

@@ -112,6 +112,7 @@ pub fn compute_lambda(sc: &Scene, pred: &[V3]) -> (Vec<f64>, Vec<f64>) {
         let mut rho = 0.0;
         let mut grad_i = [0.0; 3];
         let mut sum2 = 0.0;
+        let mut near_wall = false;
         for_each_neighbor(sc.grid, sc.cell_start, pred, p, |j, xij| {
             let r2 = dot(xij, xij);
             let hj = sc.h(j);
@@ -131,17 +132,23 @@ pub fn compute_lambda(sc: &Scene, pred: &[V3]) -> (Vec<f64>, Vec<f64>) {
             }
             // wall particles weigh m0 whatever the fluid particle's level
             rho += m0 * poly6_sym(r2, hi, h0);
+            near_wall = true;
             grad_i = add(
                 grad_i,
                 scale(spiky_grad_sym(xik, r2.sqrt(), hi, h0), m0 / rho0),
             );
         });
         let mut c = rho / rho0 - 1.0;
-        // the under-density tolerance, and compression only for split particles (the shader)
+        // the under-density tolerance, and a share of the rest for split particles, none next
+        // to a wall (the shader)
         if c < 0.0 {
             c = (c + sc.prm.expansion_tolerance as f64).min(0.0);
             if sc.level[i] > 0 {
-                c = 0.0;
+                c *= if near_wall {
+                    0.0
+                } else {
+                    sc.prm.split_expansion_weight as f64
+                };
             }
         }
         lam.push(-c / (sum2 + dot(grad_i, grad_i) + sc.prm.eps as f64));
