@@ -190,9 +190,8 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
         for frame in first_frame..=end {
             let t0 = Instant::now();
             progress.phase(frame, "simulate", 0);
-            let report = sim.step_frame()?;
+            let (report, mut state) = sim.step_frame_with_state()?;
             crate::fault::during_frame(frame);
-            let mut state = sim.state()?;
             crate::fault::poison_state(frame, &mut state);
             // Before the frame is written or checkpointed: a diverged state reaches no file.
             if let Some(what) = super::watchdog::check(&state, cfg) {

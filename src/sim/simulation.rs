@@ -530,6 +530,18 @@ impl Simulation {
     /// Advances one frame: [`Self::substeps_for_next_frame`] substeps of dt = frame_seconds /
     /// substeps.
     pub fn step_frame(&mut self) -> Result<FrameReport> {
+        Ok(self.advance_frame(false)?.0)
+    }
+
+    /// [`Self::step_frame`], returning the state at the frame's end as well: one read-back
+    /// serves the time-step control, the diagnostics and the caller (the run loop writes it).
+    pub fn step_frame_with_state(&mut self) -> Result<(FrameReport, ParticleState)> {
+        self.advance_frame(true)
+    }
+
+    /// One frame; at its end reads the whole state (`full`) or only what the time-step control
+    /// and the level counts need (vel, info).
+    fn advance_frame(&mut self, full: bool) -> Result<(FrameReport, ParticleState)> {
         // (phase, timing label)
         const PHASES: [(&str, &str); 4] = [
             ("predict", "pbf"),
@@ -599,10 +611,17 @@ impl Simulation {
             report.phase_ms.extend(timer.collect(dev)?);
         }
         self.clock.frame += 1;
-        let (n, q) = (self.count as usize, &self.ctx.queue);
-        let vel: Vec<[f32; 4]> = read_back(dev, q, &self.b.vel, n)?;
-        let info: Vec<[u32; 2]> = read_back(dev, q, &self.b.info, n)?;
-        self.speed_ratio = speed_ratio(&vel, &info, self.params.h0 as f64);
+        let end = if full {
+            self.state()?
+        } else {
+            let (n, q) = (self.count as usize, &self.ctx.queue);
+            ParticleState {
+                vel: read_back(dev, q, &self.b.vel, n)?,
+                info: read_back(dev, q, &self.b.info, n)?,
+                ..Default::default()
+            }
+        };
+        self.speed_ratio = speed_ratio(&end.vel, &end.info, self.params.h0 as f64);
         report
             .diagnostics
             .insert("substeps".into(), substeps as f64);
@@ -623,9 +642,9 @@ impl Simulation {
             .diagnostics
             .insert("particles".into(), self.count as f64);
         if self.adaptive.is_some() {
-            self.level_diagnostics(&mut report)?;
+            self.level_diagnostics(&mut report, &end.info);
         }
-        Ok(report)
+        Ok((report, end))
     }
 
     /// Temperature smoothing (4.1), then heating, buoyancy, cooling, phase transition and latent
@@ -738,20 +757,14 @@ impl Simulation {
     }
 
     /// Particles per level and total mass in units of m0 2^-max_level (exact integers).
-    fn level_diagnostics(&mut self, report: &mut FrameReport) -> Result<()> {
+    fn level_diagnostics(&mut self, report: &mut FrameReport, info: &[[u32; 2]]) {
         let Some(stage) = &self.adaptive else {
-            return Ok(());
+            return;
         };
-        let info: Vec<[u32; 2]> = read_back(
-            &self.ctx.device,
-            &self.ctx.queue,
-            &self.b.info,
-            self.count as usize,
-        )?;
         let max_level = stage.max_level();
         let mut per_level = vec![0u64; max_level as usize + 1];
         let mut units = 0u64;
-        for [_, level] in info {
+        for &[_, level] in info {
             per_level[(level.min(max_level)) as usize] += 1;
             units += crate::sim::adaptive::level_mass_units(level, max_level);
         }
@@ -762,7 +775,6 @@ impl Simulation {
         }
         report.diagnostics.insert("mass_units".into(), units as f64);
         self.set_single_level(per_level.iter().skip(1).all(|&n| n == 0));
-        Ok(())
     }
 
     /// Blocking read-back of the live particles (in the device's current cell order).
