@@ -40,9 +40,16 @@ struct ThermoParams {
     size_x: f32,
     size_z: f32,
     periodic: u32,
-    _pad0: u32,
+    // layers of the horizontal-mean buoyancy profile (0 = none: physics.buoyancy_reference)
+    n_layers: u32,
     // (centre x, centre z, radius, strength K/s)
     sources: array<vec4<f32>, 8>,
+    layer_height: f32,
+    _pad1: u32,
+    _pad2: u32,
+    _pad3: u32,
+    // the profile (m/s^2) at the layer centres, four a row (sim::thermo::LayerBuoyancy)
+    layers: array<vec4<f32>, 8>,
 }
 
 @group(0) @binding(0) var<uniform> P: ThermoParams;
@@ -124,6 +131,18 @@ fn environment_temperature(y: f32) -> f32 {
     return P.ground_temperature - P.lapse_rate * below + rise - P.lapse_above * above;
 }
 
+// The horizontal mean of eq. 6's force at height y, linear between layer centres
+// (sim::thermo::layer_weights); 0 without a profile.
+fn layer_mean(y: f32) -> f32 {
+    if (P.n_layers == 0u) { return 0.0; }
+    let t = clamp(y / P.layer_height - 0.5, 0.0, f32(P.n_layers - 1u));
+    let k0 = u32(floor(t));
+    let k1 = min(k0 + 1u, P.n_layers - 1u);
+    let a = P.layers[k0 / 4u][k0 % 4u];
+    let b = P.layers[k1 / 4u][k1 % 4u];
+    return mix(a, b, t - f32(k0));
+}
+
 @compute @workgroup_size(64)
 fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
@@ -138,9 +157,12 @@ fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
         temp = temp + P.dt * heating_rate(p.x, p.z, P.time);
     }
 
-    // eq. 6: F = kb (T - T0) / T0 j - kg w j, applied as a velocity change dt F.
+    // eq. 6: F = kb (T - T0) / T0 j - kg w j, applied as a velocity change dt F, less its
+    // horizontal mean at this height when there is a profile (a force of height alone only
+    // changes the pressure of a closed incompressible box).
     let t0 = environment_temperature(p.y);
-    u.y = u.y + P.dt * (P.buoyancy * (temp - t0) / t0 - P.cloud_weight * th.z);
+    let force = P.buoyancy * (temp - t0) / t0 - P.cloud_weight * th.z;
+    u.y = u.y + P.dt * (force - layer_mean(p.y));
 
     // eq. 7: dT = -Gamma_d dy over the height this substep's move gained (vel.w, written by
     // pbf.wgsl's update_velocity): T + Gamma_d y is kept exactly by a dry parcel, however the

@@ -11,7 +11,9 @@ use nimbus::sim::reference::grid::build_cell_table;
 use nimbus::sim::reference::smoothing::{smooth_temperature, temperature_laplacian, SmoothInput};
 use nimbus::sim::reference::thermo::thermo_step;
 use nimbus::sim::smoothing::{SmoothParams, SmoothingBuffers, SmoothingStage};
-use nimbus::sim::thermo::{initial_thermo, ThermoBuffers, ThermoParams, ThermoStage};
+use nimbus::sim::thermo::{
+    initial_thermo, LayerBuoyancy, ThermoBuffers, ThermoParams, ThermoStage,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -138,7 +140,13 @@ fn thermo_step_matches_mirror() {
     let stage = ThermoStage::new(&ctx, &cfg).unwrap();
     let n = 3000;
     let (pos, vel, th) = random_thermo_state(n, 42, &cfg);
-    let params = ThermoParams::new(&cfg, n as u32, 2.0, 137.0);
+    // and a horizontal-mean buoyancy profile (physics.buoyancy_reference: layer_mean) of
+    // different values per layer, read between the layer centres and clamped at the ends
+    let layers = LayerBuoyancy {
+        layer_height: cfg.domain.size[1] / 7.0,
+        values: (0..7).map(|k| 0.01 * (k as f64 - 2.5).powi(2)).collect(),
+    };
+    let params = ThermoParams::new(&cfg, n as u32, 2.0, 137.0).with_layers(&layers);
     let out = gpu_thermo(&ctx, &stage, &[params], &pos, &vel, &th);
 
     let pos64: Vec<[f64; 3]> = pos

@@ -261,6 +261,9 @@ pub struct PhysicsConfig {
     /// Buoyancy k_b (m/s^2) and cloud weight k_g (m/s^2 per kg/kg), eq. 6.
     pub buoyancy: f64,
     pub cloud_weight: f64,
+    /// What eq. 6's force is measured against: the environment T0(y) alone, or also less its
+    /// horizontal mean per height (`layer_mean`).
+    pub buoyancy_reference: BuoyancyReference,
     /// Phase transition rate alpha (1/s), eq. 9.
     pub phase_rate: f64,
     /// Saturation gamma = A exp(B / (T + C)), eq. 10.
@@ -290,6 +293,7 @@ impl Default for PhysicsConfig {
             heat_noise_contrast: 3.0,
             buoyancy: 9.81,
             cloud_weight: 9.81,
+            buoyancy_reference: BuoyancyReference::Environment,
             phase_rate: 0.05,
             saturation_a: 1.79e5,
             saturation_b: -4302.6,
@@ -357,6 +361,20 @@ pub struct HeatSource {
 #[serde(rename_all = "lowercase")]
 pub enum SourceShape {
     Disc,
+}
+
+/// The reference eq. 6's force is measured against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BuoyancyReference {
+    /// kb (T - T0(y)) / T0(y) - kg w, as in the paper.
+    Environment,
+    /// The same, less its mass-weighted horizontal mean at the particle's height (from the
+    /// state at the start of the frame). A force that depends on height alone is balanced by
+    /// pressure in a closed incompressible box, so this changes no exact solution; it leaves
+    /// the density solve only the horizontal differences to hold (heating under the whole
+    /// ground otherwise lifts the bottom layer faster than the solve refills it).
+    LayerMean,
 }
 
 /// How the walls take part in the temperature smoothing.

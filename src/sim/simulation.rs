@@ -23,7 +23,7 @@ use crate::sim::adaptive::{AdaptiveBuffers, AdaptiveStage};
 use crate::sim::grid_params::GridParams;
 use crate::sim::pbf::PbfParams;
 use crate::sim::smoothing::{SmoothingBuffers, SmoothingStage};
-use crate::sim::thermo::{ThermoBuffers, ThermoStage};
+use crate::sim::thermo::{LayerBuoyancy, ThermoBuffers, ThermoStage};
 use crate::sim::ParticleState;
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -347,7 +347,8 @@ impl Simulation {
         };
         let timer = ctx.timestamps.then(|| GpuTimer::new(dev, &ctx.queue));
         let smoothing = SmoothingStage::new(&ctx, cfg)?;
-        let thermo = ThermoStage::new(&ctx, cfg)?;
+        let mut thermo = ThermoStage::new(&ctx, cfg)?;
+        thermo.set_layers(LayerBuoyancy::of_state(cfg, state));
         let adaptive = if cfg.adaptive.enabled {
             let h0 = cfg.domain.spacing * cfg.domain.kernel_ratio;
             Some(AdaptiveStage::new(
@@ -542,6 +543,9 @@ impl Simulation {
     /// One frame; at its end reads the whole state (`full`) or only what the time-step control
     /// and the level counts need (vel, info).
     fn advance_frame(&mut self, full: bool) -> Result<(FrameReport, ParticleState)> {
+        // the next frame's buoyancy profile needs positions and thermo
+        let full = full
+            || self.cfg.physics.buoyancy_reference == crate::config::BuoyancyReference::LayerMean;
         // (phase, timing label)
         const PHASES: [(&str, &str); 4] = [
             ("predict", "pbf"),
@@ -622,6 +626,8 @@ impl Simulation {
             }
         };
         self.speed_ratio = speed_ratio(&end.vel, &end.info, self.params.h0 as f64);
+        self.thermo
+            .set_layers(LayerBuoyancy::of_state(&self.cfg, &end));
         report
             .diagnostics
             .insert("substeps".into(), substeps as f64);

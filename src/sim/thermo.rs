@@ -74,13 +74,22 @@ pub struct ThermoParams {
     pub size_x: f32,
     pub size_z: f32,
     pub periodic: u32,
-    pub _pad: u32,
+    /// Layers of the horizontal-mean buoyancy profile (`physics.buoyancy_reference:
+    /// layer_mean`); 0 = none.
+    pub n_layers: u32,
     /// Heat sources: (centre x, centre z, radius, strength K/s).
     pub sources: [[f32; 4]; MAX_SOURCES],
+    /// Thickness of a layer (m); the profile's values sit at the layer centres.
+    pub layer_height: f32,
+    pub _pad: [u32; 3],
+    /// The profile (m/s^2), four layers a row: [`LayerBuoyancy`].
+    pub layers: [[f32; 4]; MAX_LAYERS / 4],
 }
 
 /// Most entries of `physics.sources`.
 pub const MAX_SOURCES: usize = 8;
+/// Most layers of the horizontal-mean buoyancy profile.
+pub const MAX_LAYERS: usize = 32;
 
 impl ThermoParams {
     /// Parameters of one substep of length `dt` (s) starting at simulated time `time` (s).
@@ -120,7 +129,7 @@ impl ThermoParams {
             size_x: cfg.domain.size[0] as f32,
             size_z: cfg.domain.size[2] as f32,
             periodic: crate::sim::grid_params::GridParams::for_shot(cfg).periodic,
-            _pad: 0,
+            n_layers: 0,
             sources: std::array::from_fn(|k| {
                 p.sources.get(k).map_or([0.0; 4], |s| {
                     [
@@ -132,8 +141,75 @@ impl ThermoParams {
                     ]
                 })
             }),
+            layer_height: 0.0,
+            _pad: [0; 3],
+            layers: [[0.0; 4]; MAX_LAYERS / 4],
         }
     }
+
+    /// These parameters with the horizontal-mean buoyancy profile subtracted in eq. 6.
+    pub fn with_layers(mut self, profile: &LayerBuoyancy) -> Self {
+        self.n_layers = profile.values.len() as u32;
+        self.layer_height = profile.layer_height as f32;
+        for (k, v) in profile.values.iter().enumerate() {
+            self.layers[k / 4][k % 4] = *v as f32;
+        }
+        self
+    }
+}
+
+/// The mass-weighted horizontal mean of eq. 6's force per height (m/s^2), on layers of at
+/// least one kernel radius (at most [`MAX_LAYERS`]) tiling the domain's height; a particle
+/// counts for the two nearest layer centres with linear weights, and eq. 6 reads the profile
+/// back with the same interpolation.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct LayerBuoyancy {
+    pub layer_height: f64,
+    pub values: Vec<f64>,
+}
+
+impl LayerBuoyancy {
+    /// The profile of a state, or none when `physics.buoyancy_reference` is `environment`.
+    pub fn of_state(cfg: &ShotConfig, state: &crate::sim::ParticleState) -> Self {
+        if cfg.physics.buoyancy_reference != crate::config::BuoyancyReference::LayerMean {
+            return Self::default();
+        }
+        let height = cfg.domain.size[1];
+        let h0 = crate::sim::init::kernel_radius(cfg);
+        let n = ((height / h0).floor() as usize).clamp(1, MAX_LAYERS);
+        let layer_height = height / n as f64;
+        let p = &cfg.physics;
+        let (mut sum, mut mass) = (vec![0.0f64; n], vec![0.0f64; n]);
+        for i in 0..state.len() {
+            let y = state.pos[i][1] as f64;
+            let th = state.thermo[i];
+            let t0 = environment_temperature(p, y);
+            let force = p.buoyancy * (th[0] as f64 - t0) / t0 - p.cloud_weight * th[2] as f64;
+            let m = (-(state.info[i][1].min(7) as f64)).exp2();
+            let (k0, k1, f) = layer_weights(y, layer_height, n);
+            for (k, w) in [(k0, 1.0 - f), (k1, f)] {
+                sum[k] += w * m * force;
+                mass[k] += w * m;
+            }
+        }
+        let values = sum
+            .iter()
+            .zip(&mass)
+            .map(|(s, m)| if *m > 0.0 { s / m } else { 0.0 })
+            .collect();
+        Self {
+            layer_height,
+            values,
+        }
+    }
+}
+
+/// The two layers whose centres bracket height y and the weight of the upper one (clamped at
+/// the lowest and highest centres). Mirror of thermo.wgsl's `layer_mean`.
+pub fn layer_weights(y: f64, layer_height: f64, n: usize) -> (usize, usize, f64) {
+    let t = (y / layer_height - 0.5).clamp(0.0, (n - 1) as f64);
+    let k0 = t.floor() as usize;
+    (k0, (k0 + 1).min(n - 1), t - k0 as f64)
 }
 
 /// Environment temperature T0(y) (K): `physics.environment` above `ground_temperature`.
@@ -174,6 +250,8 @@ pub struct ThermoStage {
     pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
     cfg: ShotConfig,
+    /// Subtracted in eq. 6 (empty unless `physics.buoyancy_reference` is `layer_mean`).
+    layers: LayerBuoyancy,
 }
 
 impl ThermoStage {
@@ -185,7 +263,13 @@ impl ThermoStage {
             pipeline,
             layout,
             cfg: cfg.clone(),
+            layers: LayerBuoyancy::default(),
         })
+    }
+
+    /// The horizontal-mean buoyancy profile the next substeps subtract (set at frame starts).
+    pub fn set_layers(&mut self, layers: LayerBuoyancy) {
+        self.layers = layers;
     }
 
     /// Records one substep of length `dt` (s) at simulated time `time` (s) for the first
@@ -201,7 +285,7 @@ impl ThermoStage {
         if count == 0 {
             return;
         }
-        let params = ThermoParams::new(&self.cfg, count, dt, time);
+        let params = ThermoParams::new(&self.cfg, count, dt, time).with_layers(&self.layers);
         self.encode_params(encoder, bufs, &params);
     }
 
@@ -259,7 +343,45 @@ mod tests {
 
     #[test]
     fn params_layout_matches_wgsl() {
-        assert_eq!(std::mem::size_of::<ThermoParams>(), 256);
+        assert_eq!(std::mem::size_of::<ThermoParams>(), 400);
+    }
+
+    /// A force that depends on height alone is the whole profile: eq. 6 less the profile is
+    /// zero for every particle (to the profile's f32 rounding).
+    #[test]
+    fn layer_profile_is_the_mass_weighted_mean_per_height() {
+        let mut cfg: ShotConfig = serde_saphyr::from_str(
+            "shot: t\noutput: {frames: {start: 1, end: 2}}\n\
+             domain: {size: [400.0, 1000.0, 400.0], spacing: 50.0}\n\
+             physics: {buoyancy_reference: layer_mean}\n",
+        )
+        .unwrap();
+        cfg.physics.cloud_weight = 0.0;
+        let mut s = crate::sim::ParticleState::default();
+        for (k, y) in [10.0f32, 260.0, 480.0, 730.0, 990.0].iter().enumerate() {
+            for x in 0..4 {
+                let t0 = environment_temperature(&cfg.physics, *y as f64);
+                // 1 K warmer per layer up, the same across the layer; mixed levels
+                s.pos.push([x as f32 * 100.0, *y, 0.0, 0.0]);
+                s.thermo.push([(t0 + k as f64) as f32, 0.0, 0.0, 0.0]);
+                s.info.push([s.info.len() as u32, x % 3]);
+                s.vel.push([0.0; 4]);
+                s.density.push(1.0);
+            }
+        }
+        let prof = LayerBuoyancy::of_state(&cfg, &s);
+        assert_eq!(prof.values.len(), 10, "1000 m of 100 m kernel radii");
+        let p = ThermoParams::new(&cfg, s.len() as u32, 1.0, 0.0).with_layers(&prof);
+        for i in 0..s.len() {
+            let y = s.pos[i][1] as f64;
+            let t0 = environment_temperature(&cfg.physics, y);
+            let force = cfg.physics.buoyancy * (s.thermo[i][0] as f64 - t0) / t0;
+            let mean = crate::sim::reference::thermo::layer_mean(&p, y);
+            assert!((force - mean).abs() < 1e-6, "{y}: {force} vs {mean}");
+        }
+        // off: no profile
+        cfg.physics.buoyancy_reference = crate::config::BuoyancyReference::Environment;
+        assert!(LayerBuoyancy::of_state(&cfg, &s).values.is_empty());
     }
 
     #[test]

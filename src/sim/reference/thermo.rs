@@ -72,6 +72,17 @@ pub fn environment_temperature(p: &ThermoParams, y: f64) -> f64 {
     p.ground_temperature as f64 - p.lapse_rate as f64 * below + rise - p.lapse_above as f64 * above
 }
 
+/// The horizontal-mean profile at height y (mirror of `layer_mean`); 0 without one.
+pub fn layer_mean(p: &ThermoParams, y: f64) -> f64 {
+    if p.n_layers == 0 {
+        return 0.0;
+    }
+    let n = p.n_layers as usize;
+    let (k0, k1, f) = crate::sim::thermo::layer_weights(y, p.layer_height as f64, n);
+    let v = |k: usize| p.layers[k / 4][k % 4] as f64;
+    v(k0) + f * (v(k1) - v(k0))
+}
+
 /// One particle: `pos` read, `vel` (xyz, w = the height gained by this substep's move) and
 /// `thermo` = (T, v, w, E) updated in place.
 pub fn thermo_step_particle(
@@ -86,7 +97,8 @@ pub fn thermo_step_particle(
     temp += dt * heating_rate(p, pos);
     // eq. 6
     let t0 = environment_temperature(p, pos[1]);
-    vel[1] += dt * (p.buoyancy as f64 * (temp - t0) / t0 - p.cloud_weight as f64 * th[2]);
+    let force = p.buoyancy as f64 * (temp - t0) / t0 - p.cloud_weight as f64 * th[2];
+    vel[1] += dt * (force - layer_mean(p, pos[1]));
     // eq. 7, over the height gained by the move
     temp -= p.adiabatic_lapse_rate as f64 * vel[3];
     // eqs. 8-10
