@@ -124,6 +124,7 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     above("export.voxel_size", 0.0, 1.0e5),
     closed("export.threshold", 0.0, 1.0e6),
     above("export.density_scale", 0.0, 1.0e9),
+    closed("export.scale", 1.0e-6, 1.0e6),
 ];
 
 impl FloatRange {
@@ -230,6 +231,7 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         ("export.voxel_size", e.voxel_size),
         ("export.threshold", e.threshold),
         ("export.density_scale", e.density_scale),
+        ("export.scale", e.scale),
     ] {
         one(key, x);
     }

@@ -4,6 +4,7 @@ use super::naming::frame_file;
 use super::records::{file_record, FrameRecord, Manifest};
 use crate::config::ShotConfig;
 use crate::error::Result;
+use crate::export::ExportSpace;
 use crate::io::vdb::{VdbFile, VdbGrid, VdbOptions};
 use crate::sim::ParticleState;
 use crate::splat::{GridTransform, SparseGrid, SplatGrids};
@@ -32,6 +33,9 @@ pub struct FrameWriter {
     cfg: ShotConfig,
     run_dir: PathBuf,
     transform: GridTransform,
+    /// The VDB files' frame (scale, axis, velocity basis) and grid aliases.
+    space: ExportSpace,
+    aliases: BTreeMap<String, String>,
     splat: crate::splat::SplatParams,
     preview: Option<crate::preview::PreviewParams>,
 }
@@ -51,6 +55,8 @@ impl FrameWriter {
             cfg: cfg.clone(),
             run_dir: run_dir.to_path_buf(),
             transform: splat.transform,
+            space: ExportSpace::from_config(cfg),
+            aliases: ExportSpace::aliases(cfg),
             splat,
             preview,
         })
@@ -73,8 +79,9 @@ impl FrameWriter {
             frame_start: cfg.output.frames.start,
             frame_end: cfg.output.frames.end,
             fps: cfg.output.fps,
-            voxel_size: self.transform.voxel_size,
-            grid_origin: self.transform.origin,
+            voxel_size: self.space.transform(&self.transform).voxel_size,
+            grid_origin: self.space.transform(&self.transform).origin,
+            export: Some(self.space.clone()),
             resume_command: super::naming::resume_command(&self.run_dir),
             frames: Vec::new(),
             complete: false,
@@ -203,11 +210,13 @@ impl FrameWriter {
         Ok(out)
     }
 
-    /// The grids of a frame under their configured names, with their aliases.
+    /// The grids of a frame under their configured names, with their aliases, in the export
+    /// frame (`export::ExportSpace`).
     fn vdb_file(&self, grids: SplatGrids, frame: u32) -> VdbFile {
         let names = &self.cfg.export.grids;
+        let space = &self.space;
         let with_aliases = |mut g: VdbGrid| {
-            for (alias, target) in &names.aliases {
+            for (alias, target) in &self.aliases {
                 if *target == g.name {
                     g = g.with_alias(alias.clone());
                 }
@@ -221,15 +230,23 @@ impl FrameWriter {
             (&names.vapor, grids.vapor),
         ] {
             if let (false, Some(g)) = (name.is_empty(), grid) {
-                out.push(with_aliases(VdbGrid::float(name.clone(), g)));
+                out.push(with_aliases(VdbGrid::float(
+                    name.clone(),
+                    space.float_grid(g),
+                )));
             }
         }
         if let (false, Some(g)) = (names.velocity.is_empty(), grids.velocity) {
-            out.push(with_aliases(VdbGrid::vec3(names.velocity.clone(), g)));
+            let mut vg = VdbGrid::vec3(names.velocity.clone(), space.velocity_grid(g))
+                .with_class(space.velocity_class_name());
+            vg.metadata = space.velocity_metadata();
+            out.push(with_aliases(vg));
         }
+        let mut metadata = VdbFile::standard_metadata(frame as i64);
+        metadata.extend(space.file_metadata(self.transform.voxel_size));
         VdbFile {
             grids: out,
-            metadata: VdbFile::standard_metadata(frame as i64),
+            metadata,
         }
     }
 
