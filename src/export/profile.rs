@@ -31,11 +31,12 @@ pub fn defaults(profile: Option<Profile>) -> ProfileDefaults {
         // Houdini pyro and Karma (Solaris): y-up, `vel` in units per second of playback, class
         // free; Karma blurs volumes by their velocity grid.
         Some(Profile::Houdini) | Some(Profile::Karma) => NONE,
-        // Blender: z-up scenes; Cycles reads the velocity grid in units per second and applies
-        // the scene's frame rate; `heat` is what Blender's own fire caches and shaders name the
-        // temperature.
+        // Blender: z-up scenes; an imported Volume finds `vel` as its velocity grid and reads
+        // it per frame (`Volume.velocity_unit` defaults to FRAME); `heat` is what Blender's own
+        // fire caches and shaders name the temperature.
         Some(Profile::Blender) => ProfileDefaults {
             up_axis: UpAxis::Z,
+            velocity_time: VelocityTime::PerFrame,
             aliases: &[("heat", "temperature")],
             ..NONE
         },

@@ -117,8 +117,8 @@ fn velocity_basis_and_axis() {
     cfg.export.profile = Some(Profile::Blender);
     let s = ExportSpace::from_config(&cfg);
     assert_eq!(s.up_axis, UpAxis::Z);
-    assert_eq!(s.velocity_time, VelocityTime::Playback);
-    assert_eq!(s.velocity(v), [96.0, -288.0, 192.0]);
+    assert_eq!(s.velocity_time, VelocityTime::PerFrame);
+    assert_eq!(s.velocity(v), [4.0, -12.0, 8.0]);
     // an explicit key wins over the profile
     cfg.export.up_axis = Some(UpAxis::Y);
     assert_eq!(ExportSpace::from_config(&cfg).up_axis, UpAxis::Y);
