@@ -61,6 +61,7 @@ fn quickstart_sequence_renders_in_blender() {
         .args(["--set", &format!("output.frames.end={FRAMES_END}")])
         .args(["--set", "output.preview.enabled=false"])
         .args(["--set", "export.profile=blender"])
+        .args(["--set", "export.particles=true"])
         .args([
             "--set",
             "domain.spacing=100",
@@ -152,6 +153,58 @@ fn quickstart_sequence_renders_in_blender() {
         RES[0],
         RES[1]
     );
+
+    // The last frame's particle cache, listed in the manifest, imports with Blender's own PLY
+    // importer: every particle, inside the domain in the blender profile's frame (z-up, metres:
+    // nimbus (x, y, z) is (x, -z, y)).
+    let last = &manifest["frames"][frames - 1];
+    let rec = last["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|f| f["path"].as_str().is_some_and(|p| p.ends_with(".ply")))
+        .unwrap_or_else(|| panic!("no .ply in the manifest record {last}"));
+    let ply = run_dir.join(rec["path"].as_str().unwrap());
+    let header = std::fs::read(&ply).expect("particle cache");
+    let count: u64 = String::from_utf8_lossy(&header[..header.len().min(2000)])
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .and_then(|n| n.parse().ok())
+        .expect("vertex count in the PLY header");
+    assert!(count > 1000, "{count} particles");
+    let expr = format!(
+        "import bpy, json\n\
+         r = bpy.ops.import_mesh.ply(filepath={:?})\n\
+         o = bpy.context.selected_objects[0]\n\
+         vs = [v.co for v in o.data.vertices]\n\
+         print('NIMBUS_PLY ' + json.dumps({{'result': sorted(r), 'count': len(vs), \
+         'lo': [min(v[k] for v in vs) for k in range(3)], \
+         'hi': [max(v[k] for v in vs) for k in range(3)]}}))",
+        ply.to_string_lossy()
+    );
+    let out = Command::new("blender")
+        .args(["-b", "--factory-startup", "--python-exit-code", "1"])
+        .args(["--python-expr", &expr])
+        .output()
+        .expect("spawn blender");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let line = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("NIMBUS_PLY "))
+        .unwrap_or_else(|| panic!("PLY import printed nothing:\n{stdout}"));
+    let j: serde_json::Value = serde_json::from_str(line).unwrap();
+    assert_eq!(j["result"], serde_json::json!(["FINISHED"]), "{j}");
+    assert_eq!(j["count"].as_u64(), Some(count), "{j}");
+    let (lo, hi) = ([0.0, -1600.0, 0.0], [1600.0, 0.0, 1400.0]);
+    for k in 0..3 {
+        let (a, b) = (j["lo"][k].as_f64().unwrap(), j["hi"][k].as_f64().unwrap());
+        assert!(
+            a >= lo[k] - 1.0 && b <= hi[k] + 1.0 && b - a > 0.5 * (hi[k] - lo[k]),
+            "axis {k}: particles span [{a}, {b}], domain [{}, {}]",
+            lo[k],
+            hi[k]
+        );
+    }
 }
 
 #[test]

@@ -470,6 +470,8 @@ pub struct ExportConfig {
     pub up_axis: Option<UpAxis>,
     /// Time basis of the `vel` grid; unset: the profile's, else `playback`.
     pub velocity_time: Option<VelocityTime>,
+    /// Write `particles/<shot>.<frame>.ply` per frame (what `nimbus export` re-splats).
+    pub particles: bool,
     pub grids: GridNames,
     pub vdb: VdbConfig,
     pub exr: ExrConfig,
@@ -484,6 +486,7 @@ impl Default for ExportConfig {
             scale: 1.0,
             up_axis: None,
             velocity_time: None,
+            particles: false,
             grids: GridNames::default(),
             vdb: VdbConfig::default(),
             exr: ExrConfig::default(),

@@ -103,6 +103,25 @@ impl ExportSpace {
         self.rotate(v).map(|x| x * k)
     }
 
+    /// The inverse of `rotate`.
+    pub fn rotate_to_sim(&self, v: [f64; 3]) -> [f64; 3] {
+        match self.up_axis {
+            UpAxis::Y => v,
+            UpAxis::Z => [v[0], v[2], -v[1]],
+        }
+    }
+
+    /// The inverse of `point`.
+    pub fn point_to_sim(&self, p: [f64; 3]) -> [f64; 3] {
+        self.rotate_to_sim(p).map(|x| x * self.scale)
+    }
+
+    /// The inverse of `velocity`.
+    pub fn velocity_to_sim(&self, v: [f64; 3]) -> [f64; 3] {
+        let k = self.scale / self.time_factor();
+        self.rotate_to_sim(v).map(|x| x * k)
+    }
+
     /// The transform of the exported grids for the splat's transform `t`.
     pub fn transform(&self, t: &GridTransform) -> GridTransform {
         let v = t.voxel_size;

@@ -2,7 +2,7 @@
 //!
 //! nimbus's own files in a run directory are: `.lock`; `manifest.json` when it parses as a
 //! nimbus manifest; then, by that manifest, every file it lists, every frame file named by its
-//! shot (the shot the newest checkpoint records when the manifest is lost) (`vdb/<shot>.<digits>.vdb`, `exr/<shot>.<digits>.exr`, `preview/<shot>.<digits>.png|exr`,
+//! shot (the shot the newest checkpoint records when the manifest is lost) (`vdb/<shot>.<digits>.vdb`, `exr/<shot>.<digits>.exr`, `preview/<shot>.<digits>.png|exr`, `particles/<shot>.<digits>.ply`,
 //! a frame written just before a kill is not listed yet) and `preview/contact_sheet.png`;
 //! `stats.jsonl` when the manifest is nimbus's or every line is a stats line; checkpoint files
 //! (`checkpoints/ckpt_<digits>.nck` starting with the checkpoint magic); and temporary files
@@ -165,6 +165,7 @@ fn frame_file_of(shot: &str, rel: &str) -> bool {
         "vdb" => &["vdb"],
         "exr" => &["exr"],
         "preview" => &["png", "exr"],
+        "particles" => &["ply"],
         _ => return false,
     };
     let Some(rest) = name.strip_prefix(shot).and_then(|r| r.strip_prefix('.')) else {

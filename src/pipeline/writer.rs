@@ -36,6 +36,8 @@ pub struct FrameWriter {
     /// The VDB files' frame (scale, axis, velocity basis) and grid aliases.
     space: ExportSpace,
     aliases: BTreeMap<String, String>,
+    /// Level-0 particle mass (kg), for the particle cache.
+    particle_mass: f64,
     splat: crate::splat::SplatParams,
     preview: Option<crate::preview::PreviewParams>,
 }
@@ -57,6 +59,11 @@ impl FrameWriter {
             transform: splat.transform,
             space: ExportSpace::from_config(cfg),
             aliases: ExportSpace::aliases(cfg),
+            particle_mass: if cfg.export.particles {
+                crate::sim::init::particle_mass(cfg)
+            } else {
+                0.0
+            },
             splat,
             preview,
         })
@@ -147,6 +154,13 @@ impl FrameWriter {
             }
             phase_ms.insert("preview".into(), ms(t));
         }
+        if c.export.particles {
+            let t = Instant::now();
+            let path = frame_file(&self.run_dir, "particles", &c.shot, job.frame, pad, "ply");
+            self.write_particles(&path, &job.state, job.frame)?;
+            files.push(file_record(&self.run_dir, &path)?);
+            phase_ms.insert("write_particles".into(), ms(t));
+        }
         // Last, so the grids move into the file instead of being copied; listed first.
         if c.export.vdb.enabled {
             let t = Instant::now();
@@ -189,7 +203,34 @@ impl FrameWriter {
                 v.push(f("preview", "exr"));
             }
         }
+        if c.export.particles {
+            v.push(f("particles", "ply"));
+        }
         v
+    }
+
+    /// The frame's particle cache (`io::ply`), in the export frame.
+    fn write_particles(&self, path: &Path, state: &ParticleState, frame: u32) -> Result<()> {
+        let s = &self.space;
+        let info = crate::io::ply::CacheInfo {
+            space: s,
+            h0: crate::sim::init::kernel_radius(&self.cfg),
+            m0: self.particle_mass,
+            comments: vec![
+                format!("nimbus {} shot {} frame {frame}", crate::VERSION, self.cfg.shot),
+                format!(
+                    "units: position and radius in scene units of {} m, up axis {}, velocity in {}, temperature K, vapor and cloud_water kg/kg, mass kg",
+                    s.scale,
+                    if s.up_axis == crate::config::UpAxis::Z { "z" } else { "y" },
+                    s.velocity_unit
+                ),
+            ],
+        };
+        let bytes = crate::io::ply::encode(state, &info)?;
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir).map_err(|e| crate::Error::io(dir, e))?;
+        }
+        crate::io::atomic::write_atomic(path, &bytes)
     }
 
     /// Records of the frames `start..before` whose files are all on disk, with the sizes and
