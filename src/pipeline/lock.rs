@@ -40,6 +40,11 @@ pub struct Holder {
     pub host: String,
 }
 
+/// A shared hold on a run directory's lock (`RunLock::acquire_shared`), released on drop.
+pub struct SharedRunLock {
+    _file: File,
+}
+
 impl RunLock {
     /// Takes the lock of `dir` for `command` (`run`, `resume`, `preview`), or fails with exit 2:
     /// "run directory DIR in use by pid N (host H)". `dir` pointing at a file, or missing when
@@ -144,6 +149,43 @@ impl RunLock {
             dir: dir.to_path_buf(),
             file,
         })
+    }
+
+    /// A shared lock of `dir` for `nimbus export`: any number of exports (farm jobs on other
+    /// frame ranges) hold it together, while `run`, `resume` and `preview`, which take the lock
+    /// exclusively, are refused (and refuse an export) as "in use". Records no holder, as
+    /// several may hold it.
+    pub fn acquire_shared(dir: &Path) -> Result<SharedRunLock> {
+        if !dir.is_dir() {
+            return Err(Error::InvalidInput(format!(
+                "{}: no such run directory",
+                dir.display()
+            )));
+        }
+        let path = dir.join(LOCK_FILE);
+        let mut file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(|e| {
+                Error::InvalidInput(format!(
+                    "{}: cannot open the lock file: {e}",
+                    path.display()
+                ))
+            })?;
+        match file.try_lock_shared() {
+            Ok(()) => Ok(SharedRunLock { _file: file }),
+            Err(std::fs::TryLockError::WouldBlock) => {
+                let holder = read_holder(&mut file);
+                Err(in_use(dir, &holder, ""))
+            }
+            Err(std::fs::TryLockError::Error(e)) => Err(Error::InvalidInput(format!(
+                "{}: cannot lock the run directory: {e}",
+                path.display()
+            ))),
+        }
     }
 
     /// The locked run directory.

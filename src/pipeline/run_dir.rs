@@ -6,7 +6,9 @@
 //! a frame written just before a kill is not listed yet) and `preview/contact_sheet.png`;
 //! `stats.jsonl` when the manifest is nimbus's or every line is a stats line; checkpoint files
 //! (`checkpoints/ckpt_<digits>.nck` starting with the checkpoint magic); and temporary files
-//! (`*.nimbus-tmp`, stale once the lock is held). Everything else is foreign.
+//! (`*.nimbus-tmp`, stale once the lock is held); and under `exports/<name>/` (`nimbus
+//! export`) what the same rules make own by that directory's manifest. Everything else is
+//! foreign.
 //!
 //! A fresh `run` into a directory holding a run is refused (resume it, or `--force`); with
 //! `--force` only nimbus's own files are removed. A directory holding any foreign file is
@@ -68,11 +70,25 @@ pub fn survey(dir: &Path) -> Result<Contents> {
         .flat_map(|m| m.frames.iter())
         .flat_map(|f| f.files.iter().map(|r| r.path.as_str()))
         .collect();
+    // `nimbus export` directories (`exports/<name>/`) are surveyed the same way, by their own
+    // manifests.
+    let mut exported: BTreeSet<String> = BTreeSet::new();
+    if let Ok(entries) = std::fs::read_dir(dir.join("exports")) {
+        for e in entries.flatten() {
+            let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
+            if let (true, Some(name)) = (is_dir, e.file_name().to_str()) {
+                for r in survey(&e.path())?.own {
+                    exported.insert(format!("exports/{name}/{r}"));
+                }
+            }
+        }
+    }
     let mut own = Vec::new();
     let mut foreign = Vec::new();
     for (rel, is_file) in files {
         let mine = is_file
-            && (rel == LOCK_FILE
+            && (exported.contains(&rel)
+                || rel == LOCK_FILE
                 || rel.ends_with(TMP_SUFFIX)
                 || (rel == MANIFEST && c.manifest.is_some())
                 || (rel == STATS && (c.manifest.is_some() || stats_only(&dir.join(&rel))))
