@@ -178,3 +178,26 @@ fn renderman_at_another_scale_and_axis_holds_the_same_cloud() {
         }
     }
 }
+
+/// `nimbus preview` renders from the VDB files: it maps a z-up, scaled export back into nimbus's
+/// frame, so its images are the run's own, byte for byte.
+#[test]
+fn preview_of_a_blender_export_matches_the_run() {
+    let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("profile_blender_preview");
+    let _ = std::fs::remove_dir_all(&out);
+    let o = run_tiny(
+        &out,
+        &[
+            "--set",
+            "export.profile=blender",
+            "--set",
+            "export.scale=100",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let png = out.join("preview/tiny.0008.png");
+    let before = std::fs::read(&png).unwrap();
+    let o = nimbus().arg("preview").arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    assert_eq!(std::fs::read(&png).unwrap(), before);
+}
