@@ -203,7 +203,13 @@ impl Drop for RunLock {
 }
 
 fn in_use(dir: &Path, h: &Holder, extra: &str) -> Error {
-    let pid = h.pid.map_or("unknown".to_string(), |p| p.to_string());
+    let Some(pid) = h.pid else {
+        // Shared holders (`nimbus export`) record nothing.
+        return Error::InvalidInput(format!(
+            "run directory {} in use (locked without a recorded holder: a `nimbus export` of it, or a process that is just starting){extra}",
+            dir.display()
+        ));
+    };
     Error::InvalidInput(format!(
         "run directory {} in use by pid {pid} (host {}){extra}",
         dir.display(),
@@ -273,6 +279,26 @@ mod tests {
         let text = std::fs::read_to_string(dir.path().join(LOCK_FILE)).unwrap();
         assert!(text.is_empty(), "{text:?}");
         RunLock::acquire(dir.path(), Create::No, "resume").unwrap();
+    }
+
+    #[test]
+    fn shared_holds_exclude_only_exclusive_ones() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = RunLock::acquire_shared(dir.path()).unwrap();
+        let b = RunLock::acquire_shared(dir.path()).unwrap();
+        let err = RunLock::acquire(dir.path(), Create::No, "run").unwrap_err();
+        assert!(err.to_string().contains("nimbus export"), "{err}");
+        assert_eq!(err.exit_code(), 2);
+        drop((a, b));
+        let run = RunLock::acquire(dir.path(), Create::No, "run").unwrap();
+        let err = RunLock::acquire_shared(dir.path()).err().unwrap();
+        assert!(
+            err.to_string()
+                .contains(&format!("in use by pid {}", std::process::id())),
+            "{err}"
+        );
+        drop(run);
+        RunLock::acquire_shared(dir.path()).unwrap();
     }
 
     #[test]
