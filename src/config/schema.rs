@@ -109,6 +109,9 @@ pub struct PreviewConfig {
     /// Camera; `None` = auto-framed from the side.
     #[serde(default)]
     pub camera: Option<CameraConfig>,
+    /// Also encode the previews as an H.264 MP4 (`preview/<shot>.mp4`, needs ffmpeg).
+    #[serde(default)]
+    pub movie: bool,
 }
 fn d_preview_res() -> [u32; 2] {
     [640, 360]
@@ -136,6 +139,7 @@ impl Default for PreviewConfig {
             sun_intensity: d_sun_intensity(),
             density_scale: d_density_scale(),
             camera: None,
+            movie: false,
         }
     }
 }

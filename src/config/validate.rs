@@ -443,6 +443,12 @@ fn check_names(k: &mut Checks, c: &ShotConfig) {
 }
 
 fn check_output(k: &mut Checks, o: &OutputConfig) {
+    if o.preview.movie && !o.preview.enabled {
+        k.fail(
+            &["output.preview.movie"],
+            "the movie is made of the previews: set output.preview.enabled: true too".into(),
+        );
+    }
     for (key, f) in [
         ("output.frames.start", o.frames.start),
         ("output.frames.end", o.frames.end),

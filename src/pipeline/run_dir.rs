@@ -3,7 +3,8 @@
 //! nimbus's own files in a run directory are: `.lock`; `manifest.json` when it parses as a
 //! nimbus manifest; then, by that manifest, every file it lists, every frame file named by its
 //! shot (the shot the newest checkpoint records when the manifest is lost) (`vdb/<shot>.<digits>.vdb`, `exr/<shot>.<digits>.exr`, `preview/<shot>.<digits>.png|exr`, `particles/<shot>.<digits>.ply`,
-//! a frame written just before a kill is not listed yet) and `preview/contact_sheet.png`;
+//! a frame written just before a kill is not listed yet), `preview/contact_sheet.png` and
+//! `preview/<shot>.mp4`;
 //! `stats.jsonl` when the manifest is nimbus's or every line is a stats line; checkpoint files
 //! (`checkpoints/ckpt_<digits>.nck` starting with the checkpoint magic); and temporary files
 //! (`*.nimbus-tmp`, stale once the lock is held); and under `exports/<name>/` (`nimbus
@@ -171,7 +172,7 @@ pub fn prepare_fresh(dir: &Path, force: bool) -> Result<()> {
 
 /// `kind/<shot>.<digits>.<ext>` with the extensions nimbus writes there, or the contact sheet.
 fn frame_file_of(shot: &str, rel: &str) -> bool {
-    if rel == "preview/contact_sheet.png" {
+    if rel == "preview/contact_sheet.png" || rel == format!("preview/{shot}.mp4") {
         return true;
     }
     let Some((kind, name)) = rel.split_once('/') else {

@@ -44,6 +44,9 @@ pub struct FrameWriter {
 
 impl FrameWriter {
     pub fn new(cfg: &ShotConfig, run_dir: &Path) -> Result<Self> {
+        if cfg.output.preview.enabled && cfg.output.preview.movie {
+            crate::preview::movie::require_ffmpeg()?;
+        }
         let splat = crate::splat::SplatParams::from_config(cfg)?;
         let preview = if cfg.output.preview.enabled {
             Some(crate::preview::PreviewParams::from_config(
@@ -324,7 +327,21 @@ impl FrameWriter {
         if frames.is_empty() {
             return Ok(());
         }
-        crate::preview::sheet::write_contact_sheet(&self.run_dir, &frames).map(|_| ())
+        crate::preview::sheet::write_contact_sheet(&self.run_dir, &frames)?;
+        // The movie once the whole range is there (an export directory fills up in parts).
+        if self.cfg.output.preview.movie
+            && manifest.complete
+            && frames.len() == manifest.frames.len()
+        {
+            crate::preview::movie::write_movie(
+                &self.run_dir,
+                &self.cfg.shot,
+                &frames,
+                self.cfg.output.frame_padding,
+                self.cfg.output.fps,
+            )?;
+        }
+        Ok(())
     }
 }
 
