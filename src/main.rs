@@ -69,6 +69,23 @@ enum Command {
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
     },
+    /// Re-make a run's VDB/EXR/preview files from its particle caches (export.particles),
+    /// without simulating. With the run's own settings: in the run directory, byte-identical
+    /// to what the run wrote; with other `--set export.*` values: in RUN_DIR/exports/NAME/.
+    Export {
+        /// The run directory.
+        run_dir: PathBuf,
+        /// Inclusive frame range A-B (default: every frame of the run).
+        #[arg(long, value_name = "A-B")]
+        frames: Option<String>,
+        /// An export setting, e.g. `--set export.voxel_size=6.25` (repeatable; export.* only).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Name of the export directory under RUN_DIR/exports/ (default: a hash of the
+        /// export settings).
+        #[arg(long)]
+        name: Option<String>,
+    },
     /// Benchmarks behind docs/PERFORMANCE.md (prints JSON).
     Bench {
         #[command(subcommand)]
@@ -157,6 +174,12 @@ fn main() {
         } => resume(&out_dir, log_format),
         Command::Inspect { file } => inspect(&file),
         Command::Preview { out_dir, set } => preview(&out_dir, &set),
+        Command::Export {
+            run_dir,
+            frames,
+            set,
+            name,
+        } => export(&run_dir, frames.as_deref(), set, name),
         Command::Bench { topic } => bench(topic),
     };
     if let Err(e) = result {
@@ -225,6 +248,28 @@ fn run(
         },
         &lock,
     )
+}
+
+fn export(
+    run_dir: &Path,
+    frames: Option<&str>,
+    sets: Vec<String>,
+    name: Option<String>,
+) -> Result<()> {
+    use pipeline::reexport;
+    let req = reexport::ExportRequest {
+        frames: frames.map(reexport::parse_frames).transpose()?,
+        sets,
+        name,
+    };
+    let s = reexport::export(run_dir, &req)?;
+    println!(
+        "export: {} frames written, {} already as recorded, in {}",
+        s.written.len(),
+        s.unchanged.len(),
+        s.dir.display()
+    );
+    Ok(())
 }
 
 fn resume(out_dir: &Path, log: LogFormat) -> Result<()> {

@@ -3,7 +3,7 @@
 Usage (Blender 3.4, Debian 12):
   blender -b --factory-startup --python-exit-code 1 -P tools/render_blender.py -- \
       RUN_DIR_OR_VDB OUT.png [--frame N] [--grid density] [--res W H] [--samples N] \
-      [--up y|z] [--density-scale auto|X] [--min-coverage F]
+      [--up auto|y|z] [--motion-blur] [--density-scale auto|X] [--min-coverage F]
 
 RUN_DIR is a nimbus run directory: its manifest.json names the frames and their files (size and
 SHA-256 are checked). The whole `<shot>.<digits>.vdb` sequence is imported as one Volume object
@@ -53,9 +53,16 @@ def parse_args():
     p.add_argument("--samples", type=int, default=16)
     p.add_argument(
         "--up",
-        choices=["y", "z"],
-        default="y",
-        help="up axis of the VDB (nimbus: y, the default; Blender/most test files: z)",
+        choices=["auto", "y", "z"],
+        default="auto",
+        help="up axis of the VDB; auto (default): the run's export.up_axis from its manifest "
+        "(or the file's nimbus_up_axis metadata through pyopenvdb), else y",
+    )
+    p.add_argument(
+        "--motion-blur",
+        action="store_true",
+        help="Cycles motion blur from the velocity grid (shutter 0.5 frame); the velocity unit "
+        "is taken from the run's export.velocity_time",
     )
     p.add_argument(
         "--density-scale",
@@ -105,6 +112,8 @@ def resolve_input(a, report):
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise RenderFailure(f"{mpath}: not a readable nimbus manifest: {e}")
     report["shot"] = shot
+    report["export"] = man.get("export")
+    report["fps"] = man.get("fps")
     report["voxel_size"] = man.get("voxel_size")
     report["grid_origin"] = man.get("grid_origin")
     with_vdb = [
@@ -170,8 +179,10 @@ def import_volume(path, frame, a, report):
         scene.frame_start = min(scene.frame_start, frame)
         scene.frame_end = max(scene.frame_end, frame)
         scene.frame_set(frame)
-    if a.up == "y":
-        # nimbus is y-up, Blender z-up: +90 degrees about x maps +y onto +z
+    up = resolve_up(path, a, report)
+    report["up"] = up
+    if up == "y":
+        # a y-up file in z-up Blender: +90 degrees about x maps +y onto +z
         obj.rotation_euler = (math.radians(90.0), 0.0, 0.0)
     bpy.context.view_layer.update()
     grids = vol.grids
@@ -191,6 +202,57 @@ def import_volume(path, frame, a, report):
     if a.grid not in names:
         raise RenderFailure(f"density grid {a.grid!r} not in {path} (grids: {names})")
     return obj
+
+
+def resolve_up(path, a, report):
+    if a.up != "auto":
+        return a.up
+    exp = report.get("export")
+    if isinstance(exp, dict) and exp.get("up_axis") in ("y", "z"):
+        return exp["up_axis"]
+    try:
+        import pyopenvdb
+
+        up = pyopenvdb.readMetadata(path).get("nimbus_up_axis")
+    except (ImportError, KeyError, RuntimeError):
+        up = None
+    # nimbus wrote y-up files before export.up_axis existed
+    return up if up in ("y", "z") else "y"
+
+
+def setup_motion_blur(obj, report):
+    """Cycles volume motion blur from the velocity grid Blender detected on import."""
+    scene = bpy.context.scene
+    vol = obj.data
+    exp = report.get("export") if isinstance(report.get("export"), dict) else {}
+    # a manifest without "export" predates export.velocity_time: m/s of simulated time
+    basis = exp.get("velocity_time", "simulated")
+    fps = float(report.get("fps") or exp.get("fps") or 24.0)
+    scene.render.fps = max(1, int(round(fps)))
+    scene.render.fps_base = scene.render.fps / fps
+    if basis == "per_frame":
+        vol.velocity_unit = "FRAME"
+        vol.velocity_scale = 1.0
+    elif basis == "playback":
+        vol.velocity_unit = "SECOND"
+        vol.velocity_scale = 1.0
+    else:
+        # per second of simulated time: a playback second is frame_seconds x fps of them
+        vol.velocity_unit = "SECOND"
+        vol.velocity_scale = float(exp.get("frame_seconds", 1.0)) * fps
+    scene.render.use_motion_blur = True
+    scene.render.motion_blur_shutter = 0.5
+    names = [g.name for g in vol.grids]
+    if vol.velocity_grid not in names:
+        raise RenderFailure(f"motion blur: no velocity grid {vol.velocity_grid!r} in {names}")
+    report["motion_blur"] = {
+        "velocity_grid": vol.velocity_grid,
+        "velocity_unit": vol.velocity_unit,
+        "velocity_scale": vol.velocity_scale,
+        "basis": basis,
+        "shutter": scene.render.motion_blur_shutter,
+        "fps": fps,
+    }
 
 
 def world_bbox(obj):
@@ -413,6 +475,8 @@ def run(a, report):
     report["density_scale"] = scale
     report["setup_s"] = round(time.time() - t, 3)
     build_material(obj, scale, a)
+    if a.motion_blur:
+        setup_motion_blur(obj, report)
     report["camera_distance"] = round(build_scene(lo, hi, a), 6)
 
     out = os.path.abspath(a.output)

@@ -2,6 +2,8 @@
 # Installs what nimbus and its tests need on Debian 12 (idempotent). Safe to run again.
 #   tools/setup.sh               runtime + test tools (Vulkan on the CPU, OpenVDB, OpenEXR tools)
 #   tools/setup.sh --blender     also Blender 3.4 (for tools/render_blender.py and its test)
+#   tools/setup.sh --preview     also ffmpeg (output.preview.movie and its test)
+# Flags combine: tools/setup.sh --blender --preview
 set -euo pipefail
 
 packages=(
@@ -10,7 +12,13 @@ packages=(
   openexr                          # exrheader: tests read our EXRs with the reference tools
   python3-numpy                    # the OpenVDB comparison benchmark
 )
-if [[ "${1:-}" == "--blender" ]]; then packages+=(blender); fi
+for flag in "$@"; do
+  case "$flag" in
+    --blender) packages+=(blender) ;;
+    --preview) packages+=(ffmpeg) ;;
+    *) echo "setup: unknown flag $flag (known: --blender, --preview)" >&2; exit 2 ;;
+  esac
+done
 
 missing=()
 for p in "${packages[@]}"; do

@@ -109,6 +109,9 @@ pub struct PreviewConfig {
     /// Camera; `None` = auto-framed from the side.
     #[serde(default)]
     pub camera: Option<CameraConfig>,
+    /// Also encode the previews as an H.264 MP4 (`preview/<shot>.mp4`, needs ffmpeg).
+    #[serde(default)]
+    pub movie: bool,
 }
 fn d_preview_res() -> [u32; 2] {
     [640, 360]
@@ -136,6 +139,7 @@ impl Default for PreviewConfig {
             sun_intensity: d_sun_intensity(),
             density_scale: d_density_scale(),
             camera: None,
+            movie: false,
         }
     }
 }
@@ -482,6 +486,18 @@ pub struct ExportConfig {
     /// The density grid holds cloud water times this (1000: grams per kilogram of air, so a
     /// cumulus core reads about 0.5-2, what renderers expect of a density).
     pub density_scale: f64,
+    /// Renderer preset (`export::profile`): up axis, velocity basis, vector class and aliases
+    /// for that renderer. A key set here explicitly wins over the profile.
+    pub profile: Option<Profile>,
+    /// Metres per scene unit of the VDB files: divides the transform, the velocities and the
+    /// lengths in their metadata (the simulation stays in metres).
+    pub scale: f64,
+    /// Up axis of the VDB files (the simulation is y-up); unset: the profile's, else `y`.
+    pub up_axis: Option<UpAxis>,
+    /// Time basis of the `vel` grid; unset: the profile's, else `playback`.
+    pub velocity_time: Option<VelocityTime>,
+    /// Write `particles/<shot>.<frame>.ply` per frame (what `nimbus export` re-splats).
+    pub particles: bool,
     pub grids: GridNames,
     pub vdb: VdbConfig,
     pub exr: ExrConfig,
@@ -492,6 +508,11 @@ impl Default for ExportConfig {
             voxel_size: 20.0,
             threshold: 1.0e-3,
             density_scale: 1000.0,
+            profile: None,
+            scale: 1.0,
+            up_axis: None,
+            velocity_time: None,
+            particles: false,
             grids: GridNames::default(),
             vdb: VdbConfig::default(),
             exr: ExrConfig::default(),
@@ -507,6 +528,8 @@ pub struct GridNames {
     pub temperature: String,
     pub vapor: String,
     pub velocity: String,
+    /// OpenVDB class of the velocity grid; unset: the profile's, else `unknown`.
+    pub velocity_class: Option<VectorClass>,
     /// Extra names for the same grids (e.g. `heat: temperature` for Blender).
     pub aliases: std::collections::BTreeMap<String, String>,
 }
@@ -517,9 +540,48 @@ impl Default for GridNames {
             temperature: "temperature".into(),
             vapor: "vapor".into(),
             velocity: "vel".into(),
+            velocity_class: None,
             aliases: Default::default(),
         }
     }
+}
+
+/// Renderers with a preset of export conventions (`export::profile`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Profile {
+    Houdini,
+    Blender,
+    Arnold,
+    Renderman,
+    Karma,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UpAxis {
+    Y,
+    Z,
+}
+
+/// What one unit of time is in the velocity grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VelocityTime {
+    /// Scene units per second of playback (frames at `output.fps`): v x frame_seconds x fps.
+    Playback,
+    /// Scene units per second of simulated time (the simulation's own m/s).
+    Simulated,
+    /// Scene units per frame: v x frame_seconds.
+    PerFrame,
+}
+
+/// OpenVDB grid class written for the velocity grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VectorClass {
+    Unknown,
+    FogVolume,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

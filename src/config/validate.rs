@@ -125,6 +125,7 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     above("export.voxel_size", 0.0, 1.0e5),
     closed("export.threshold", 0.0, 1.0e6),
     above("export.density_scale", 0.0, 1.0e9),
+    closed("export.scale", 1.0e-6, 1.0e6),
 ];
 
 impl FloatRange {
@@ -232,6 +233,7 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         ("export.voxel_size", e.voxel_size),
         ("export.threshold", e.threshold),
         ("export.density_scale", e.density_scale),
+        ("export.scale", e.scale),
     ] {
         one(key, x);
     }
@@ -443,6 +445,12 @@ fn check_names(k: &mut Checks, c: &ShotConfig) {
 }
 
 fn check_output(k: &mut Checks, o: &OutputConfig) {
+    if o.preview.movie && !o.preview.enabled {
+        k.fail(
+            &["output.preview.movie"],
+            "the movie is made of the previews: set output.preview.enabled: true too".into(),
+        );
+    }
     for (key, f) in [
         ("output.frames.start", o.frames.start),
         ("output.frames.end", o.frames.end),

@@ -40,6 +40,11 @@ pub struct Holder {
     pub host: String,
 }
 
+/// A shared hold on a run directory's lock (`RunLock::acquire_shared`), released on drop.
+pub struct SharedRunLock {
+    _file: File,
+}
+
 impl RunLock {
     /// Takes the lock of `dir` for `command` (`run`, `resume`, `preview`), or fails with exit 2:
     /// "run directory DIR in use by pid N (host H)". `dir` pointing at a file, or missing when
@@ -146,6 +151,43 @@ impl RunLock {
         })
     }
 
+    /// A shared lock of `dir` for `nimbus export`: any number of exports (farm jobs on other
+    /// frame ranges) hold it together, while `run`, `resume` and `preview`, which take the lock
+    /// exclusively, are refused (and refuse an export) as "in use". Records no holder, as
+    /// several may hold it.
+    pub fn acquire_shared(dir: &Path) -> Result<SharedRunLock> {
+        if !dir.is_dir() {
+            return Err(Error::InvalidInput(format!(
+                "{}: no such run directory",
+                dir.display()
+            )));
+        }
+        let path = dir.join(LOCK_FILE);
+        let mut file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(|e| {
+                Error::InvalidInput(format!(
+                    "{}: cannot open the lock file: {e}",
+                    path.display()
+                ))
+            })?;
+        match file.try_lock_shared() {
+            Ok(()) => Ok(SharedRunLock { _file: file }),
+            Err(std::fs::TryLockError::WouldBlock) => {
+                let holder = read_holder(&mut file);
+                Err(in_use(dir, &holder, ""))
+            }
+            Err(std::fs::TryLockError::Error(e)) => Err(Error::InvalidInput(format!(
+                "{}: cannot lock the run directory: {e}",
+                path.display()
+            ))),
+        }
+    }
+
     /// The locked run directory.
     pub fn dir(&self) -> &Path {
         &self.dir
@@ -161,7 +203,13 @@ impl Drop for RunLock {
 }
 
 fn in_use(dir: &Path, h: &Holder, extra: &str) -> Error {
-    let pid = h.pid.map_or("unknown".to_string(), |p| p.to_string());
+    let Some(pid) = h.pid else {
+        // Shared holders (`nimbus export`) record nothing.
+        return Error::InvalidInput(format!(
+            "run directory {} in use (locked without a recorded holder: a `nimbus export` of it, or a process that is just starting){extra}",
+            dir.display()
+        ));
+    };
     Error::InvalidInput(format!(
         "run directory {} in use by pid {pid} (host {}){extra}",
         dir.display(),
@@ -231,6 +279,26 @@ mod tests {
         let text = std::fs::read_to_string(dir.path().join(LOCK_FILE)).unwrap();
         assert!(text.is_empty(), "{text:?}");
         RunLock::acquire(dir.path(), Create::No, "resume").unwrap();
+    }
+
+    #[test]
+    fn shared_holds_exclude_only_exclusive_ones() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = RunLock::acquire_shared(dir.path()).unwrap();
+        let b = RunLock::acquire_shared(dir.path()).unwrap();
+        let err = RunLock::acquire(dir.path(), Create::No, "run").unwrap_err();
+        assert!(err.to_string().contains("nimbus export"), "{err}");
+        assert_eq!(err.exit_code(), 2);
+        drop((a, b));
+        let run = RunLock::acquire(dir.path(), Create::No, "run").unwrap();
+        let err = RunLock::acquire_shared(dir.path()).err().unwrap();
+        assert!(
+            err.to_string()
+                .contains(&format!("in use by pid {}", std::process::id())),
+            "{err}"
+        );
+        drop(run);
+        RunLock::acquire_shared(dir.path()).unwrap();
     }
 
     #[test]

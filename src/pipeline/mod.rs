@@ -3,6 +3,7 @@ pub mod lock;
 pub mod naming;
 pub mod progress;
 pub mod records;
+pub mod reexport;
 pub mod rerender;
 pub mod run;
 pub mod run_dir;

@@ -39,9 +39,14 @@ pub struct Manifest {
     pub frame_start: u32,
     pub frame_end: u32,
     pub fps: f64,
-    /// World transform of every grid of the shot (voxel centres on integer index points).
+    /// Transform of every VDB grid of the shot, in scene units of the export frame (voxel
+    /// centres on integer index points).
     pub voxel_size: f64,
     pub grid_origin: [f64; 3],
+    /// The export frame of the VDB files: scale, up axis, velocity basis (`export::ExportSpace`);
+    /// absent in manifests written before it existed (then: metres, y-up, simulated m/s).
+    #[serde(default)]
+    pub export: Option<crate::export::ExportSpace>,
     /// The command line that resumes this run.
     pub resume_command: String,
     pub frames: Vec<FrameRecord>,
@@ -186,6 +191,7 @@ mod tests {
             fps: 24.0,
             voxel_size: 1.0,
             grid_origin: [0.0; 3],
+            export: None,
             resume_command: String::new(),
             frames: vec![],
             complete: false,

@@ -16,6 +16,7 @@ pub fn rerender_previews(run_dir: &Path, cfg: &ShotConfig) -> Result<usize> {
     let manifest = Manifest::load(run_dir)?;
     let params = crate::preview::PreviewParams::from_config(&cfg.output.preview, cfg.domain.size)?;
     let grid_name = &cfg.export.grids.density;
+    let space = crate::export::ExportSpace::from_config(cfg);
     let mut pngs: Vec<(u32, PathBuf)> = Vec::new();
     let mut failed: Vec<String> = Vec::new();
     for rec in &manifest.frames {
@@ -35,7 +36,8 @@ pub fn rerender_previews(run_dir: &Path, cfg: &ShotConfig) -> Result<usize> {
         }
         let file = read_file(&vdb)?;
         let grid = match file.grid(grid_name).map(|g| &g.data) {
-            Some(GridData::Float(g)) => g,
+            // The preview renders in nimbus's own frame (metres, y-up).
+            Some(GridData::Float(g)) => space.float_grid_to_sim(g.clone()),
             _ => {
                 return Err(Error::InvalidInput(format!(
                     "{}: no float grid named '{grid_name}' (export.grids.density)",
@@ -44,7 +46,7 @@ pub fn rerender_previews(run_dir: &Path, cfg: &ShotConfig) -> Result<usize> {
             }
         };
         let png = crate::preview::write_frame_preview(
-            grid,
+            &grid,
             &params,
             run_dir,
             &cfg.shot,

@@ -2,11 +2,14 @@
 //!
 //! nimbus's own files in a run directory are: `.lock`; `manifest.json` when it parses as a
 //! nimbus manifest; then, by that manifest, every file it lists, every frame file named by its
-//! shot (the shot the newest checkpoint records when the manifest is lost) (`vdb/<shot>.<digits>.vdb`, `exr/<shot>.<digits>.exr`, `preview/<shot>.<digits>.png|exr`,
-//! a frame written just before a kill is not listed yet) and `preview/contact_sheet.png`;
+//! shot (the shot the newest checkpoint records when the manifest is lost) (`vdb/<shot>.<digits>.vdb`, `exr/<shot>.<digits>.exr`, `preview/<shot>.<digits>.png|exr`, `particles/<shot>.<digits>.ply`,
+//! a frame written just before a kill is not listed yet), `preview/contact_sheet.png` and
+//! `preview/<shot>.mp4`;
 //! `stats.jsonl` when the manifest is nimbus's or every line is a stats line; checkpoint files
 //! (`checkpoints/ckpt_<digits>.nck` starting with the checkpoint magic); and temporary files
-//! (`*.nimbus-tmp`, stale once the lock is held). Everything else is foreign.
+//! (`*.nimbus-tmp`, stale once the lock is held); and under `exports/<name>/` (`nimbus
+//! export`) what the same rules make own by that directory's manifest. Everything else is
+//! foreign.
 //!
 //! A fresh `run` into a directory holding a run is refused (resume it, or `--force`); with
 //! `--force` only nimbus's own files are removed. A directory holding any foreign file is
@@ -68,11 +71,25 @@ pub fn survey(dir: &Path) -> Result<Contents> {
         .flat_map(|m| m.frames.iter())
         .flat_map(|f| f.files.iter().map(|r| r.path.as_str()))
         .collect();
+    // `nimbus export` directories (`exports/<name>/`) are surveyed the same way, by their own
+    // manifests.
+    let mut exported: BTreeSet<String> = BTreeSet::new();
+    if let Ok(entries) = std::fs::read_dir(dir.join("exports")) {
+        for e in entries.flatten() {
+            let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
+            if let (true, Some(name)) = (is_dir, e.file_name().to_str()) {
+                for r in survey(&e.path())?.own {
+                    exported.insert(format!("exports/{name}/{r}"));
+                }
+            }
+        }
+    }
     let mut own = Vec::new();
     let mut foreign = Vec::new();
     for (rel, is_file) in files {
         let mine = is_file
-            && (rel == LOCK_FILE
+            && (exported.contains(&rel)
+                || rel == LOCK_FILE
                 || rel.ends_with(TMP_SUFFIX)
                 || (rel == MANIFEST && c.manifest.is_some())
                 || (rel == STATS && (c.manifest.is_some() || stats_only(&dir.join(&rel))))
@@ -155,7 +172,7 @@ pub fn prepare_fresh(dir: &Path, force: bool) -> Result<()> {
 
 /// `kind/<shot>.<digits>.<ext>` with the extensions nimbus writes there, or the contact sheet.
 fn frame_file_of(shot: &str, rel: &str) -> bool {
-    if rel == "preview/contact_sheet.png" {
+    if rel == "preview/contact_sheet.png" || rel == format!("preview/{shot}.mp4") {
         return true;
     }
     let Some((kind, name)) = rel.split_once('/') else {
@@ -165,6 +182,7 @@ fn frame_file_of(shot: &str, rel: &str) -> bool {
         "vdb" => &["vdb"],
         "exr" => &["exr"],
         "preview" => &["png", "exr"],
+        "particles" => &["ply"],
         _ => return false,
     };
     let Some(rest) = name.strip_prefix(shot).and_then(|r| r.strip_prefix('.')) else {

@@ -4,6 +4,7 @@ use super::naming::frame_file;
 use super::records::{file_record, FrameRecord, Manifest};
 use crate::config::ShotConfig;
 use crate::error::Result;
+use crate::export::ExportSpace;
 use crate::io::vdb::{VdbFile, VdbGrid, VdbOptions};
 use crate::sim::ParticleState;
 use crate::splat::{GridTransform, SparseGrid, SplatGrids};
@@ -32,12 +33,20 @@ pub struct FrameWriter {
     cfg: ShotConfig,
     run_dir: PathBuf,
     transform: GridTransform,
+    /// The VDB files' frame (scale, axis, velocity basis) and grid aliases.
+    space: ExportSpace,
+    aliases: BTreeMap<String, String>,
+    /// Level-0 particle mass (kg), for the particle cache.
+    particle_mass: f64,
     splat: crate::splat::SplatParams,
     preview: Option<crate::preview::PreviewParams>,
 }
 
 impl FrameWriter {
     pub fn new(cfg: &ShotConfig, run_dir: &Path) -> Result<Self> {
+        if cfg.output.preview.enabled && cfg.output.preview.movie {
+            crate::preview::movie::require_ffmpeg()?;
+        }
         let splat = crate::splat::SplatParams::from_config(cfg)?;
         let preview = if cfg.output.preview.enabled {
             Some(crate::preview::PreviewParams::from_config(
@@ -51,6 +60,13 @@ impl FrameWriter {
             cfg: cfg.clone(),
             run_dir: run_dir.to_path_buf(),
             transform: splat.transform,
+            space: ExportSpace::from_config(cfg),
+            aliases: ExportSpace::aliases(cfg),
+            particle_mass: if cfg.export.particles {
+                crate::sim::init::particle_mass(cfg)
+            } else {
+                0.0
+            },
             splat,
             preview,
         })
@@ -73,8 +89,9 @@ impl FrameWriter {
             frame_start: cfg.output.frames.start,
             frame_end: cfg.output.frames.end,
             fps: cfg.output.fps,
-            voxel_size: self.transform.voxel_size,
-            grid_origin: self.transform.origin,
+            voxel_size: self.space.transform(&self.transform).voxel_size,
+            grid_origin: self.space.transform(&self.transform).origin,
+            export: Some(self.space.clone()),
             resume_command: super::naming::resume_command(&self.run_dir),
             frames: Vec::new(),
             complete: false,
@@ -140,6 +157,13 @@ impl FrameWriter {
             }
             phase_ms.insert("preview".into(), ms(t));
         }
+        if c.export.particles {
+            let t = Instant::now();
+            let path = frame_file(&self.run_dir, "particles", &c.shot, job.frame, pad, "ply");
+            self.write_particles(&path, &job.state, job.frame)?;
+            files.push(file_record(&self.run_dir, &path)?);
+            phase_ms.insert("write_particles".into(), ms(t));
+        }
         // Last, so the grids move into the file instead of being copied; listed first.
         if c.export.vdb.enabled {
             let t = Instant::now();
@@ -182,7 +206,34 @@ impl FrameWriter {
                 v.push(f("preview", "exr"));
             }
         }
+        if c.export.particles {
+            v.push(f("particles", "ply"));
+        }
         v
+    }
+
+    /// The frame's particle cache (`io::ply`), in the export frame.
+    fn write_particles(&self, path: &Path, state: &ParticleState, frame: u32) -> Result<()> {
+        let s = &self.space;
+        let info = crate::io::ply::CacheInfo {
+            space: s,
+            h0: crate::sim::init::kernel_radius(&self.cfg),
+            m0: self.particle_mass,
+            comments: vec![
+                format!("nimbus {} shot {} frame {frame}", crate::VERSION, self.cfg.shot),
+                format!(
+                    "units: position and radius in scene units of {} m, up axis {}, velocity in {}, temperature K, vapor and cloud_water kg/kg, mass kg",
+                    s.scale,
+                    if s.up_axis == crate::config::UpAxis::Z { "z" } else { "y" },
+                    s.velocity_unit
+                ),
+            ],
+        };
+        let bytes = crate::io::ply::encode(state, &info)?;
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir).map_err(|e| crate::Error::io(dir, e))?;
+        }
+        crate::io::atomic::write_atomic(path, &bytes)
     }
 
     /// Records of the frames `start..before` whose files are all on disk, with the sizes and
@@ -203,11 +254,13 @@ impl FrameWriter {
         Ok(out)
     }
 
-    /// The grids of a frame under their configured names, with their aliases.
+    /// The grids of a frame under their configured names, with their aliases, in the export
+    /// frame (`export::ExportSpace`).
     fn vdb_file(&self, grids: SplatGrids, frame: u32) -> VdbFile {
         let names = &self.cfg.export.grids;
+        let space = &self.space;
         let with_aliases = |mut g: VdbGrid| {
-            for (alias, target) in &names.aliases {
+            for (alias, target) in &self.aliases {
                 if *target == g.name {
                     g = g.with_alias(alias.clone());
                 }
@@ -221,15 +274,23 @@ impl FrameWriter {
             (&names.vapor, grids.vapor),
         ] {
             if let (false, Some(g)) = (name.is_empty(), grid) {
-                out.push(with_aliases(VdbGrid::float(name.clone(), g)));
+                out.push(with_aliases(VdbGrid::float(
+                    name.clone(),
+                    space.float_grid(g),
+                )));
             }
         }
         if let (false, Some(g)) = (names.velocity.is_empty(), grids.velocity) {
-            out.push(with_aliases(VdbGrid::vec3(names.velocity.clone(), g)));
+            let mut vg = VdbGrid::vec3(names.velocity.clone(), space.velocity_grid(g))
+                .with_class(space.velocity_class_name());
+            vg.metadata = space.velocity_metadata();
+            out.push(with_aliases(vg));
         }
+        let mut metadata = VdbFile::standard_metadata(frame as i64);
+        metadata.extend(space.file_metadata(self.transform.voxel_size));
         VdbFile {
             grids: out,
-            metadata: VdbFile::standard_metadata(frame as i64),
+            metadata,
         }
     }
 
@@ -266,7 +327,21 @@ impl FrameWriter {
         if frames.is_empty() {
             return Ok(());
         }
-        crate::preview::sheet::write_contact_sheet(&self.run_dir, &frames).map(|_| ())
+        crate::preview::sheet::write_contact_sheet(&self.run_dir, &frames)?;
+        // The movie once the whole range is there (an export directory fills up in parts).
+        if self.cfg.output.preview.movie
+            && manifest.complete
+            && frames.len() == manifest.frames.len()
+        {
+            crate::preview::movie::write_movie(
+                &self.run_dir,
+                &self.cfg.shot,
+                &frames,
+                self.cfg.output.frame_padding,
+                self.cfg.output.fps,
+            )?;
+        }
+        Ok(())
     }
 }
 

@@ -12,6 +12,7 @@
 //!
 //! Everything is deterministic: rows are rendered in parallel, each pixel independently, and the
 //! start offset that hides banding is a hash of the pixel coordinates.
+pub mod movie;
 pub mod particles;
 pub mod sheet;
 mod volume;

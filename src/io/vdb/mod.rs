@@ -15,6 +15,9 @@ pub const FILE_VERSION: u32 = 224;
 /// Library version recorded in the header.
 pub const LIBRARY_VERSION: (u32, u32) = (10, 0);
 pub const MAGIC: i64 = 0x5644_4220;
+/// OpenVDB `GridBase::gridClassToString` names.
+pub const CLASS_FOG_VOLUME: &str = "fog volume";
+pub const CLASS_UNKNOWN: &str = "unknown";
 
 /// Stream compression flags (OpenVDB `io::COMPRESS_*`).
 pub const COMPRESS_ZIP: u32 = 0x1;
@@ -29,13 +32,18 @@ pub struct VdbGrid {
     pub name: String,
     pub aliases: Vec<String>,
     pub data: GridData,
+    /// OpenVDB grid class (`class` metadata): "fog volume" for float grids, "unknown" for
+    /// vector grids unless set.
+    pub class: &'static str,
+    /// Extra grid metadata (e.g. the velocity's time basis), written on the grid and its aliases.
+    pub metadata: Vec<(String, MetaValue)>,
 }
 
 #[derive(Debug, Clone)]
 pub enum GridData {
     /// `Tree_float_5_4_3`, class fog volume.
     Float(SparseGrid<f32>),
-    /// `Tree_vec3s_5_4_3` (velocity), class unknown, vector type contravariant relative.
+    /// `Tree_vec3s_5_4_3` (velocity), vector type contravariant relative.
     Vec3(SparseGrid<[f32; 3]>),
 }
 
@@ -45,6 +53,8 @@ impl VdbGrid {
             name: name.into(),
             aliases: Vec::new(),
             data: GridData::Float(grid),
+            class: CLASS_FOG_VOLUME,
+            metadata: Vec::new(),
         }
     }
     pub fn vec3(name: impl Into<String>, grid: SparseGrid<[f32; 3]>) -> Self {
@@ -52,7 +62,17 @@ impl VdbGrid {
             name: name.into(),
             aliases: Vec::new(),
             data: GridData::Vec3(grid),
+            class: CLASS_UNKNOWN,
+            metadata: Vec::new(),
         }
+    }
+    pub fn with_class(mut self, class: &'static str) -> Self {
+        self.class = class;
+        self
+    }
+    pub fn with_metadata(mut self, key: impl Into<String>, value: MetaValue) -> Self {
+        self.metadata.push((key.into(), value));
+        self
     }
     pub fn with_alias(mut self, alias: impl Into<String>) -> Self {
         self.aliases.push(alias.into());

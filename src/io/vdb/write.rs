@@ -291,9 +291,11 @@ fn grid_metadata(
     class: &str,
     vector_type: Option<&str>,
     stats: &[(String, MetaValue)],
+    extra: &[(String, MetaValue)],
     half: bool,
 ) -> Vec<(String, MetaValue)> {
     let mut m: Vec<(String, MetaValue)> = stats.to_vec();
+    m.extend_from_slice(extra);
     m.push(("class".into(), MetaValue::String(class.into())));
     m.push(("name".into(), MetaValue::String(name.into())));
     m.push(("is_saved_as_half_float".into(), MetaValue::Bool(half)));
@@ -309,6 +311,7 @@ fn encode_grid<T: VdbValue>(
     aliases: &[String],
     class: &str,
     vector_type: Option<&str>,
+    extra: &[(String, MetaValue)],
     opts: &VdbOptions,
 ) -> Result<Encoded> {
     if !(g.transform.voxel_size.is_finite() && g.transform.voxel_size > 0.0)
@@ -410,7 +413,10 @@ fn encode_grid<T: VdbValue>(
         put_u32(&mut h, flags);
         // Instances carry the grid's own metadata only, as `Archive::writeGridInstance`.
         let st: &[(String, MetaValue)] = if with_topology { &stats } else { &[] };
-        put_metadata(&mut h, &grid_metadata(n, class, vector_type, st, opts.half));
+        put_metadata(
+            &mut h,
+            &grid_metadata(n, class, vector_type, st, extra, opts.half),
+        );
         put_transform(&mut h, &g.transform);
         if with_topology {
             h.extend_from_slice(&topo);
@@ -481,13 +487,16 @@ pub fn encode(file: &VdbFile, opts: &VdbOptions) -> Result<EncodedFile> {
         .grids
         .iter()
         .map(|g: &VdbGrid| match &g.data {
-            GridData::Float(s) => encode_grid(s, &g.name, &g.aliases, "fog volume", None, opts),
+            GridData::Float(s) => {
+                encode_grid(s, &g.name, &g.aliases, g.class, None, &g.metadata, opts)
+            }
             GridData::Vec3(s) => encode_grid(
                 s,
                 &g.name,
                 &g.aliases,
-                "unknown",
+                g.class,
                 Some("contravariant relative"),
+                &g.metadata,
                 opts,
             ),
         })
