@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod config;
 pub mod error;
+pub mod farm;
 pub mod fault;
 pub mod gpu;
 pub mod io;

@@ -69,6 +69,11 @@ enum Command {
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
     },
+    /// Wedges and long simulations on a Slurm cluster (see docs/FARM.md).
+    Farm {
+        #[command(subcommand)]
+        action: nimbus::farm::cli::FarmCommand,
+    },
     /// Benchmarks behind docs/PERFORMANCE.md (prints JSON).
     Bench {
         #[command(subcommand)]
@@ -157,6 +162,7 @@ fn main() {
         } => resume(&out_dir, log_format),
         Command::Inspect { file } => inspect(&file),
         Command::Preview { out_dir, set } => preview(&out_dir, &set),
+        Command::Farm { action } => nimbus::farm::cli::run(action),
         Command::Bench { topic } => bench(topic),
     };
     if let Err(e) = result {

@@ -2,6 +2,9 @@
 # Installs what nimbus and its tests need on Debian 12 (idempotent). Safe to run again.
 #   tools/setup.sh               runtime + test tools (Vulkan on the CPU, OpenVDB, OpenEXR tools)
 #   tools/setup.sh --blender     also Blender 3.4 (for tools/render_blender.py and its test)
+#   tools/setup.sh --farm        also Slurm and munge (for `nimbus farm` and its tests; a
+#                                one-node cluster on localhost: tools/slurm-local.sh)
+# Options combine: tools/setup.sh --blender --farm
 set -euo pipefail
 
 packages=(
@@ -10,7 +13,16 @@ packages=(
   openexr                          # exrheader: tests read our EXRs with the reference tools
   python3-numpy                    # the OpenVDB comparison benchmark
 )
-if [[ "${1:-}" == "--blender" ]]; then packages+=(blender); fi
+for opt in "$@"; do
+  case $opt in
+  --blender) packages+=(blender) ;;
+  --farm) packages+=(slurmctld slurmd slurm-client munge) ;;
+  *)
+    echo "setup: unknown option $opt (expected --blender, --farm)" >&2
+    exit 2
+    ;;
+  esac
+done
 
 missing=()
 for p in "${packages[@]}"; do
