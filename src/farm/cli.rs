@@ -52,7 +52,8 @@ pub enum FarmCommand {
         #[arg(long, value_enum, default_value = "human")]
         log_format: LogFormat,
     },
-    /// Submit again the wedges that failed (they resume from their checkpoints) and a new report.
+    /// Submit again the wedges that failed (they resume from their checkpoints) and a new
+    /// report; a plan written with `submit --dry-run` is submitted as it is.
     Resubmit {
         farm_dir: PathBuf,
         /// Write the new scripts into the plan and print the sbatch commands, submit nothing.

@@ -233,12 +233,17 @@ fn write_and_submit(
 
 /// `nimbus farm resubmit`: a new simulation array over the wedges whose runs are not complete
 /// and which no job is running or queued for, and a new report after it. Each resumes from
-/// its run's newest checkpoint, so nothing already simulated is redone.
+/// its run's newest checkpoint, so nothing already simulated is redone. A plan written with
+/// `--dry-run` is submitted as it is.
 pub fn resubmit(farm_dir: &Path, dry_run: bool) -> Result<Submitted> {
     let farm_dir = farm_dir
         .canonicalize()
         .map_err(|e| Error::InvalidInput(format!("{}: {e}", farm_dir.display())))?;
     let mut plan = FarmPlan::load(&farm_dir)?;
+    // A --dry-run plan (nothing submitted yet) is submitted as it was written.
+    if plan.jobs.iter().all(|j| j.slurm_id.is_none()) {
+        return write_and_submit(plan, farm_dir, dry_run, 0);
+    }
     let status = super::status::collect(&plan, &farm_dir);
     if let Some(err) = &status.scheduler_error {
         if !dry_run {
