@@ -85,6 +85,8 @@ pub struct FarmPlan {
 pub struct RenderSettings {
     pub blender: PathBuf,
     pub script: PathBuf,
+    /// Digits of the frame number in `render/<shot>.<frame>.png` (the shot's frame_padding).
+    pub frame_padding: u32,
 }
 
 impl FarmPlan {

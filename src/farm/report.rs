@@ -28,6 +28,8 @@ pub struct WedgeReport {
     /// `path: why` for every file that does not match its record.
     pub bad_files: Vec<String>,
     pub error: Option<String>,
+    /// With `--render`: frames whose `render/<shot>.<frame>.png` exists (PNG signature checked).
+    pub frames_rendered: Option<u32>,
     pub complete: bool,
 }
 
@@ -116,6 +118,7 @@ fn verify_run(plan: &FarmPlan, dir: &Path) -> (WedgeReport, Vec<(u32, String)>) 
         missing_frames: Vec::new(),
         bad_files: Vec::new(),
         error: None,
+        frames_rendered: None,
         complete: false,
     };
     let manifest = match Manifest::load(dir) {
@@ -169,5 +172,19 @@ fn verify_run(plan: &FarmPlan, dir: &Path) -> (WedgeReport, Vec<(u32, String)>) 
         }
     }
     rep.complete = rep.manifest_complete && rep.frames_verified == expected;
+    if let Some(r) = &plan.render {
+        let rendered = (plan.frame_start..=plan.frame_end)
+            .filter(|f| {
+                let png = dir.join("render").join(format!(
+                    "{}.{f:0width$}.png",
+                    plan.shot,
+                    width = r.frame_padding as usize
+                ));
+                std::fs::read(png).is_ok_and(|b| b.starts_with(b"\x89PNG\r\n\x1a\n"))
+            })
+            .count() as u32;
+        rep.frames_rendered = Some(rendered);
+        rep.complete &= rendered == expected;
+    }
     (rep, previews)
 }

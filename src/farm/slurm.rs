@@ -155,16 +155,29 @@ pub fn render_script(plan: &FarmPlan, job: &Job, farm_dir: &Path) -> Option<Stri
     s += "WEDGE=$((SLURM_ARRAY_TASK_ID / FRAMES))\nFRAME=$((START + SLURM_ARRAY_TASK_ID % FRAMES))\n";
     s += &wedge_case(plan, farm_dir).replace("\"$SLURM_ARRAY_TASK_ID\"", "\"$WEDGE\"");
     s += &format!(
-        "PNG=$RUN/render/{}.$(printf '%04d' $FRAME).png\nmkdir -p \"$RUN/render\"\n",
-        plan.shot
+        "PNG=$RUN/render/{}.$(printf '%0{}d' $FRAME).png\nmkdir -p \"$RUN/render\"\n",
+        plan.shot, r.frame_padding
     );
     s += &format!(
-        "exec {} -b --factory-startup --python-exit-code 1 -P {} -- \"$RUN\" \"$PNG\" --frame $FRAME --min-coverage 0\n",
+        "RENDER=({} -b --factory-startup --python-exit-code 1 -P {} -- \"$RUN\" \"$PNG\" --frame $FRAME --min-coverage 0)\n",
         sh_path(&r.blender),
         sh_path(&r.script)
     );
+    s += RENDER_BODY;
     Some(s)
 }
+
+/// Renders the frame; a frame before the cloud forms (an empty density grid, which the
+/// script's automatic exposure refuses) is rendered as the empty sky at a fixed density scale.
+const RENDER_BODY: &str = r#"echo "nimbus-farm: render $RUN frame $FRAME -> $PNG"
+OUT=$("${RENDER[@]}" 2>&1); RC=$?
+echo "$OUT"
+if [ $RC -ne 0 ] && grep -q "nothing to render" <<<"$OUT"; then
+  echo "nimbus-farm: frame $FRAME has no cloud yet; rendering the empty sky"
+  "${RENDER[@]}" --density-scale 1; RC=$?
+fi
+exit $RC
+"#;
 
 /// The script text of a job.
 pub fn script_for(plan: &FarmPlan, job: &Job, farm_dir: &Path) -> String {

@@ -58,7 +58,7 @@ pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
         }
     }
     let render = if opts.render {
-        Some(render_settings()?)
+        Some(render_settings(cfg.output.frame_padding)?)
     } else {
         None
     };
@@ -288,7 +288,7 @@ pub fn resubmit(farm_dir: &Path, dry_run: bool) -> Result<Submitted> {
 }
 
 /// Blender and the render script: found now, so a farm never fails on them hours later.
-fn render_settings() -> Result<RenderSettings> {
+fn render_settings(frame_padding: u32) -> Result<RenderSettings> {
     let blender = find_on_path("blender").ok_or_else(|| {
         Error::Runtime(
             "--render: blender not found on PATH: install it (tools/setup.sh --blender)".into(),
@@ -304,7 +304,11 @@ fn render_settings() -> Result<RenderSettings> {
             script.display()
         )));
     }
-    Ok(RenderSettings { blender, script })
+    Ok(RenderSettings {
+        blender,
+        script,
+        frame_padding,
+    })
 }
 
 fn find_on_path(name: &str) -> Option<PathBuf> {
