@@ -10,9 +10,11 @@
 //! 2. a failing wedge and a killed job step (`kill -9` of the job's nimbus), each failed with its
 //!    own note in `farm status`, the resubmit command printed, and `farm resubmit` completing
 //!    both from their checkpoints, frames again identical to the local runs;
-//! 3. with Blender on PATH, a 2-frame farm with `--render`: each frame rendered to
+//! 3. a killed task with the default crash requeue: it comes back by itself and completes;
+//!    with Blender on PATH, a 2-frame farm with `--render`: each frame rendered to
 //!    `render/<shot>.<frame>.png` and counted in the report;
-//! 4. the controller unreachable: `farm submit` exits 3 with the remedy.
+//! 4. the controller unreachable: `farm submit` exits 3 with the remedy, `farm status` exits 3
+//!    and still reports the wedges from the farm's files.
 //!
 //! Skipped, with a note, when not run as root or without the Slurm packages.
 mod common;
@@ -123,13 +125,24 @@ fn wait_for(what: &str, timeout: Duration, mut done: impl FnMut() -> bool) {
 }
 
 fn submit(c: &Cluster, config: &Path, farm: &Path, extra: &[&str]) -> Value {
+    submit_values(c, config, farm, &VALUES, extra)
+}
+
+/// `farm submit` wedged over `physics.heat_source=VALUES`.
+fn submit_values(
+    c: &Cluster,
+    config: &Path,
+    farm: &Path,
+    values: &[&str],
+    extra: &[&str],
+) -> Value {
     let o = c
         .nimbus()
         .args(["farm", "submit"])
         .arg(config)
         .args([
             "--wedge",
-            &format!("physics.heat_source={}", VALUES.join(",")),
+            &format!("physics.heat_source={}", values.join(",")),
         ])
         .arg("--out")
         .arg(farm)
@@ -428,6 +441,46 @@ fn farm_on_a_real_slurm_cluster() {
     assert!(log.contains("nimbus resume"), "wedge 0 resumed: {log}");
     eprintln!("case 2 done at {:.1} s", t0.elapsed().as_secs_f64());
 
+    // A killed task with a crash requeue allowed (the default, 1) comes back by itself.
+    let farm = base.join("farm_crash");
+    let plan = submit_values(&cluster, &config, &farm, &VALUES[..1], &[]);
+    let run = farm
+        .join("runs")
+        .join(plan["wedges"][0]["name"].as_str().unwrap());
+    let mut killed = false;
+    wait_for(
+        "the wedge to be killed mid-run",
+        Duration::from_secs(120),
+        || {
+            let n = frames_done(&run);
+            assert!(
+                n < FRAMES as usize,
+                "the wedge finished before it could be killed"
+            );
+            if n >= 5 {
+                if let Some(pid) = nimbus_pid(&run) {
+                    common::kill(pid, "KILL");
+                    killed = true;
+                }
+            }
+            killed
+        },
+    );
+    wait_idle(&cluster, &farm, Duration::from_secs(120));
+    let s = status(&cluster, &farm);
+    assert_eq!(s["complete"], true, "{s}");
+    assert_eq!(s["wedges"][0]["last_exit"], 0, "{s}");
+    let attempts = std::fs::read_to_string(farm.join("state/sim_0.jsonl")).unwrap();
+    assert!(
+        attempts.lines().next().unwrap().contains("\"exit\":137"),
+        "{attempts}"
+    );
+    assert_same_frames(&locals[0], &run);
+    eprintln!(
+        "crash requeue case done at {:.1} s",
+        t0.elapsed().as_secs_f64()
+    );
+
     // The render stage: a 2-frame farm with --render (Blender renders each frame).
     if blender_available() {
         let short = base.join("short.yaml");
@@ -471,5 +524,26 @@ fn farm_on_a_real_slurm_cluster() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("Unable to contact slurm controller"), "{err}");
     assert!(err.contains("tools/slurm-local.sh"), "{err}");
+    // farm status still answers from the farm's files, and says the queue is unreachable.
+    let o = cluster
+        .nimbus()
+        .args(["farm", "status", "--log-format", "json"])
+        .arg(base.join("farm_a"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(3), "{}", text(&o));
+    let s: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(
+        s["scheduler_error"].as_str().unwrap().contains("squeue"),
+        "{s}"
+    );
+    assert!(
+        s["wedges"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|w| w["state"] == "done"),
+        "{s}"
+    );
     eprintln!("all done in {:.1} s", t0.elapsed().as_secs_f64());
 }
