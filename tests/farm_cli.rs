@@ -51,6 +51,15 @@ fn dry_run_writes_the_plan_and_submits_nothing() {
         wedges[1]["values"],
         serde_json::json!([["physics.heat_source", "0.2"], ["seed", "4"]])
     );
+    assert_eq!(wedges[3]["run_dir"], "runs/tiny_w3_heat_source-0.3_seed-4");
+    let farm_abs = farm.canonicalize().unwrap();
+    assert_eq!(
+        wedges[3]["command"],
+        format!(
+            "nimbus run {0}/shot.yaml --out {0}/runs/tiny_w3_heat_source-0.3_seed-4 --set physics.heat_source=0.3 --set seed=4",
+            farm_abs.display()
+        )
+    );
     let jobs = plan["jobs"].as_array().unwrap();
     let names: Vec<&str> = jobs.iter().map(|j| j["name"].as_str().unwrap()).collect();
     assert_eq!(names, ["sim", "report"]);

@@ -125,5 +125,9 @@ impl FarmPlan {
 
 /// `<farm>/runs/<wedge name>`: where a wedge's run directory lives.
 pub fn run_dir(farm_dir: &Path, wedge: &Wedge) -> PathBuf {
-    farm_dir.join("runs").join(&wedge.name)
+    if wedge.run_dir.is_empty() {
+        farm_dir.join("runs").join(&wedge.name)
+    } else {
+        farm_dir.join(&wedge.run_dir)
+    }
 }

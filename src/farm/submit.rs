@@ -88,6 +88,25 @@ pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
     let nimbus = std::env::current_exe()
         .and_then(|p| p.canonicalize())
         .map_err(|e| Error::Runtime(format!("cannot find the nimbus binary: {e}")))?;
+    let mut wedges = wedges;
+    for w in &mut wedges {
+        let mut words = vec![
+            "nimbus".to_string(),
+            "run".into(),
+            config_copy.to_string_lossy().into_owned(),
+            "--out".into(),
+            plan::run_dir(&farm_dir, w).to_string_lossy().into_owned(),
+        ];
+        for kv in w.sets() {
+            words.push("--set".into());
+            words.push(kv);
+        }
+        w.command = words
+            .iter()
+            .map(|a| slurm::sh(a))
+            .collect::<Vec<_>>()
+            .join(" ");
+    }
     let all: Vec<usize> = wedges.iter().map(|w| w.index).collect();
     let mut plan = FarmPlan {
         tool: "nimbus".into(),
@@ -125,10 +144,9 @@ fn add_jobs(plan: &mut FarmPlan, tasks: &[usize], suffix: &str) {
         kind: JobKind::Simulation,
         script: "jobs/sim.sbatch".into(),
         tasks: tasks.to_vec(),
-        command: format!(
-            "nimbus resume RUN  (or, before its first checkpoint: nimbus run {} --out RUN --set KEY=VALUE...)",
-            plan.config.display()
-        ),
+        command: "per wedge: its `command` in wedges[], or `nimbus resume RUN` once the run has \
+                  a checkpoint"
+            .into(),
         depends_on: Vec::new(),
         slurm_id: None,
         submit: Vec::new(),
@@ -208,14 +226,22 @@ fn write_and_submit(
                         })
                         .collect();
                     return Err(Error::Runtime(format!(
-                        "{e} (job '{}' not submitted{}; the plan is in {})",
+                        "{e} (job '{}' not submitted{}; the plan is in {}{})",
                         plan.jobs[i].name,
                         if done.is_empty() {
                             String::new()
                         } else {
                             format!(", already submitted: {}", done.join(" "))
                         },
-                        farm_dir.join(plan::PLAN).display()
+                        farm_dir.join(plan::PLAN).display(),
+                        if done.is_empty() {
+                            format!(
+                                "; submit it later with: nimbus farm resubmit {}",
+                                slurm::sh(&farm_dir.to_string_lossy())
+                            )
+                        } else {
+                            String::new()
+                        }
                     )));
                 }
             }

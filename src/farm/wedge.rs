@@ -24,6 +24,12 @@ pub struct Wedge {
     pub name: String,
     /// (key, value) pairs, passed to `nimbus run` as `--set key=value`.
     pub values: Vec<(String, String)>,
+    /// The run directory, relative to the farm directory (`runs/<name>`).
+    #[serde(default)]
+    pub run_dir: String,
+    /// What the wedge's simulation task runs first (`nimbus resume RUN` after an interruption).
+    #[serde(default)]
+    pub command: String,
 }
 
 impl Wedge {
@@ -113,10 +119,13 @@ pub fn combinations(shot: &str, axes: &[WedgeAxis]) -> Result<Vec<Wedge>> {
             *slot = (a.key.clone(), a.values[rest % a.values.len()].clone());
             rest /= a.values.len();
         }
+        let name = wedge_name(shot, index, &values);
         out.push(Wedge {
             index,
-            name: wedge_name(shot, index, &values),
+            run_dir: format!("runs/{name}"),
+            name,
             values,
+            command: String::new(),
         });
     }
     Ok(out)
