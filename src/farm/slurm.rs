@@ -94,7 +94,7 @@ ATTEMPTS=$STATE/sim_${SLURM_ARRAY_TASK_ID}.jsonl
 mkdir -p "$STATE"
 # A run with a checkpoint resumes; one that died before its first checkpoint starts over
 # (--force removes only nimbus's own files); otherwise a fresh run.
-if [ -n "$(ls -A "$RUN/checkpoints" 2>/dev/null)" ]; then
+if compgen -G "$RUN/checkpoints/*.nck" >/dev/null; then
   CMD=("$NIMBUS" resume "$RUN" --log-format json)
 elif [ -e "$RUN/manifest.json" ]; then
   CMD=("$NIMBUS" run "$CONFIG" --out "$RUN" --force --log-format json "${SETS[@]}")

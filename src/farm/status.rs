@@ -94,11 +94,17 @@ pub fn collect(plan: &FarmPlan, farm_dir: &Path) -> FarmStatus {
         let tries = attempts(farm_dir, w.index);
         let last_exit = tries.last().map(|a| a.exit);
         let entry = task.as_ref().and_then(|t| queue.get(t));
+        // Attempts of this job's task (not of an earlier round's): a pending task with one is
+        // a requeued one.
+        let own = task
+            .as_ref()
+            .is_some_and(|t| tries.iter().any(|a| &a.job == t));
         let (state, note) = wedge_state(
             complete,
             job.is_some_and(|j| j.slurm_id.is_some()),
             entry,
             &tries,
+            own,
             scheduler_error.is_some(),
         );
         wedges.push(WedgeStatus {
@@ -161,6 +167,7 @@ fn wedge_state(
     submitted: bool,
     entry: Option<&QueueEntry>,
     tries: &[Attempt],
+    own_attempt: bool,
     queue_unknown: bool,
 ) -> (String, String) {
     if complete {
@@ -172,7 +179,7 @@ fn wedge_state(
     let interrupted = tries.last().is_some_and(|a| a.exit == 130);
     if let Some(e) = entry {
         match e.state.as_str() {
-            "PENDING" if e.restarts > 0 || !tries.is_empty() => {
+            "PENDING" if e.restarts > 0 || own_attempt => {
                 return ("requeued".into(), e.reason.clone())
             }
             "PENDING" => return ("pending".into(), e.reason.clone()),
