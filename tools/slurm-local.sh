@@ -106,8 +106,9 @@ ReturnToService=2
 MpiDefault=none
 JobCompType=jobcomp/none
 AccountingStorageType=accounting_storage/none
-# Short timers: a test cluster should schedule and notice signals quickly.
-SchedulerParameters=bf_interval=1,sched_min_interval=200000
+# Short timers: a test cluster should schedule quickly (sched_interval: the main scheduler loop,
+# which starts a requeued job once its BeginTime has passed; default 60 s).
+SchedulerParameters=bf_interval=1,sched_interval=2,sched_min_interval=200000
 MinJobAge=600
 KillWait=5
 InactiveLimit=0
