@@ -111,9 +111,9 @@ fn dry_run_writes_the_plan_and_submits_nothing() {
 }
 
 #[test]
-fn invalid_wedge_values_are_refused_before_anything_is_written() {
+fn invalid_wedge_values_and_flags_are_refused_before_anything_is_written() {
     let base = fresh_dir("farm_bad_wedge");
-    let cases: [(&[&str], &str); 5] = [
+    let cases: [(&[&str], &str); 7] = [
         // the file sets heat_source at line 16: the error points there
         (
             &["--wedge", "physics.heat_source=0.2,30"],
@@ -127,6 +127,12 @@ fn invalid_wedge_values_are_refused_before_anything_is_written() {
         (&["--wedge", "physics.heat_sorce=0.1"], "unknown key \"heat_sorce\""),
         (&["--wedge", "seed"], "--wedge \"seed\": expected KEY.PATH=V1,V2,..."),
         (&["--wedge", "seed=1", "--wedge", "seed=2"], "the key is wedged twice"),
+        // a time limit that leaves no room for the stop-and-checkpoint margin
+        (
+            &["--time-limit", "2"],
+            "--time-limit 2 (120 s) must be longer than --signal-margin (120 s)",
+        ),
+        (&["--time-limit", "1h"], "--time-limit \"1h\": expected minutes"),
     ];
     for (args, want) in cases {
         let farm = base.join("farm");

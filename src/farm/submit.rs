@@ -44,7 +44,7 @@ pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
     let wedges = wedge::combinations(&cfg.shot, &axes)?;
     wedge::validate_all(&opts.config, &wedges)?;
     if let Some(t) = &opts.time_limit {
-        check_time_limit(t)?;
+        check_time_limit(t, opts.signal_margin_s)?;
     }
     if let Some(p) = &opts.partition {
         if p.is_empty()
@@ -345,27 +345,45 @@ fn find_on_path(name: &str) -> Option<PathBuf> {
     })
 }
 
-/// Slurm's `--time` formats: `M`, `M:S`, `H:M:S`, `D-H`, `D-H:M`, `D-H:M:S`.
-fn check_time_limit(t: &str) -> Result<()> {
+/// Seconds of a Slurm `--time` value: `M`, `M:S`, `H:M:S`, `D-H`, `D-H:M`, `D-H:M:S`.
+fn time_limit_seconds(t: &str) -> Result<u64> {
+    let bad = || {
+        Error::InvalidInput(format!(
+            "--time-limit {t:?}: expected minutes, MM:SS, HH:MM:SS or D-HH[:MM[:SS]] (Slurm's --time)"
+        ))
+    };
+    let num = |s: &str| -> Result<u64> {
+        if s.is_empty() || !s.chars().all(|c| c.is_ascii_digit()) {
+            return Err(bad());
+        }
+        s.parse().map_err(|_| bad())
+    };
     let (days, rest) = match t.split_once('-') {
-        Some((d, r)) => (Some(d), r),
+        Some((d, r)) => (Some(num(d)?), r),
         None => (None, t),
     };
-    let nums = |s: &str| !s.is_empty() && s.chars().all(|c| c.is_ascii_digit());
-    let parts: Vec<&str> = rest.split(':').collect();
-    let ok = days.is_none_or(nums)
-        && parts.iter().all(|p| nums(p))
-        && match days {
-            Some(_) => (1..=3).contains(&parts.len()),
-            None => (1..=3).contains(&parts.len()),
-        };
-    if ok {
-        Ok(())
-    } else {
-        Err(Error::InvalidInput(format!(
-            "--time-limit {t:?}: expected minutes, MM:SS, HH:MM:SS or D-HH[:MM[:SS]] (Slurm's --time)"
-        )))
+    let parts = rest.split(':').map(num).collect::<Result<Vec<u64>>>()?;
+    let secs = match (days, parts.as_slice()) {
+        (None, [m]) => m * 60,
+        (None, [m, s]) => m * 60 + s,
+        (None, [h, m, s]) | (Some(_), [h, m, s]) => h * 3600 + m * 60 + s,
+        (Some(_), [h]) => h * 3600,
+        (Some(_), [h, m]) => h * 3600 + m * 60,
+        _ => return Err(bad()),
+    };
+    Ok(days.unwrap_or(0) * 86_400 + secs)
+}
+
+/// The time limit must leave the simulation its margin, or every job would be told to stop
+/// as soon as it starts.
+fn check_time_limit(t: &str, margin_s: u32) -> Result<()> {
+    let secs = time_limit_seconds(t)?;
+    if secs <= margin_s as u64 {
+        return Err(Error::InvalidInput(format!(
+            "--time-limit {t} ({secs} s) must be longer than --signal-margin ({margin_s} s)"
+        )));
     }
+    Ok(())
 }
 
 fn make_executable(path: &Path) -> Result<()> {
@@ -380,15 +398,24 @@ fn make_executable(path: &Path) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::check_time_limit;
+    use super::{check_time_limit, time_limit_seconds};
 
     #[test]
     fn time_limits_in_slurm_formats() {
-        for ok in ["30", "10:00", "1:00:00", "2-12", "1-0:30", "1-00:00:00"] {
-            assert!(check_time_limit(ok).is_ok(), "{ok}");
+        for (t, secs) in [
+            ("30", 1800),
+            ("10:00", 600),
+            ("1:00:00", 3600),
+            ("2-12", 216_000),
+            ("1-0:30", 88_200),
+            ("1-00:00:01", 86_401),
+        ] {
+            assert_eq!(time_limit_seconds(t).unwrap(), secs, "{t}");
         }
-        for bad in ["", "1h", "1:2:3:4", "-1", "a-1", "1-"] {
-            assert!(check_time_limit(bad).is_err(), "{bad}");
+        for bad in ["", "1h", "1:2:3:4", "-1", "a-1", "1-", "1-2:3:4:5"] {
+            assert!(time_limit_seconds(bad).is_err(), "{bad}");
         }
+        assert!(check_time_limit("2", 120).is_err());
+        assert!(check_time_limit("3", 120).is_ok());
     }
 }
