@@ -311,7 +311,6 @@ fn unclosed_bracket(text: &str, line: u64) -> Option<(char, usize, usize)> {
     stack.pop()
 }
 
-/// Dotted path of every key (key position) and list element (value position).
 /// Where the dotted `key` is set in config `text` (1-based line, column), or None when the text
 /// does not set it (a default) or does not parse. Lets callers that override a key (farm wedges)
 /// point at the line they override.
@@ -325,6 +324,7 @@ pub fn key_position(text: &str, key: &str) -> Option<(u64, u64)> {
     }
 }
 
+/// Dotted path of every key (key position) and list element (value position).
 fn collect_positions(n: &Node, path: &str, out: &mut HashMap<String, Pos>) {
     match &n.val {
         Val::Map(entries) => {
