@@ -10,7 +10,8 @@
 //! 2. a failing wedge and a killed job step (`kill -9` of the job's nimbus), each failed with its
 //!    own note in `farm status`, the resubmit command printed, and `farm resubmit` completing
 //!    both from their checkpoints, frames again identical to the local runs;
-//! 3. a killed task with the default crash requeue: it comes back by itself and completes;
+//! 3. a killed task with the default crash requeue: it comes back by itself and completes; a
+//!    task its user cancels is not requeued (failed, "cancelled");
 //!    with Blender on PATH, a 2-frame farm with `--render`: each frame rendered to
 //!    `render/<shot>.<frame>.png` and counted in the report;
 //! 4. the controller unreachable: `farm submit` exits 3 with the remedy, `farm status` exits 3
@@ -480,6 +481,32 @@ fn farm_on_a_real_slurm_cluster() {
         "crash requeue case done at {:.1} s",
         t0.elapsed().as_secs_f64()
     );
+
+    // A task its user cancels (scancel) is not requeued: failed, with the resubmit command.
+    let farm = base.join("farm_cancel");
+    let plan = submit_values(&cluster, &config, &farm, &VALUES[..1], &[]);
+    let id = plan["jobs"][0]["slurm_id"].as_str().unwrap().to_string();
+    let run = farm
+        .join("runs")
+        .join(plan["wedges"][0]["name"].as_str().unwrap());
+    wait_for("the wedge to start", Duration::from_secs(120), || {
+        let n = frames_done(&run);
+        assert!(
+            n < FRAMES as usize,
+            "the wedge finished before it could be cancelled"
+        );
+        n >= 3
+    });
+    let o = cluster.cmd("scancel").arg(&id).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    wait_idle(&cluster, &farm, Duration::from_secs(120));
+    let s = status(&cluster, &farm);
+    let w = &s["wedges"][0];
+    assert_eq!(w["state"], "failed", "{s}");
+    assert_eq!(w["restarts"], 0, "{s}");
+    assert!(w["note"].as_str().unwrap().contains("cancelled"), "{s}");
+    assert!(s["resubmit_command"].is_string(), "{s}");
+    eprintln!("cancel case done at {:.1} s", t0.elapsed().as_secs_f64());
 
     // The render stage: a 2-frame farm with --render (Blender renders each frame).
     if blender_available() {

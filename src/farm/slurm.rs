@@ -113,8 +113,9 @@ trap - TERM INT HUP
 printf '{"job":"%s","restart":%s,"exit":%s,"at":"%s"}\n' "$ME" "${SLURM_RESTART_COUNT:-0}" "$RC" \
   "$(date -u +%FT%TZ)" >>"$ATTEMPTS"
 requeue() {
-  # A job cancelled by its user is not brought back.
-  if scontrol show job "$ME" -o 2>/dev/null | grep -q 'JobState=CANCELLED'; then
+  # Only a task still RUNNING is requeued: one its user cancelled (scancel) is already
+  # COMPLETING when its shell gets here; the time-limit signal leaves it RUNNING.
+  if ! scontrol show job "$ME" -o 2>/dev/null | grep -q 'JobState=RUNNING'; then
     echo "nimbus-farm: $ME was cancelled; not requeued"; exit "$RC"
   fi
   echo "nimbus-farm: $ME $1; requeued (resumes from its checkpoint)"

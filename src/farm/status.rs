@@ -198,6 +198,9 @@ fn wedge_state(
     }
     let note = match (tries.last(), entry) {
         (Some(a), _) if a.exit == 0 => "exited 0 but its run is not complete".to_string(),
+        (Some(_), Some(e)) if interrupted && e.state == "CANCELLED" => {
+            "cancelled (scancel), not requeued".to_string()
+        }
         (Some(_), _) if interrupted => "interrupted (exit 130) and not requeued".to_string(),
         (Some(a), _) if a.exit > 128 => format!(
             "killed by signal {} (exit {}) after {} attempt(s)",
