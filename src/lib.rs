@@ -4,6 +4,7 @@ pub mod bench;
 pub mod config;
 pub mod error;
 pub mod export;
+pub mod farm;
 pub mod fault;
 pub mod gpu;
 pub mod io;

@@ -86,6 +86,11 @@ enum Command {
         #[arg(long)]
         name: Option<String>,
     },
+    /// Wedges and long simulations on a Slurm cluster (see docs/FARM.md).
+    Farm {
+        #[command(subcommand)]
+        action: nimbus::farm::cli::FarmCommand,
+    },
     /// Benchmarks behind docs/PERFORMANCE.md (prints JSON).
     Bench {
         #[command(subcommand)]
@@ -180,6 +185,7 @@ fn main() {
             set,
             name,
         } => export(&run_dir, frames.as_deref(), set, name),
+        Command::Farm { action } => nimbus::farm::cli::run(action),
         Command::Bench { topic } => bench(topic),
     };
     if let Err(e) = result {

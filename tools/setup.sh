@@ -3,7 +3,9 @@
 #   tools/setup.sh               runtime + test tools (Vulkan on the CPU, OpenVDB, OpenEXR tools)
 #   tools/setup.sh --blender     also Blender 3.4 (for tools/render_blender.py and its test)
 #   tools/setup.sh --preview     also ffmpeg (output.preview.movie and its test)
-# Flags combine: tools/setup.sh --blender --preview
+#   tools/setup.sh --farm        also Slurm and munge (for `nimbus farm` and its tests; a
+#                                one-node cluster on localhost: tools/slurm-local.sh)
+# Flags combine: tools/setup.sh --blender --preview --farm
 set -euo pipefail
 
 packages=(
@@ -16,7 +18,8 @@ for flag in "$@"; do
   case "$flag" in
     --blender) packages+=(blender) ;;
     --preview) packages+=(ffmpeg) ;;
-    *) echo "setup: unknown flag $flag (known: --blender, --preview)" >&2; exit 2 ;;
+    --farm) packages+=(slurmctld slurmd slurm-client munge) ;;
+    *) echo "setup: unknown flag $flag (known: --blender, --preview, --farm)" >&2; exit 2 ;;
   esac
 done
 

@@ -311,6 +311,19 @@ fn unclosed_bracket(text: &str, line: u64) -> Option<(char, usize, usize)> {
     stack.pop()
 }
 
+/// Where the dotted `key` is set in config `text` (1-based line, column), or None when the text
+/// does not set it (a default) or does not parse. Lets callers that override a key (farm wedges)
+/// point at the line they override.
+pub fn key_position(text: &str, key: &str) -> Option<(u64, u64)> {
+    let root = node::parse(text).ok()?;
+    let mut positions = HashMap::new();
+    collect_positions(&root, "", &mut positions);
+    match positions.get(key)? {
+        Pos::At { line, col } => Some((*line, *col)),
+        _ => None,
+    }
+}
+
 /// Dotted path of every key (key position) and list element (value position).
 fn collect_positions(n: &Node, path: &str, out: &mut HashMap<String, Pos>) {
     match &n.val {

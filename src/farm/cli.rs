@@ -1,0 +1,174 @@
+//! `nimbus farm ...`: the subcommands' arguments and what each prints.
+use super::status;
+use super::submit::{self, SubmitOptions, Submitted, DEFAULT_SIGNAL_MARGIN_S};
+use crate::error::{Error, Result};
+use crate::pipeline::LogFormat;
+use clap::Subcommand;
+use std::path::PathBuf;
+
+#[derive(Subcommand)]
+pub enum FarmCommand {
+    /// Write a farm directory (farm.json plan + sbatch scripts) for a shot and its wedges, and
+    /// submit it to Slurm: a simulation job array (one task per wedge, requeued at the time
+    /// limit until complete), an optional Blender render array, and a report job.
+    Submit {
+        /// Shot config (YAML).
+        config: PathBuf,
+        /// Wedge a key over values, e.g. `--wedge physics.heat_source=0.2,0.3`; each --wedge
+        /// multiplies the combinations (repeatable).
+        #[arg(long = "wedge", value_name = "KEY=V1,V2,...")]
+        wedge: Vec<String>,
+        /// Farm directory (default: `<shot>_farm`); wedge runs go to its runs/.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Slurm partition of every job (default: the cluster's default partition).
+        #[arg(long)]
+        partition: Option<String>,
+        /// Slurm time limit of each job (`--time`: minutes, MM:SS, HH:MM:SS, D-HH...). A
+        /// simulation longer than this goes on in its next job.
+        #[arg(long, value_name = "T")]
+        time_limit: Option<String>,
+        /// Seconds before the time limit at which a simulation is told to checkpoint and stop
+        /// (`--signal=B:TERM@SECS`).
+        #[arg(long, value_name = "SECS", default_value_t = DEFAULT_SIGNAL_MARGIN_S)]
+        signal_margin: u32,
+        /// Times a simulation task is requeued after being killed (a lost node, kill -9) before
+        /// it is reported failed.
+        #[arg(long, value_name = "N", default_value_t = 1)]
+        crash_requeues: u32,
+        /// Also render every frame of every wedge with Blender (tools/render_blender.py) to
+        /// `<run>/render/<shot>.<frame>.png`.
+        #[arg(long)]
+        render: bool,
+        /// Write the farm directory and print the sbatch commands, submit nothing.
+        #[arg(long)]
+        dry_run: bool,
+    },
+    /// The state of every job and wedge of a farm (pending, running, requeued, done, failed)
+    /// and the frames done per wedge.
+    Status {
+        farm_dir: PathBuf,
+        /// `human` (a table) or `json` (one JSON document, for pipeline tools).
+        #[arg(long, value_enum, default_value = "human")]
+        log_format: LogFormat,
+    },
+    /// Submit again the wedges that failed (they resume from their checkpoints) and a new
+    /// report; a plan written with `submit --dry-run` is submitted as it is.
+    Resubmit {
+        farm_dir: PathBuf,
+        /// Write the new scripts into the plan and print the sbatch commands, submit nothing.
+        #[arg(long)]
+        dry_run: bool,
+    },
+    /// Check every wedge's frames against its manifest (sizes, SHA-256) and write
+    /// farm_report.json and the wedge contact sheet (the farm's last job runs this).
+    /// Exits 0 when the farm is complete, 3 when it is not.
+    Report { farm_dir: PathBuf },
+}
+
+pub fn run(cmd: FarmCommand) -> Result<()> {
+    match cmd {
+        FarmCommand::Submit {
+            config,
+            wedge,
+            out,
+            partition,
+            time_limit,
+            signal_margin,
+            crash_requeues,
+            render,
+            dry_run,
+        } => {
+            let done = submit::submit(&SubmitOptions {
+                config,
+                wedges: wedge,
+                out,
+                partition,
+                time_limit,
+                signal_margin_s: signal_margin,
+                crash_requeues,
+                render,
+                dry_run,
+            })?;
+            print_submitted(&done, dry_run);
+            Ok(())
+        }
+        FarmCommand::Resubmit { farm_dir, dry_run } => {
+            let done = submit::resubmit(&farm_dir, dry_run)?;
+            print_submitted(&done, dry_run);
+            Ok(())
+        }
+        FarmCommand::Status {
+            farm_dir,
+            log_format,
+        } => {
+            let plan = super::plan::FarmPlan::load(&farm_dir)?;
+            let s = status::collect(&plan, &farm_dir);
+            match log_format {
+                LogFormat::Json => println!(
+                    "{}",
+                    serde_json::to_string(&s).map_err(|e| Error::Runtime(e.to_string()))?
+                ),
+                LogFormat::Human => print!("{}", status::render_text(&s)),
+            }
+            match s.scheduler_error {
+                Some(e) => Err(Error::Runtime(e)),
+                None => Ok(()),
+            }
+        }
+        FarmCommand::Report { farm_dir } => {
+            let r = super::report::report(&farm_dir)?;
+            for w in &r.wedges {
+                println!(
+                    "{}: {}/{} frames verified{}",
+                    w.name,
+                    w.frames_verified,
+                    w.frames_expected,
+                    if w.complete { "" } else { " (incomplete)" }
+                );
+            }
+            println!(
+                "report: {} (complete: {})",
+                farm_dir.join(super::plan::REPORT).display(),
+                r.complete
+            );
+            if r.complete {
+                Ok(())
+            } else {
+                Err(Error::Runtime(format!(
+                    "the farm is not complete: see {}",
+                    farm_dir.join(super::plan::REPORT).display()
+                )))
+            }
+        }
+    }
+}
+
+fn print_submitted(done: &Submitted, dry_run: bool) {
+    println!(
+        "farm {}: shot '{}', {} wedge(s)",
+        done.farm_dir.display(),
+        done.plan.shot,
+        done.plan.wedges.len()
+    );
+    for w in &done.plan.wedges {
+        println!("  {}  {}", w.name, w.label());
+    }
+    for (name, line, id) in &done.jobs {
+        match id {
+            Some(id) => println!("submitted {name}: job {id}"),
+            None => println!("{name}: {line}"),
+        }
+    }
+    if dry_run {
+        println!(
+            "dry run: nothing submitted; the plan is in {}",
+            done.farm_dir.join(super::plan::PLAN).display()
+        );
+    } else {
+        println!(
+            "follow it with: nimbus farm status {}",
+            super::slurm::sh(&done.farm_dir.to_string_lossy())
+        );
+    }
+}

@@ -1,0 +1,421 @@
+//! `nimbus farm submit` and `nimbus farm resubmit`: validate the wedges, write the farm
+//! directory (plan, config copy, batch scripts), then hand the jobs to `sbatch` in dependency
+//! order, recording each id in the plan as it is given.
+use super::plan::{self, Dependency, FarmPlan, Job, JobKind, RenderSettings, SlurmSettings};
+use super::slurm;
+use super::wedge::{self, WedgeAxis};
+use crate::config;
+use crate::error::{Error, Result};
+use crate::io::atomic::write_atomic;
+use std::path::{Path, PathBuf};
+
+/// Seconds of warning before the time limit by default: a frame and a checkpoint of a
+/// production shot take well under this.
+pub const DEFAULT_SIGNAL_MARGIN_S: u32 = 120;
+
+pub struct SubmitOptions {
+    pub config: PathBuf,
+    pub wedges: Vec<String>,
+    pub out: Option<PathBuf>,
+    pub partition: Option<String>,
+    pub time_limit: Option<String>,
+    pub signal_margin_s: u32,
+    pub crash_requeues: u32,
+    pub render: bool,
+    pub dry_run: bool,
+}
+
+/// What a submission did, for the command line to print.
+pub struct Submitted {
+    pub farm_dir: PathBuf,
+    pub plan: FarmPlan,
+    /// (job name, sbatch command line, id when submitted).
+    pub jobs: Vec<(String, String, Option<String>)>,
+}
+
+pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
+    // Everything that can be refused is refused before the farm directory is written.
+    let cfg = config::load(&opts.config, &[])?;
+    let axes = opts
+        .wedges
+        .iter()
+        .map(|w| wedge::parse_axis(w))
+        .collect::<Result<Vec<WedgeAxis>>>()?;
+    let wedges = wedge::combinations(&cfg.shot, &axes)?;
+    wedge::validate_all(&opts.config, &wedges)?;
+    if let Some(t) = &opts.time_limit {
+        check_time_limit(t, opts.signal_margin_s)?;
+    }
+    if let Some(p) = &opts.partition {
+        if p.is_empty()
+            || !p
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "_-.".contains(c))
+        {
+            return Err(Error::InvalidInput(format!(
+                "--partition {p:?}: not a partition name"
+            )));
+        }
+    }
+    let render = if opts.render {
+        Some(render_settings(cfg.output.frame_padding)?)
+    } else {
+        None
+    };
+
+    let farm_dir = opts
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("{}_farm", cfg.shot)));
+    if farm_dir.join(plan::PLAN).exists() {
+        return Err(Error::InvalidInput(format!(
+            "{}: already holds a farm; see `nimbus farm status {0}` or `nimbus farm resubmit {0}`",
+            farm_dir.display()
+        )));
+    }
+    for d in ["jobs", "logs", "state", "runs"] {
+        let p = farm_dir.join(d);
+        std::fs::create_dir_all(&p).map_err(|e| Error::io(&p, e))?;
+    }
+    let farm_dir = farm_dir
+        .canonicalize()
+        .map_err(|e| Error::io(&farm_dir, e))?;
+    // The jobs read a copy: editing the shot after submitting does not change a running farm.
+    let config_copy = farm_dir.join("shot.yaml");
+    let text = std::fs::read(&opts.config).map_err(|e| Error::io(&opts.config, e))?;
+    write_atomic(&config_copy, &text)?;
+
+    let nimbus = std::env::current_exe()
+        .and_then(|p| p.canonicalize())
+        .map_err(|e| Error::Runtime(format!("cannot find the nimbus binary: {e}")))?;
+    let mut wedges = wedges;
+    for w in &mut wedges {
+        let mut words = vec![
+            "nimbus".to_string(),
+            "run".into(),
+            config_copy.to_string_lossy().into_owned(),
+            "--out".into(),
+            plan::run_dir(&farm_dir, w).to_string_lossy().into_owned(),
+        ];
+        for kv in w.sets() {
+            words.push("--set".into());
+            words.push(kv);
+        }
+        w.command = words
+            .iter()
+            .map(|a| slurm::sh(a))
+            .collect::<Vec<_>>()
+            .join(" ");
+    }
+    let all: Vec<usize> = wedges.iter().map(|w| w.index).collect();
+    let mut plan = FarmPlan {
+        tool: "nimbus".into(),
+        version: crate::VERSION.into(),
+        backend: "slurm".into(),
+        shot: cfg.shot.clone(),
+        source_config: opts
+            .config
+            .canonicalize()
+            .unwrap_or_else(|_| opts.config.clone()),
+        config: config_copy,
+        nimbus,
+        frame_start: cfg.output.frames.start,
+        frame_end: cfg.output.frames.end,
+        slurm: SlurmSettings {
+            partition: opts.partition.clone(),
+            time_limit: opts.time_limit.clone(),
+            signal_margin_s: opts.signal_margin_s,
+            crash_requeues: opts.crash_requeues,
+        },
+        wedges,
+        render,
+        jobs: Vec::new(),
+    };
+    add_jobs(&mut plan, &all, "");
+    write_and_submit(plan, farm_dir, opts.dry_run, 0)
+}
+
+/// Adds the simulation, render and report jobs for `tasks` (wedge indices); `suffix` tells a
+/// resubmission's jobs from the first ones (`sim.2`).
+fn add_jobs(plan: &mut FarmPlan, tasks: &[usize], suffix: &str) {
+    let sim = format!("sim{suffix}");
+    plan.jobs.push(Job {
+        name: sim.clone(),
+        kind: JobKind::Simulation,
+        script: "jobs/sim.sbatch".into(),
+        tasks: tasks.to_vec(),
+        command: "per wedge: its `command` in wedges[], or `nimbus resume RUN` once the run has \
+                  a checkpoint"
+            .into(),
+        depends_on: Vec::new(),
+        slurm_id: None,
+        submit: Vec::new(),
+    });
+    let mut report_deps = vec![Dependency {
+        job: sim.clone(),
+        kind: "afterany".into(),
+    }];
+    if plan.render.is_some() {
+        let render = format!("render{suffix}");
+        plan.jobs.push(Job {
+            name: render.clone(),
+            kind: JobKind::Render,
+            script: "jobs/render.sbatch".into(),
+            tasks: tasks.to_vec(),
+            command: "blender -b --factory-startup --python-exit-code 1 -P tools/render_blender.py -- RUN RUN/render/<shot>.<frame>.png --frame FRAME".into(),
+            // afterany: with afterok one failed wedge would leave every render task (and the
+            // report after them) pending forever; a task whose frame is missing fails on its own.
+            depends_on: vec![Dependency {
+                job: sim,
+                kind: "afterany".into(),
+            }],
+            slurm_id: None,
+            submit: Vec::new(),
+        });
+        report_deps.push(Dependency {
+            job: render,
+            kind: "afterany".into(),
+        });
+    }
+    plan.jobs.push(Job {
+        name: format!("report{suffix}"),
+        kind: JobKind::Report,
+        script: "jobs/report.sbatch".into(),
+        tasks: Vec::new(),
+        command: "nimbus farm report FARM_DIR".into(),
+        depends_on: report_deps,
+        slurm_id: None,
+        submit: Vec::new(),
+    });
+}
+
+/// Writes the scripts and the plan, then submits the jobs not yet submitted (from `first`).
+fn write_and_submit(
+    mut plan: FarmPlan,
+    farm_dir: PathBuf,
+    dry_run: bool,
+    first: usize,
+) -> Result<Submitted> {
+    for job in &plan.jobs[first..] {
+        let text = slurm::script_for(&plan, job, &farm_dir);
+        let path = farm_dir.join(&job.script);
+        write_atomic(&path, text.as_bytes())?;
+        make_executable(&path)?;
+    }
+    let frames = plan.frame_end - plan.frame_start + 1;
+    let mut shown = Vec::new();
+    for i in first..plan.jobs.len() {
+        let args = slurm::submit_args(&plan.jobs[i], &plan, &farm_dir, frames);
+        plan.jobs[i].submit = args.clone();
+        plan.save(&farm_dir)?;
+        let line = args
+            .iter()
+            .map(|a| slurm::sh(a))
+            .collect::<Vec<_>>()
+            .join(" ");
+        let id = if dry_run {
+            None
+        } else {
+            match slurm::sbatch(&args) {
+                Ok(id) => Some(id),
+                Err(e) => {
+                    let done: Vec<String> = shown
+                        .iter()
+                        .filter_map(|(n, _, id): &(String, String, Option<String>)| {
+                            id.as_ref().map(|id| format!("{n}={id}"))
+                        })
+                        .collect();
+                    return Err(Error::Runtime(format!(
+                        "{e} (job '{}' not submitted{}; the plan is in {}{})",
+                        plan.jobs[i].name,
+                        if done.is_empty() {
+                            String::new()
+                        } else {
+                            format!(", already submitted: {}", done.join(" "))
+                        },
+                        farm_dir.join(plan::PLAN).display(),
+                        if done.is_empty() {
+                            format!(
+                                "; submit it later with: nimbus farm resubmit {}",
+                                slurm::sh(&farm_dir.to_string_lossy())
+                            )
+                        } else {
+                            String::new()
+                        }
+                    )));
+                }
+            }
+        };
+        plan.jobs[i].slurm_id = id.clone();
+        plan.save(&farm_dir)?;
+        shown.push((plan.jobs[i].name.clone(), line, id));
+    }
+    Ok(Submitted {
+        farm_dir,
+        plan,
+        jobs: shown,
+    })
+}
+
+/// `nimbus farm resubmit`: a new simulation array over the wedges whose runs are not complete
+/// and which no job is running or queued for, and a new report after it. Each resumes from
+/// its run's newest checkpoint, so nothing already simulated is redone. A plan written with
+/// `--dry-run` is submitted as it is.
+pub fn resubmit(farm_dir: &Path, dry_run: bool) -> Result<Submitted> {
+    let farm_dir = farm_dir
+        .canonicalize()
+        .map_err(|e| Error::InvalidInput(format!("{}: {e}", farm_dir.display())))?;
+    let mut plan = FarmPlan::load(&farm_dir)?;
+    // A --dry-run plan (nothing submitted yet) is submitted as it was written.
+    if plan.jobs.iter().all(|j| j.slurm_id.is_none()) {
+        return write_and_submit(plan, farm_dir, dry_run, 0);
+    }
+    let status = super::status::collect(&plan, &farm_dir);
+    if let Some(err) = &status.scheduler_error {
+        if !dry_run {
+            return Err(Error::Runtime(err.clone()));
+        }
+    }
+    let active: Vec<&str> = ["pending", "running", "requeued"].to_vec();
+    if let Some(w) = status
+        .wedges
+        .iter()
+        .find(|w| active.contains(&w.state.as_str()))
+    {
+        return Err(Error::InvalidInput(format!(
+            "{}: wedge {} is still {} (job {}); wait for it or scancel it first",
+            farm_dir.display(),
+            w.name,
+            w.state,
+            w.job.as_deref().unwrap_or("?")
+        )));
+    }
+    let tasks: Vec<usize> = status
+        .wedges
+        .iter()
+        .filter(|w| w.state != "done")
+        .map(|w| w.index)
+        .collect();
+    if tasks.is_empty() {
+        return Err(Error::InvalidInput(format!(
+            "{}: every wedge is complete; nothing to resubmit",
+            farm_dir.display()
+        )));
+    }
+    let round = plan
+        .jobs
+        .iter()
+        .filter(|j| j.kind == JobKind::Simulation)
+        .count()
+        + 1;
+    let first = plan.jobs.len();
+    add_jobs(&mut plan, &tasks, &format!(".{round}"));
+    write_and_submit(plan, farm_dir, dry_run, first)
+}
+
+/// Blender and the render script: found now, so a farm never fails on them hours later.
+fn render_settings(frame_padding: u32) -> Result<RenderSettings> {
+    let blender = find_on_path("blender").ok_or_else(|| {
+        Error::Runtime(
+            "--render: blender not found on PATH: install it (tools/setup.sh --blender)".into(),
+        )
+    })?;
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/render_blender.py");
+    let script = std::env::var_os("NIMBUS_RENDER_SCRIPT")
+        .map(PathBuf::from)
+        .unwrap_or(script);
+    if !script.is_file() {
+        return Err(Error::Runtime(format!(
+            "--render: {} not found (set NIMBUS_RENDER_SCRIPT to tools/render_blender.py)",
+            script.display()
+        )));
+    }
+    Ok(RenderSettings {
+        blender,
+        script,
+        frame_padding,
+    })
+}
+
+fn find_on_path(name: &str) -> Option<PathBuf> {
+    std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths)
+            .map(|d| d.join(name))
+            .find(|p| p.is_file())
+    })
+}
+
+/// Seconds of a Slurm `--time` value: `M`, `M:S`, `H:M:S`, `D-H`, `D-H:M`, `D-H:M:S`.
+fn time_limit_seconds(t: &str) -> Result<u64> {
+    let bad = || {
+        Error::InvalidInput(format!(
+            "--time-limit {t:?}: expected minutes, MM:SS, HH:MM:SS or D-HH[:MM[:SS]] (Slurm's --time)"
+        ))
+    };
+    let num = |s: &str| -> Result<u64> {
+        if s.is_empty() || !s.chars().all(|c| c.is_ascii_digit()) {
+            return Err(bad());
+        }
+        s.parse().map_err(|_| bad())
+    };
+    let (days, rest) = match t.split_once('-') {
+        Some((d, r)) => (Some(num(d)?), r),
+        None => (None, t),
+    };
+    let parts = rest.split(':').map(num).collect::<Result<Vec<u64>>>()?;
+    let secs = match (days, parts.as_slice()) {
+        (None, [m]) => m * 60,
+        (None, [m, s]) => m * 60 + s,
+        (None, [h, m, s]) | (Some(_), [h, m, s]) => h * 3600 + m * 60 + s,
+        (Some(_), [h]) => h * 3600,
+        (Some(_), [h, m]) => h * 3600 + m * 60,
+        _ => return Err(bad()),
+    };
+    Ok(days.unwrap_or(0) * 86_400 + secs)
+}
+
+/// The time limit must leave the simulation its margin, or every job would be told to stop
+/// as soon as it starts.
+fn check_time_limit(t: &str, margin_s: u32) -> Result<()> {
+    let secs = time_limit_seconds(t)?;
+    if secs <= margin_s as u64 {
+        return Err(Error::InvalidInput(format!(
+            "--time-limit {t} ({secs} s) must be longer than --signal-margin ({margin_s} s)"
+        )));
+    }
+    Ok(())
+}
+
+fn make_executable(path: &Path) -> Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o755))
+            .map_err(|e| Error::io(path, e))?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{check_time_limit, time_limit_seconds};
+
+    #[test]
+    fn time_limits_in_slurm_formats() {
+        for (t, secs) in [
+            ("30", 1800),
+            ("10:00", 600),
+            ("1:00:00", 3600),
+            ("2-12", 216_000),
+            ("1-0:30", 88_200),
+            ("1-00:00:01", 86_401),
+        ] {
+            assert_eq!(time_limit_seconds(t).unwrap(), secs, "{t}");
+        }
+        for bad in ["", "1h", "1:2:3:4", "-1", "a-1", "1-", "1-2:3:4:5"] {
+            assert!(time_limit_seconds(bad).is_err(), "{bad}");
+        }
+        assert!(check_time_limit("2", 120).is_err());
+        assert!(check_time_limit("3", 120).is_ok());
+    }
+}

@@ -1,0 +1,180 @@
+//! `nimbus farm submit` without a cluster: the plan a dry run writes, wedge values refused before
+//! anything is written or submitted (exit 2, FILE:LINE:COL and key), and sbatch missing (exit 3
+//! with the remedy). The farm on a real Slurm cluster is tests/farm_slurm.rs.
+mod common;
+use common::{nimbus, sample, text};
+use std::path::{Path, PathBuf};
+
+fn fresh_dir(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A PATH with the usual tools but no Slurm client: an empty directory plus /bin for bash.
+fn path_without_sbatch(base: &Path) -> std::ffi::OsString {
+    let empty = base.join("empty-bin");
+    std::fs::create_dir_all(&empty).unwrap();
+    std::env::join_paths([empty]).unwrap()
+}
+
+#[test]
+fn dry_run_writes_the_plan_and_submits_nothing() {
+    let base = fresh_dir("farm_dry_run");
+    let farm = base.join("farm");
+    let o = nimbus()
+        .args(["farm", "submit"])
+        .arg(sample("tiny.yaml"))
+        .args(["--wedge", "physics.heat_source=0.2,0.3"])
+        .args(["--wedge", "seed=3,4"])
+        .args(["--time-limit", "10:00", "--partition", "main", "--dry-run"])
+        .arg("--out")
+        .arg(&farm)
+        // a dry run needs no Slurm at all
+        .env("PATH", path_without_sbatch(&base))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("sbatch --parsable --array=0-3"), "{stdout}");
+    assert!(stdout.contains("dry run: nothing submitted"), "{stdout}");
+
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(farm.join("farm.json")).unwrap()).unwrap();
+    let wedges = plan["wedges"].as_array().unwrap();
+    assert_eq!(wedges.len(), 4);
+    // the first --wedge varies slowest; names carry the values
+    assert_eq!(wedges[0]["name"], "tiny_w0_heat_source-0.2_seed-3");
+    assert_eq!(wedges[3]["name"], "tiny_w3_heat_source-0.3_seed-4");
+    assert_eq!(
+        wedges[1]["values"],
+        serde_json::json!([["physics.heat_source", "0.2"], ["seed", "4"]])
+    );
+    assert_eq!(wedges[3]["run_dir"], "runs/tiny_w3_heat_source-0.3_seed-4");
+    let farm_abs = farm.canonicalize().unwrap();
+    assert_eq!(
+        wedges[3]["command"],
+        format!(
+            "nimbus run {0}/shot.yaml --out {0}/runs/tiny_w3_heat_source-0.3_seed-4 --set physics.heat_source=0.3 --set seed=4",
+            farm_abs.display()
+        )
+    );
+    let jobs = plan["jobs"].as_array().unwrap();
+    let names: Vec<&str> = jobs.iter().map(|j| j["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["sim", "report"]);
+    assert!(jobs.iter().all(|j| j["slurm_id"].is_null()));
+    assert_eq!(jobs[0]["tasks"], serde_json::json!([0, 1, 2, 3]));
+    assert_eq!(
+        jobs[1]["depends_on"],
+        serde_json::json!([{"job": "sim", "kind": "afterany"}])
+    );
+    assert_eq!(plan["slurm"]["time_limit"], "10:00");
+
+    let sim = std::fs::read_to_string(farm.join("jobs/sim.sbatch")).unwrap();
+    for line in [
+        "#SBATCH --requeue",
+        "#SBATCH --signal=B:TERM@120",
+        "#SBATCH --time=10:00",
+        "#SBATCH --partition=main",
+        "--set physics.heat_source=0.3 --set seed=4",
+        "scontrol requeue",
+    ] {
+        assert!(sim.contains(line), "sim.sbatch lacks {line:?}:\n{sim}");
+    }
+    // the script is valid bash
+    let syntax = std::process::Command::new("bash")
+        .arg("-n")
+        .arg(farm.join("jobs/sim.sbatch"))
+        .output()
+        .unwrap();
+    assert!(syntax.status.success(), "{}", text(&syntax));
+    // the jobs read a copy of the config
+    assert_eq!(
+        std::fs::read(farm.join("shot.yaml")).unwrap(),
+        std::fs::read(sample("tiny.yaml")).unwrap()
+    );
+    // the same directory twice is refused
+    let again = nimbus()
+        .args(["farm", "submit"])
+        .arg(sample("tiny.yaml"))
+        .args(["--dry-run", "--out"])
+        .arg(&farm)
+        .output()
+        .unwrap();
+    assert_eq!(again.status.code(), Some(2), "{}", text(&again));
+    assert!(
+        text(&again).contains("already holds a farm"),
+        "{}",
+        text(&again)
+    );
+}
+
+#[test]
+fn invalid_wedge_values_and_flags_are_refused_before_anything_is_written() {
+    let base = fresh_dir("farm_bad_wedge");
+    let cases: [(&[&str], &str); 7] = [
+        // the file sets heat_source at line 16: the error points there
+        (
+            &["--wedge", "physics.heat_source=0.2,30"],
+            "tiny.yaml:16:3: physics.heat_source: --wedge value \"30\" (wedge tiny_w1_heat_source-30): expected a number in [0, 10], got 30",
+        ),
+        // a key the file leaves at its default is named without a line
+        (
+            &["--wedge", "physics.buoyancy=x"],
+            "tiny.yaml: --wedge physics.buoyancy: value \"x\" (wedge tiny_w0_buoyancy-x): expected a number",
+        ),
+        (&["--wedge", "physics.heat_sorce=0.1"], "unknown key \"heat_sorce\""),
+        (&["--wedge", "seed"], "--wedge \"seed\": expected KEY.PATH=V1,V2,..."),
+        (&["--wedge", "seed=1", "--wedge", "seed=2"], "the key is wedged twice"),
+        // a time limit that leaves no room for the stop-and-checkpoint margin
+        (
+            &["--time-limit", "2"],
+            "--time-limit 2 (120 s) must be longer than --signal-margin (120 s)",
+        ),
+        (&["--time-limit", "1h"], "--time-limit \"1h\": expected minutes"),
+    ];
+    for (args, want) in cases {
+        let farm = base.join("farm");
+        let o = nimbus()
+            .args(["farm", "submit"])
+            .arg(sample("tiny.yaml"))
+            .args(args)
+            .arg("--out")
+            .arg(&farm)
+            .env("PATH", path_without_sbatch(&base))
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", text(&o));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(want), "{args:?}: want {want:?} in:\n{err}");
+        assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+        assert!(!farm.exists(), "{args:?}: the farm directory was written");
+    }
+}
+
+#[test]
+fn sbatch_missing_is_a_runtime_error_with_the_remedy() {
+    let base = fresh_dir("farm_no_sbatch");
+    let farm = base.join("farm");
+    let o = nimbus()
+        .args(["farm", "submit"])
+        .arg(sample("tiny.yaml"))
+        .arg("--out")
+        .arg(&farm)
+        .env("PATH", path_without_sbatch(&base))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(3), "{}", text(&o));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("sbatch not found on PATH"), "{err}");
+    assert!(err.contains("tools/setup.sh --farm"), "{err}");
+    // the plan is whole and says nothing was submitted
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(farm.join("farm.json")).unwrap()).unwrap();
+    assert!(plan["jobs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|j| j["slurm_id"].is_null()));
+}
