@@ -76,19 +76,7 @@ impl RunLock {
                 return Err(Error::InvalidInput(format!("{}: {e}", dir.display())));
             }
         }
-        let path = dir.join(LOCK_FILE);
-        let mut file = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&path)
-            .map_err(|e| {
-                Error::InvalidInput(format!(
-                    "{}: cannot open the lock file: {e}",
-                    path.display()
-                ))
-            })?;
+        let (path, mut file) = open_lock_file(dir)?;
         match file.try_lock() {
             Ok(()) => {}
             Err(std::fs::TryLockError::WouldBlock) => {
@@ -162,19 +150,7 @@ impl RunLock {
                 dir.display()
             )));
         }
-        let path = dir.join(LOCK_FILE);
-        let mut file = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&path)
-            .map_err(|e| {
-                Error::InvalidInput(format!(
-                    "{}: cannot open the lock file: {e}",
-                    path.display()
-                ))
-            })?;
+        let (path, mut file) = open_lock_file(dir)?;
         match file.try_lock_shared() {
             Ok(()) => Ok(SharedRunLock { _file: file }),
             Err(std::fs::TryLockError::WouldBlock) => {
@@ -231,6 +207,24 @@ pub fn parse_holder(text: &str) -> Holder {
         }
     }
     h
+}
+
+/// Opens (creating) `dir`'s lock file for reading the holder and locking.
+fn open_lock_file(dir: &Path) -> Result<(PathBuf, File)> {
+    let path = dir.join(LOCK_FILE);
+    let file = OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(|e| {
+            Error::InvalidInput(format!(
+                "{}: cannot open the lock file: {e}",
+                path.display()
+            ))
+        })?;
+    Ok((path, file))
 }
 
 fn read_holder(file: &mut File) -> Holder {
