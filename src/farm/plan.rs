@@ -161,3 +161,23 @@ pub fn run_dir(farm_dir: &Path, wedge: &Wedge) -> PathBuf {
         farm_dir.join(&wedge.run_dir)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::ExportSettings;
+
+    #[test]
+    fn export_chunks_cover_the_range() {
+        let e = ExportSettings {
+            chunk: 8,
+            sets: vec!["export.voxel_size=50".into()],
+            name: None,
+        };
+        assert_eq!(e.chunks(1, 24), 3);
+        assert_eq!(e.frames(1, 24, 2), (17, 24));
+        assert_eq!(e.chunks(5, 21), 3);
+        assert_eq!(e.frames(5, 21, 2), (21, 21));
+        assert_eq!(e.chunks(3, 3), 1);
+        assert_eq!(e.frames(3, 3, 0), (3, 3));
+    }
+}
