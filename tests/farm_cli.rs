@@ -347,3 +347,95 @@ fn dry_run_plans_the_export_stage() {
         assert!(!farm.exists(), "{args:?}: the farm directory was written");
     }
 }
+
+/// The export script's waiting, without a cluster: `squeue` and `scontrol` stand-ins on PATH.
+#[test]
+fn export_task_requeues_while_its_simulation_waits_and_gives_up_when_it_is_gone() {
+    let base = fresh_dir("farm_export_script");
+    let farm = base.join("farm");
+    let o = nimbus()
+        .args(["farm", "submit"])
+        .arg(sample("tiny.yaml"))
+        .args(["--wedge", "physics.heat_source=0.2,0.3"])
+        .args([
+            "--export-chunk",
+            "3",
+            "--export-set",
+            "export.voxel_size=50",
+        ])
+        .args(["--dry-run", "--out"])
+        .arg(&farm)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(farm.join("farm.json")).unwrap()).unwrap();
+    let run = farm.join(plan["wedges"][0]["run_dir"].as_str().unwrap());
+    std::fs::create_dir_all(&run).unwrap();
+    // frames 1 and 2 recorded; task 0 (wedge 0, frames 1-3) still needs frame 3
+    std::fs::write(
+        run.join("manifest.json"),
+        "{\n  \"frames\": [\n    {\n      \"frame\": 1,\n      \"files\": []\n    },\n    {\n      \"frame\": 2,\n      \"files\": []\n    }\n  ]\n}\n",
+    )
+    .unwrap();
+    let bin = base.join("bin");
+    std::fs::create_dir_all(&bin).unwrap();
+    let calls = base.join("calls");
+    let fake = |name: &str, body: &str| {
+        let p = bin.join(name);
+        std::fs::write(
+            &p,
+            format!(
+                "#!/bin/bash\necho \"{name} $*\" >>{}\n{body}\n",
+                calls.display()
+            ),
+        )
+        .unwrap();
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
+    };
+    fake(
+        "scontrol",
+        "case $1 in show) echo 'JobId=8 JobState=RUNNING' ;; requeue) exit 0 ;; esac",
+    );
+    let path = format!(
+        "{}:{}",
+        bin.display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    let task = |sim_state: &str| {
+        fake("squeue", &format!("echo {sim_state}"));
+        let _ = std::fs::remove_file(&calls);
+        let o = std::process::Command::new("bash")
+            .arg(farm.join("jobs/export.sbatch"))
+            .env("PATH", &path)
+            .env("SLURM_ARRAY_JOB_ID", "8")
+            .env("SLURM_ARRAY_TASK_ID", "0")
+            .env("NIMBUS_FARM_SIM_JOB", "7")
+            .output()
+            .unwrap();
+        (o, std::fs::read_to_string(&calls).unwrap_or_default())
+    };
+    // the simulation is back in the queue: the export task gives its node back
+    let (o, calls_made) = task("PENDING");
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert!(
+        calls_made.contains("squeue -h -t all -j 7_0 -o %T"),
+        "{calls_made}"
+    );
+    assert!(calls_made.contains("scontrol requeue 8_0"), "{calls_made}");
+    assert!(
+        text(&o).contains("simulation 7_0 is PENDING; requeued"),
+        "{}",
+        text(&o)
+    );
+    // the simulation has left the queue without frame 3: it gives up
+    let (o, calls_made) = task("COMPLETED");
+    assert_eq!(o.status.code(), Some(3), "{}", text(&o));
+    assert!(!calls_made.contains("requeue"), "{calls_made}");
+    assert!(
+        text(&o).contains("simulation task 7_0 left the queue (COMPLETED) without frames 1-3"),
+        "{}",
+        text(&o)
+    );
+}
