@@ -178,3 +178,264 @@ fn sbatch_missing_is_a_runtime_error_with_the_remedy() {
         .iter()
         .all(|j| j["slurm_id"].is_null()));
 }
+
+#[test]
+fn dry_run_plans_the_export_stage() {
+    let base = fresh_dir("farm_dry_run_export");
+    let farm = base.join("farm");
+    // tiny.yaml: frames 1-8, so chunks of 3 frames are 1-3, 4-6, 7-8
+    let o = nimbus()
+        .args(["farm", "submit"])
+        .arg(sample("tiny.yaml"))
+        .args(["--wedge", "physics.heat_source=0.2,0.3"])
+        .args([
+            "--export-chunk",
+            "3",
+            "--export-set",
+            "export.voxel_size=50",
+        ])
+        .args(["--export-name", "coarse", "--dry-run", "--out"])
+        .arg(&farm)
+        .env("PATH", path_without_sbatch(&base))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let farm_abs = farm.canonicalize().unwrap();
+    // tasks wedge * chunks + chunk: wedge 0 is 0-2, wedge 1 is 3-5; after the simulation started
+    assert!(
+        stdout.contains(&format!(
+            "export: sbatch --parsable --array=0-5 '--export=ALL,NIMBUS_FARM_SIM_JOB=<id>' '--dependency=after:<id>' {}/jobs/export.sbatch",
+            farm_abs.display()
+        )),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("--dependency=afterany:<id>,afterany:<id>"),
+        "{stdout}"
+    );
+
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(farm.join("farm.json")).unwrap()).unwrap();
+    assert_eq!(
+        plan["export"],
+        serde_json::json!({"chunk": 3, "sets": ["export.voxel_size=50"], "name": "coarse"})
+    );
+    let jobs = plan["jobs"].as_array().unwrap();
+    let names: Vec<&str> = jobs.iter().map(|j| j["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["sim", "export", "report"]);
+    assert_eq!(jobs[1]["kind"], "export");
+    assert_eq!(jobs[1]["tasks"], serde_json::json!([0, 1]));
+    assert_eq!(
+        jobs[1]["depends_on"],
+        serde_json::json!([{"job": "sim", "kind": "after"}])
+    );
+    assert_eq!(
+        jobs[2]["depends_on"],
+        serde_json::json!([{"job": "sim", "kind": "afterany"}, {"job": "export", "kind": "afterany"}])
+    );
+    // the simulation writes the particle caches nimbus export splats
+    let w1 = &plan["wedges"][1];
+    assert!(
+        w1["command"]
+            .as_str()
+            .unwrap()
+            .ends_with("--set physics.heat_source=0.3 --set export.particles=true"),
+        "{w1}"
+    );
+    let sim = std::fs::read_to_string(farm.join("jobs/sim.sbatch")).unwrap();
+    assert!(
+        sim.contains("--set physics.heat_source=0.3 --set export.particles=true"),
+        "{sim}"
+    );
+    let export = std::fs::read_to_string(farm.join("jobs/export.sbatch")).unwrap();
+    for line in [
+        "#SBATCH --requeue",
+        "START=1\nEND=8\nCHUNK=3\nCHUNKS=3\n",
+        "EXPORT=(--set export.voxel_size=50 --name coarse)",
+        "\"$NIMBUS\" export \"$RUN\" --frames \"$A-$B\" \"${EXPORT[@]}\"",
+        "scontrol requeue \"$ME\"",
+        "left the queue",
+    ] {
+        assert!(
+            export.contains(line),
+            "export.sbatch lacks {line:?}:\n{export}"
+        );
+    }
+    let syntax = std::process::Command::new("bash")
+        .arg("-n")
+        .arg(farm.join("jobs/export.sbatch"))
+        .output()
+        .unwrap();
+    assert!(syntax.status.success(), "{}", text(&syntax));
+    // the chunk arithmetic of the script: task 5 is wedge 1, frames 7-8
+    let head: String = export
+        .lines()
+        .filter(|l| {
+            [
+                "START=", "END=", "CHUNK=", "CHUNKS=", "WEDGE=", "C=", "A=", "B=", "if [ $B",
+            ]
+            .iter()
+            .any(|p| l.starts_with(p))
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let o = std::process::Command::new("bash")
+        .arg("-c")
+        .arg(format!("{head}\necho $WEDGE $A $B"))
+        .env("SLURM_ARRAY_TASK_ID", "5")
+        .output()
+        .unwrap();
+    assert_eq!(String::from_utf8_lossy(&o.stdout).trim(), "1 7 8", "{head}");
+
+    // refused before anything is written (exit 2)
+    let cases: [(&[&str], &str); 6] = [
+        (
+            &["--export-chunk", "3"],
+            "--export-chunk needs at least one --export-set",
+        ),
+        (
+            &["--export-set", "export.voxel_size=50"],
+            "--export-set and --export-name need --export-chunk N",
+        ),
+        (
+            &[
+                "--export-chunk",
+                "0",
+                "--export-set",
+                "export.voxel_size=50",
+            ],
+            "--export-chunk 0",
+        ),
+        (
+            &["--export-chunk", "3", "--export-set", "seed=4"],
+            "--export-set seed: nimbus export changes export.* keys only",
+        ),
+        (
+            &[
+                "--export-chunk",
+                "3",
+                "--export-set",
+                "export.particles=false",
+            ],
+            "--export-set export.particles: nimbus export changes export.* keys only",
+        ),
+        // the run's own settings: the simulation writes those files itself
+        (
+            &[
+                "--export-chunk",
+                "3",
+                "--export-set",
+                "export.voxel_size=25",
+            ],
+            "leaves the export settings of wedge tiny_w0 as they are",
+        ),
+    ];
+    for (args, want) in cases {
+        let farm = base.join("refused");
+        let o = nimbus()
+            .args(["farm", "submit"])
+            .arg(sample("tiny.yaml"))
+            .args(args)
+            .args(["--dry-run", "--out"])
+            .arg(&farm)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", text(&o));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(want), "{args:?}: want {want:?} in:\n{err}");
+        assert!(!farm.exists(), "{args:?}: the farm directory was written");
+    }
+}
+
+/// The export script's waiting, without a cluster: `squeue` and `scontrol` stand-ins on PATH.
+#[test]
+fn export_task_requeues_while_its_simulation_waits_and_gives_up_when_it_is_gone() {
+    let base = fresh_dir("farm_export_script");
+    let farm = base.join("farm");
+    let o = nimbus()
+        .args(["farm", "submit"])
+        .arg(sample("tiny.yaml"))
+        .args(["--wedge", "physics.heat_source=0.2,0.3"])
+        .args([
+            "--export-chunk",
+            "3",
+            "--export-set",
+            "export.voxel_size=50",
+        ])
+        .args(["--dry-run", "--out"])
+        .arg(&farm)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(farm.join("farm.json")).unwrap()).unwrap();
+    let run = farm.join(plan["wedges"][0]["run_dir"].as_str().unwrap());
+    std::fs::create_dir_all(&run).unwrap();
+    // frames 1 and 2 recorded; task 0 (wedge 0, frames 1-3) still needs frame 3
+    std::fs::write(
+        run.join("manifest.json"),
+        "{\n  \"frames\": [\n    {\n      \"frame\": 1,\n      \"files\": []\n    },\n    {\n      \"frame\": 2,\n      \"files\": []\n    }\n  ]\n}\n",
+    )
+    .unwrap();
+    let bin = base.join("bin");
+    std::fs::create_dir_all(&bin).unwrap();
+    let calls = base.join("calls");
+    let fake = |name: &str, body: &str| {
+        let p = bin.join(name);
+        std::fs::write(
+            &p,
+            format!(
+                "#!/bin/bash\necho \"{name} $*\" >>{}\n{body}\n",
+                calls.display()
+            ),
+        )
+        .unwrap();
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
+    };
+    fake(
+        "scontrol",
+        "case $1 in show) echo 'JobId=8 JobState=RUNNING' ;; requeue) exit 0 ;; esac",
+    );
+    let path = format!(
+        "{}:{}",
+        bin.display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    let task = |sim_state: &str| {
+        fake("squeue", &format!("echo {sim_state}"));
+        let _ = std::fs::remove_file(&calls);
+        let o = std::process::Command::new("bash")
+            .arg(farm.join("jobs/export.sbatch"))
+            .env("PATH", &path)
+            .env("SLURM_ARRAY_JOB_ID", "8")
+            .env("SLURM_ARRAY_TASK_ID", "0")
+            .env("NIMBUS_FARM_SIM_JOB", "7")
+            .output()
+            .unwrap();
+        (o, std::fs::read_to_string(&calls).unwrap_or_default())
+    };
+    // the simulation is back in the queue: the export task gives its node back
+    let (o, calls_made) = task("PENDING");
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert!(
+        calls_made.contains("squeue -h -t all -j 7_0 -o %T"),
+        "{calls_made}"
+    );
+    assert!(calls_made.contains("scontrol requeue 8_0"), "{calls_made}");
+    assert!(
+        text(&o).contains("simulation 7_0 is PENDING; requeued"),
+        "{}",
+        text(&o)
+    );
+    // the simulation has left the queue without frame 3: it gives up
+    let (o, calls_made) = task("COMPLETED");
+    assert_eq!(o.status.code(), Some(3), "{}", text(&o));
+    assert!(!calls_made.contains("requeue"), "{calls_made}");
+    assert!(
+        text(&o).contains("simulation task 7_0 left the queue (COMPLETED) without frames 1-3"),
+        "{}",
+        text(&o)
+    );
+}

@@ -3,10 +3,14 @@
 //! for this test and stopped afterwards (it kills only the daemons it started).
 //!
 //! One test function, so one cluster serves every case in turn:
-//! 1. two wedges, each interrupted by the scheduler (`scancel --signal=TERM --batch`, standing in
-//!    for `--signal=B:TERM@margin` at a time limit: Slurm checks limits only every ~30 s),
-//!    requeued and resumed in a later job; every frame byte-identical to a local `nimbus run`,
-//!    simulated exactly once, farm_report.json complete, the contact sheet written;
+//! 1. two wedges with an export stage (`--export-chunk 8 --export-set export.voxel_size=50`),
+//!    each interrupted by the scheduler (`scancel --signal=TERM --batch`, standing in for
+//!    `--signal=B:TERM@margin` at a time limit: Slurm checks limits only every ~30 s), requeued
+//!    and resumed in a later job; every frame byte-identical to a local `nimbus run` (with the
+//!    particle caches the export stage makes the simulation write), simulated exactly once; an
+//!    export beside the running simulation (which holds the run lock) succeeds and does not
+//!    disturb it; every export chunk done, the exports checked by farm_report.json, which says
+//!    complete; the contact sheet written;
 //! 2. a failing wedge and a killed job step (`kill -9` of the job's nimbus), each failed with its
 //!    own note in `farm status`, the resubmit command printed, and `farm resubmit` completing
 //!    both from their checkpoints, frames again identical to the local runs;
@@ -25,8 +29,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-/// Port of this test's slurmctld (slurmd: the next one), away from Slurm's default 6817.
+/// Port of this test's slurmctld (slurmd: the next one), away from Slurm's default 6817;
+/// `NIMBUS_SLURM_PORT` picks another (two clusters on one machine need two ports).
 const PORT: u16 = 6937;
+/// The export stage of case 1: `--export-chunk 8 --export-set` this, 3 chunks per wedge.
+const EXPORT_SET: &str = "export.voxel_size=50";
 const VALUES: [&str; 2] = ["0.2", "0.3"];
 const FRAMES: u32 = 24;
 
@@ -41,7 +48,10 @@ impl Cluster {
         let o = Command::new(script())
             .arg("start")
             .arg(dir)
-            .env("NIMBUS_SLURM_PORT", PORT.to_string())
+            .env(
+                "NIMBUS_SLURM_PORT",
+                std::env::var("NIMBUS_SLURM_PORT").unwrap_or(PORT.to_string()),
+            )
             .output()
             .unwrap();
         assert!(o.status.success(), "cluster start: {}", text(&o));
@@ -262,27 +272,46 @@ fn farm_on_a_real_slurm_cluster() {
     let config = base.join("shot.yaml");
     let tiny = std::fs::read_to_string(sample("tiny.yaml")).unwrap();
     std::fs::write(&config, tiny.replace("end: 8", &format!("end: {FRAMES}"))).unwrap();
-    let locals: Vec<PathBuf> = VALUES
-        .iter()
-        .map(|v| {
-            let out = base.join(format!("local_{v}"));
-            let o = nimbus()
-                .arg("run")
-                .arg(&config)
-                .arg("--out")
-                .arg(&out)
-                .args(["--set", &format!("physics.heat_source={v}")])
-                .output()
-                .unwrap();
-            assert_eq!(o.status.code(), Some(0), "{}", text(&o));
-            out
-        })
-        .collect();
+    let local_runs = |name: &str, extra: &[&str]| -> Vec<PathBuf> {
+        VALUES
+            .iter()
+            .map(|v| {
+                let out = base.join(format!("{name}_{v}"));
+                let o = nimbus()
+                    .arg("run")
+                    .arg(&config)
+                    .arg("--out")
+                    .arg(&out)
+                    .args(["--set", &format!("physics.heat_source={v}")])
+                    .args(extra)
+                    .output()
+                    .unwrap();
+                assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+                out
+            })
+            .collect()
+    };
+    let locals = local_runs("local", &[]);
+    // The export stage makes the farm's simulations write particle caches: compared with local
+    // runs that write them too.
+    let locals_cached = local_runs("local_cached", &["--set", "export.particles=true"]);
 
-    // 1. Every wedge interrupted by the scheduler once, requeued and resumed.
+    // 1. Every wedge interrupted by the scheduler once, requeued and resumed; an export stage.
     let farm = base.join("farm_a");
-    let plan = submit(&cluster, &config, &farm, &[]);
+    let plan = submit(
+        &cluster,
+        &config,
+        &farm,
+        &["--export-chunk", "8", "--export-set", EXPORT_SET],
+    );
     let sim_id = plan["jobs"][0]["slurm_id"].as_str().unwrap().to_string();
+    let names: Vec<&str> = plan["jobs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|j| j["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["sim", "export", "report"]);
     let runs: Vec<PathBuf> = plan["wedges"]
         .as_array()
         .unwrap()
@@ -304,6 +333,17 @@ fn farm_on_a_real_slurm_cluster() {
                     "wedge {i} finished before it could be interrupted"
                 );
                 if n >= 3 {
+                    // The simulation holds the run lock exclusively: an export into
+                    // exports/<name>/ runs beside it all the same.
+                    let holder = std::fs::read_to_string(run.join(".lock")).unwrap();
+                    assert!(holder.contains("command run"), "wedge {i}: {holder:?}");
+                    let o = nimbus()
+                        .arg("export")
+                        .arg(run)
+                        .args(["--frames", "1-3", "--set", EXPORT_SET])
+                        .output()
+                        .unwrap();
+                    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
                     let o = cluster
                         .cmd("scancel")
                         .args(["--signal=TERM", "--batch", &format!("{sim_id}_{i}")])
@@ -336,7 +376,7 @@ fn farm_on_a_real_slurm_cluster() {
             [130, 0],
             "wedge {i}: interrupted once, then complete"
         );
-        assert_same_frames(&locals[i], &runs[i]);
+        assert_same_frames(&locals_cached[i], &runs[i]);
         // no frame simulated (so none written) twice across the jobs
         let log = std::fs::read_to_string(farm.join(format!("logs/sim_{i}.log"))).unwrap();
         let mut seen = vec![0; FRAMES as usize + 1];
@@ -349,10 +389,31 @@ fn farm_on_a_real_slurm_cluster() {
         assert!(seen[1..].iter().all(|n| *n == 1), "wedge {i}: {seen:?}");
         assert!(log.contains("requeued"), "{log}");
     }
+    // every export chunk exported its frames (3 per wedge: frames 1-8, 9-16, 17-24)
+    for task in 0..6 {
+        let log = std::fs::read_to_string(farm.join(format!("logs/export_{task}.log"))).unwrap();
+        let (a, b) = (1 + (task % 3) * 8, 8 + (task % 3) * 8);
+        assert!(
+            log.contains(&format!("--frames {a}-{b} --set {EXPORT_SET}"))
+                && log.contains(" done at "),
+            "export task {task}: {log}"
+        );
+    }
     let report = read_json(&farm.join("farm_report.json"));
     assert_eq!(report["complete"], true, "{report}");
-    for w in report["wedges"].as_array().unwrap() {
+    for (i, w) in report["wedges"].as_array().unwrap().iter().enumerate() {
         assert_eq!(w["frames_verified"], FRAMES, "{w}");
+        assert_eq!(w["frames_exported"], FRAMES, "{w}");
+        assert_eq!(w["bad_files"], serde_json::json!([]), "{w}");
+        let dir = PathBuf::from(w["export_dir"].as_str().unwrap());
+        assert!(dir.starts_with(runs[i].join("exports")), "{w}");
+        let m = read_json(&dir.join("manifest.json"));
+        assert_eq!(m["complete"], true, "{}", dir.display());
+        assert_eq!(m["voxel_size"], 50.0, "{}", dir.display());
+        assert_eq!(
+            std::fs::read_dir(dir.join("vdb")).unwrap().count(),
+            FRAMES as usize
+        );
     }
     let sheet = image::open(farm.join("wedges_contact_sheet.png")).unwrap();
     assert!(sheet.width() > 100 && sheet.height() > 100);

@@ -10,7 +10,8 @@ use std::path::PathBuf;
 pub enum FarmCommand {
     /// Write a farm directory (farm.json plan + sbatch scripts) for a shot and its wedges, and
     /// submit it to Slurm: a simulation job array (one task per wedge, requeued at the time
-    /// limit until complete), an optional Blender render array, and a report job.
+    /// limit until complete), an optional export array over frame chunks, an optional Blender
+    /// render array, and a report job.
     Submit {
         /// Shot config (YAML).
         config: PathBuf,
@@ -40,6 +41,21 @@ pub enum FarmCommand {
         /// `<run>/render/<shot>.<frame>.png`.
         #[arg(long)]
         render: bool,
+        /// Add an export stage: `nimbus export RUN --frames A-B` as a job array over chunks of N
+        /// frames of every wedge, each chunk starting as soon as the manifest records its frames
+        /// (the simulation then writes particle caches: `export.particles=true`). Needs
+        /// --export-set.
+        #[arg(long, value_name = "N")]
+        export_chunk: Option<u32>,
+        /// An export setting of the export stage, e.g. `--export-set export.voxel_size=12.5`
+        /// (`nimbus export --set`; `export.*` keys, not export.particles; repeatable). The files
+        /// go to each run's `exports/<name>/`.
+        #[arg(long = "export-set", value_name = "export.KEY=VALUE")]
+        export_set: Vec<String>,
+        /// Name of the export directory (`nimbus export --name`; default: a hash of the
+        /// settings).
+        #[arg(long, value_name = "NAME")]
+        export_name: Option<String>,
         /// Write the farm directory and print the sbatch commands, submit nothing.
         #[arg(long)]
         dry_run: bool,
@@ -77,6 +93,9 @@ pub fn run(cmd: FarmCommand) -> Result<()> {
             signal_margin,
             crash_requeues,
             render,
+            export_chunk,
+            export_set,
+            export_name,
             dry_run,
         } => {
             let done = submit::submit(&SubmitOptions {
@@ -88,6 +107,9 @@ pub fn run(cmd: FarmCommand) -> Result<()> {
                 signal_margin_s: signal_margin,
                 crash_requeues,
                 render,
+                export_chunk,
+                export_sets: export_set,
+                export_name,
                 dry_run,
             })?;
             print_submitted(&done, dry_run);

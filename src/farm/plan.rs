@@ -17,6 +17,9 @@ pub const SHEET: &str = "wedges_contact_sheet.png";
 pub enum JobKind {
     /// One array task per wedge: run or resume the shot, requeued until it is complete.
     Simulation,
+    /// One array task per (wedge, frame chunk), numbered `wedge * chunks + chunk`: waits until
+    /// the run's manifest records the chunk's frames, then `nimbus export RUN --frames A-B`.
+    Export,
     /// One array task per wedge: Blender renders the wedge's frames.
     Render,
     /// One task: checks every frame against the manifests, writes the report and contact sheet.
@@ -32,7 +35,8 @@ pub struct Dependency {
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Job {
-    /// Unique in the plan: `sim`, `render`, `report`, and `sim.2`, `report.2` for resubmissions.
+    /// Unique in the plan: `sim`, `export`, `render`, `report`, and `sim.2`, `report.2` for
+    /// resubmissions.
     pub name: String,
     pub kind: JobKind,
     /// The batch script, relative to the farm directory.
@@ -78,7 +82,33 @@ pub struct FarmPlan {
     pub wedges: Vec<Wedge>,
     /// Render stage: Blender script and its output (`render/<shot>.<frame>.png` per run).
     pub render: Option<RenderSettings>,
+    /// Export stage: `nimbus export` over frame chunks of every wedge.
+    #[serde(default)]
+    pub export: Option<ExportSettings>,
     pub jobs: Vec<Job>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ExportSettings {
+    /// Frames per export task.
+    pub chunk: u32,
+    /// `export.key=value` overrides (`nimbus export --set`); never the run's own settings.
+    pub sets: Vec<String>,
+    /// `nimbus export --name` (default: a hash of the settings).
+    pub name: Option<String>,
+}
+
+impl ExportSettings {
+    /// Chunks of `start..=end`.
+    pub fn chunks(&self, start: u32, end: u32) -> u32 {
+        (end - start + 1).div_ceil(self.chunk)
+    }
+
+    /// The frames of chunk `c`.
+    pub fn frames(&self, start: u32, end: u32, c: u32) -> (u32, u32) {
+        let a = start + c * self.chunk;
+        (a, (a + self.chunk - 1).min(end))
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -129,5 +159,25 @@ pub fn run_dir(farm_dir: &Path, wedge: &Wedge) -> PathBuf {
         farm_dir.join("runs").join(&wedge.name)
     } else {
         farm_dir.join(&wedge.run_dir)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ExportSettings;
+
+    #[test]
+    fn export_chunks_cover_the_range() {
+        let e = ExportSettings {
+            chunk: 8,
+            sets: vec!["export.voxel_size=50".into()],
+            name: None,
+        };
+        assert_eq!(e.chunks(1, 24), 3);
+        assert_eq!(e.frames(1, 24, 2), (17, 24));
+        assert_eq!(e.chunks(5, 21), 3);
+        assert_eq!(e.frames(5, 21, 2), (21, 21));
+        assert_eq!(e.chunks(3, 3), 1);
+        assert_eq!(e.frames(3, 3, 0), (3, 3));
     }
 }

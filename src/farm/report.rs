@@ -1,11 +1,13 @@
 //! `nimbus farm report`: the farm's last job. Checks every frame of every wedge against its
-//! run's manifest (each file's size and SHA-256), and writes `farm_report.json` and the wedge
+//! run's manifest (each file's size and SHA-256), and with an export stage every exported frame
+//! against its export directory's manifest, and writes `farm_report.json` and the wedge
 //! contact sheet. Run again at any time; it only reads the runs.
-use super::plan::{run_dir, FarmPlan, REPORT, SHEET};
+use super::plan::{run_dir, ExportSettings, FarmPlan, REPORT, SHEET};
 use super::sheet::{self, SheetRow};
 use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
-use crate::pipeline::records::{sha256_hex, Manifest};
+use crate::pipeline::records::{sha256_hex, FrameRecord, Manifest};
+use crate::pipeline::reexport;
 use serde::Serialize;
 use std::path::Path;
 
@@ -30,6 +32,10 @@ pub struct WedgeReport {
     pub error: Option<String>,
     /// With `--render`: frames whose `render/<shot>.<frame>.png` exists (PNG signature checked).
     pub frames_rendered: Option<u32>,
+    /// With an export stage: the wedge's `exports/<name>/` directory and the frames its manifest
+    /// records whose files all match that manifest (sizes, SHA-256).
+    pub export_dir: Option<String>,
+    pub frames_exported: Option<u32>,
     pub complete: bool,
 }
 
@@ -119,6 +125,8 @@ fn verify_run(plan: &FarmPlan, dir: &Path) -> (WedgeReport, Vec<(u32, String)>) 
         bad_files: Vec::new(),
         error: None,
         frames_rendered: None,
+        export_dir: None,
+        frames_exported: None,
         complete: false,
     };
     let manifest = match Manifest::load(dir) {
@@ -136,42 +144,16 @@ fn verify_run(plan: &FarmPlan, dir: &Path) -> (WedgeReport, Vec<(u32, String)>) 
             rep.missing_frames.push(frame);
             continue;
         };
-        let mut ok = !rec.files.is_empty();
-        for f in &rec.files {
-            let path = dir.join(&f.path);
-            match std::fs::read(&path) {
-                Ok(b) if b.len() as u64 != f.bytes => {
-                    ok = false;
-                    rep.bad_files.push(format!(
-                        "{}: {} bytes, the manifest records {}",
-                        f.path,
-                        b.len(),
-                        f.bytes
-                    ));
-                }
-                Ok(b) if sha256_hex(&b) != f.sha256 => {
-                    ok = false;
-                    rep.bad_files
-                        .push(format!("{}: SHA-256 differs from the manifest's", f.path));
-                }
-                Ok(b) => {
-                    rep.files_verified += 1;
-                    rep.bytes_verified += b.len() as u64;
-                    if f.path.starts_with("preview/") && f.path.ends_with(".png") {
-                        previews.push((frame, f.path.clone()));
-                    }
-                }
-                Err(e) => {
-                    ok = false;
-                    rep.bad_files.push(format!("{}: {e}", f.path));
-                }
-            }
-        }
-        if ok {
+        if verify_frame(dir, "", rec, &mut rep, Some((frame, &mut previews))) {
             rep.frames_verified += 1;
         }
     }
     rep.complete = rep.manifest_complete && rep.frames_verified == expected;
+    if let Some(e) = &plan.export {
+        let exported = verify_export(plan, dir, e, &mut rep);
+        rep.frames_exported = Some(exported);
+        rep.complete &= exported == expected;
+    }
     if let Some(r) = &plan.render {
         let rendered = (plan.frame_start..=plan.frame_end)
             .filter(|f| {
@@ -187,4 +169,87 @@ fn verify_run(plan: &FarmPlan, dir: &Path) -> (WedgeReport, Vec<(u32, String)>) 
         rep.complete &= rendered == expected;
     }
     (rep, previews)
+}
+
+/// Every file of a frame record on disk with its recorded size and SHA-256; what does not match
+/// goes to `bad_files` (named `prefix` + path), previews to `previews`.
+fn verify_frame(
+    dir: &Path,
+    prefix: &str,
+    rec: &FrameRecord,
+    rep: &mut WedgeReport,
+    mut previews: Option<(u32, &mut Vec<(u32, String)>)>,
+) -> bool {
+    let mut ok = !rec.files.is_empty();
+    for f in &rec.files {
+        let path = dir.join(&f.path);
+        match std::fs::read(&path) {
+            Ok(b) if b.len() as u64 != f.bytes => {
+                ok = false;
+                rep.bad_files.push(format!(
+                    "{prefix}{}: {} bytes, the manifest records {}",
+                    f.path,
+                    b.len(),
+                    f.bytes
+                ));
+            }
+            Ok(b) if sha256_hex(&b) != f.sha256 => {
+                ok = false;
+                rep.bad_files.push(format!(
+                    "{prefix}{}: SHA-256 differs from the manifest's",
+                    f.path
+                ));
+            }
+            Ok(b) => {
+                rep.files_verified += 1;
+                rep.bytes_verified += b.len() as u64;
+                if let Some((frame, previews)) = previews.as_mut() {
+                    if f.path.starts_with("preview/") && f.path.ends_with(".png") {
+                        previews.push((*frame, f.path.clone()));
+                    }
+                }
+            }
+            Err(e) => {
+                ok = false;
+                rep.bad_files.push(format!("{prefix}{}: {e}", f.path));
+            }
+        }
+    }
+    ok
+}
+
+/// The wedge's export directory checked against its own manifest: frames whose files all match.
+fn verify_export(plan: &FarmPlan, dir: &Path, e: &ExportSettings, rep: &mut WedgeReport) -> u32 {
+    let dest = match reexport::destination(dir, &e.sets, e.name.as_deref()) {
+        Ok(Some(d)) => d,
+        Ok(None) => {
+            rep.error = Some("the export settings are the run's own: no export directory".into());
+            return 0;
+        }
+        Err(err) => {
+            rep.error.get_or_insert(format!("export: {err}"));
+            return 0;
+        }
+    };
+    let prefix = dest
+        .strip_prefix(dir)
+        .map(|p| format!("{}/", p.display()))
+        .unwrap_or_default();
+    rep.export_dir = Some(dest.display().to_string());
+    let manifest = match Manifest::load(&dest) {
+        Ok(m) => m,
+        Err(err) => {
+            rep.error.get_or_insert(format!("export: {err}"));
+            return 0;
+        }
+    };
+    let mut exported = 0;
+    for frame in plan.frame_start..=plan.frame_end {
+        if let Some(rec) = manifest.frame(frame) {
+            if verify_frame(&dest, &prefix, rec, rep, None) {
+                exported += 1;
+            }
+        }
+    }
+    exported
 }

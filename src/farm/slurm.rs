@@ -56,8 +56,7 @@ fn common_header(plan: &FarmPlan, job: &Job, farm_dir: &Path, log: &str) -> Stri
 fn wedge_case(plan: &FarmPlan, farm_dir: &Path) -> String {
     let mut s = String::from("case \"$SLURM_ARRAY_TASK_ID\" in\n");
     for w in &plan.wedges {
-        let sets: Vec<String> = w
-            .sets()
+        let sets: Vec<String> = sim_sets(plan, w)
             .iter()
             .map(|kv| format!("--set {}", sh(kv)))
             .collect();
@@ -70,6 +69,16 @@ fn wedge_case(plan: &FarmPlan, farm_dir: &Path) -> String {
     }
     s += "  *) echo \"nimbus-farm: no wedge $SLURM_ARRAY_TASK_ID in this farm\" >&2; exit 2 ;;\nesac\n";
     s
+}
+
+/// The `--set`s of a wedge's simulation: its wedge values, and `export.particles=true` when the
+/// farm has an export stage (`nimbus export` splats the particle caches).
+pub fn sim_sets(plan: &FarmPlan, w: &super::wedge::Wedge) -> Vec<String> {
+    let mut sets = w.sets();
+    if plan.export.is_some() {
+        sets.push("export.particles=true".into());
+    }
+    sets
 }
 
 /// The simulation array: run or resume the wedge's shot; SIGTERM before the time limit reaches
@@ -180,12 +189,98 @@ fi
 exit $RC
 "#;
 
+/// The export array: one task per (wedge, chunk), numbered `wedge * chunks + chunk`. It waits
+/// until the wedge's manifest records every frame of its chunk (so chunks start while the
+/// simulation goes on), then runs `nimbus export RUN --frames A-B` into `exports/<name>/`, which
+/// needs no run lock. While the simulation task is back in the queue (requeued) the export task
+/// requeues itself, so a waiting export never holds the node the simulation needs; when the
+/// simulation task has left the queue without the frames it gives up (exit 3).
+pub fn export_script(plan: &FarmPlan, job: &Job, farm_dir: &Path) -> Option<String> {
+    let e = plan.export.as_ref()?;
+    let chunks = e.chunks(plan.frame_start, plan.frame_end);
+    let mut s = common_header(plan, job, farm_dir, "export_%a.log");
+    s += "#SBATCH --requeue\n";
+    s += "set -u\n";
+    s += &format!("NIMBUS={}\n", sh_path(&plan.nimbus));
+    s += &format!(
+        "START={}\nEND={}\nCHUNK={}\nCHUNKS={chunks}\nPOLL=2\n",
+        plan.frame_start, plan.frame_end, e.chunk
+    );
+    s += "WEDGE=$((SLURM_ARRAY_TASK_ID / CHUNKS))\nC=$((SLURM_ARRAY_TASK_ID % CHUNKS))\n";
+    s += "A=$((START + C * CHUNK))\nB=$((A + CHUNK - 1))\nif [ $B -gt $END ]; then B=$END; fi\n";
+    s += &wedge_case(plan, farm_dir).replace("\"$SLURM_ARRAY_TASK_ID\"", "\"$WEDGE\"");
+    let mut args: Vec<String> = e
+        .sets
+        .iter()
+        .map(|kv| format!("--set {}", sh(kv)))
+        .collect();
+    if let Some(n) = &e.name {
+        args.push(format!("--name {}", sh(n)));
+    }
+    s += &format!("EXPORT=({})\n", args.join(" "));
+    s += EXPORT_BODY;
+    Some(s)
+}
+
+/// Shared by every export task (bash).
+const EXPORT_BODY: &str = r#"ME=${SLURM_ARRAY_JOB_ID}_${SLURM_ARRAY_TASK_ID}
+SIM=${NIMBUS_FARM_SIM_JOB:?the job id of the simulation array (sbatch --export=ALL,NIMBUS_FARM_SIM_JOB=ID)}_$WEDGE
+echo "nimbus-farm: export $ME restart ${SLURM_RESTART_COUNT:-0}: frames $A-$B of $RUN (simulation task $SIM) on $(hostname) at $(date -u +%FT%TZ)"
+# The manifest is rewritten whole and atomically after each frame: a frame it records is on disk.
+have_frames() {
+  local got f
+  got=$(grep -o '"frame": [0-9]*,' "$RUN/manifest.json" 2>/dev/null) || return 1
+  for ((f = A; f <= B; f++)); do grep -qx "\"frame\": $f," <<<"$got" || return 1; done
+}
+sim_state() {
+  local out
+  if out=$(squeue -h -t all -j "$SIM" -o %T 2>&1); then
+    out=$(head -n 1 <<<"$out")
+    echo "${out:-GONE}"
+  elif grep -qi "invalid job id" <<<"$out"; then
+    echo GONE
+  else
+    echo UNREACHABLE
+  fi
+}
+while ! have_frames; do
+  ST=$(sim_state)
+  case $ST in
+    RUNNING | CONFIGURING | COMPLETING | SIGNALING | STAGE_OUT | RESIZING | UNREACHABLE)
+      sleep $POLL ;;
+    PENDING | REQUEUED | REQUEUE_HOLD | REQUEUE_FED | SUSPENDED | STOPPED | SPECIAL_EXIT | RESV_DEL_HOLD)
+      # The simulation waits in the queue: give the node back rather than hold it waiting.
+      if scontrol show job "$ME" -o 2>/dev/null | grep -q 'JobState=RUNNING'; then
+        echo "nimbus-farm: export $ME: simulation $SIM is $ST; requeued to wait for frames $A-$B in the queue"
+        scontrol requeue "$ME" && exit 0
+        echo "nimbus-farm: scontrol requeue $ME failed; waiting here" >&2
+      fi
+      sleep $POLL ;;
+    *)
+      have_frames && break
+      echo "nimbus-farm: export $ME: simulation task $SIM left the queue ($ST) without frames $A-$B in $RUN/manifest.json; giving up (see logs/sim_$WEDGE.log; nimbus farm resubmit exports them again)" >&2
+      exit 3 ;;
+  esac
+done
+CMD=("$NIMBUS" export "$RUN" --frames "$A-$B" "${EXPORT[@]}")
+RC=0
+for TRY in 1 2 3; do
+  echo "nimbus-farm: export $ME try $TRY at $(date -u +%FT%TZ): ${CMD[*]}"
+  RC=0; "${CMD[@]}" || RC=$?
+  if [ $RC -eq 0 ]; then echo "nimbus-farm: export $ME done at $(date -u +%FT%TZ)"; exit 0; fi
+  echo "nimbus-farm: export $ME: exit $RC" >&2
+  sleep $POLL
+done
+exit $RC
+"#;
+
 /// The script text of a job.
 pub fn script_for(plan: &FarmPlan, job: &Job, farm_dir: &Path) -> String {
     match job.kind {
         JobKind::Simulation => simulation_script(plan, job, farm_dir),
         JobKind::Report => report_script(plan, job, farm_dir),
         JobKind::Render => render_script(plan, job, farm_dir).unwrap_or_default(),
+        JobKind::Export => export_script(plan, job, farm_dir).unwrap_or_default(),
     }
 }
 
@@ -201,6 +296,30 @@ pub fn submit_args(job: &Job, plan: &FarmPlan, farm_dir: &Path, frames: u32) -> 
                 .flat_map(|&w| (0..frames as usize).map(move |f| w * frames as usize + f))
                 .collect();
             args.push(format!("--array={}", array_spec(&tasks)));
+        }
+        JobKind::Export => {
+            let chunks = plan
+                .export
+                .as_ref()
+                .map_or(1, |e| e.chunks(plan.frame_start, plan.frame_end))
+                as usize;
+            let tasks: Vec<usize> = job
+                .tasks
+                .iter()
+                .flat_map(|&w| (0..chunks).map(move |c| w * chunks + c))
+                .collect();
+            args.push(format!("--array={}", array_spec(&tasks)));
+            // The script asks the queue about its wedge's simulation task.
+            if let Some(sim) = job
+                .depends_on
+                .iter()
+                .find_map(|d| plan.job(&d.job).filter(|j| j.kind == JobKind::Simulation))
+            {
+                args.push(format!(
+                    "--export=ALL,NIMBUS_FARM_SIM_JOB={}",
+                    sim.slurm_id.as_deref().unwrap_or("<id>")
+                ));
+            }
         }
         JobKind::Report => {}
     }

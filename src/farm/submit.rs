@@ -1,7 +1,9 @@
 //! `nimbus farm submit` and `nimbus farm resubmit`: validate the wedges, write the farm
 //! directory (plan, config copy, batch scripts), then hand the jobs to `sbatch` in dependency
 //! order, recording each id in the plan as it is given.
-use super::plan::{self, Dependency, FarmPlan, Job, JobKind, RenderSettings, SlurmSettings};
+use super::plan::{
+    self, Dependency, ExportSettings, FarmPlan, Job, JobKind, RenderSettings, SlurmSettings,
+};
 use super::slurm;
 use super::wedge::{self, WedgeAxis};
 use crate::config;
@@ -22,6 +24,12 @@ pub struct SubmitOptions {
     pub signal_margin_s: u32,
     pub crash_requeues: u32,
     pub render: bool,
+    /// Export stage: frames per `nimbus export` task (`--export-chunk`).
+    pub export_chunk: Option<u32>,
+    /// `--export-set export.key=value` of the export tasks.
+    pub export_sets: Vec<String>,
+    /// `--export-name`: the export directory's name under each run's `exports/`.
+    pub export_name: Option<String>,
     pub dry_run: bool,
 }
 
@@ -57,6 +65,7 @@ pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
             )));
         }
     }
+    let export = export_settings(opts, &wedges)?;
     let render = if opts.render {
         Some(render_settings(cfg.output.frame_padding)?)
     } else {
@@ -97,7 +106,12 @@ pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
             "--out".into(),
             plan::run_dir(&farm_dir, w).to_string_lossy().into_owned(),
         ];
-        for kv in w.sets() {
+        let mut sets = w.sets();
+        // `nimbus export` splats the particle caches the simulation writes.
+        if export.is_some() {
+            sets.push("export.particles=true".into());
+        }
+        for kv in sets {
             words.push("--set".into());
             words.push(kv);
         }
@@ -129,6 +143,7 @@ pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
         },
         wedges,
         render,
+        export,
         jobs: Vec::new(),
     };
     add_jobs(&mut plan, &all, "");
@@ -155,6 +170,35 @@ fn add_jobs(plan: &mut FarmPlan, tasks: &[usize], suffix: &str) {
         job: sim.clone(),
         kind: "afterany".into(),
     }];
+    if let Some(e) = &plan.export {
+        let export = format!("export{suffix}");
+        let mut command = "per (wedge, chunk): once RUN/manifest.json records frames A-B, nimbus export RUN --frames A-B".to_string();
+        for kv in &e.sets {
+            command += &format!(" --set {}", slurm::sh(kv));
+        }
+        if let Some(n) = &e.name {
+            command += &format!(" --name {}", slurm::sh(n));
+        }
+        plan.jobs.push(Job {
+            name: export.clone(),
+            kind: JobKind::Export,
+            script: "jobs/export.sbatch".into(),
+            tasks: tasks.to_vec(),
+            command,
+            // after: the chunks start once the simulation has, and each waits for its frames
+            // in the manifest; they overlap the simulation instead of following it.
+            depends_on: vec![Dependency {
+                job: sim.clone(),
+                kind: "after".into(),
+            }],
+            slurm_id: None,
+            submit: Vec::new(),
+        });
+        report_deps.push(Dependency {
+            job: export,
+            kind: "afterany".into(),
+        });
+    }
     if plan.render.is_some() {
         let render = format!("render{suffix}");
         plan.jobs.push(Job {
@@ -311,6 +355,60 @@ pub fn resubmit(farm_dir: &Path, dry_run: bool) -> Result<Submitted> {
     let first = plan.jobs.len();
     add_jobs(&mut plan, &tasks, &format!(".{round}"));
     write_and_submit(plan, farm_dir, dry_run, first)
+}
+
+/// The export stage of `--export-chunk`: refused (exit 2) before anything is written when a
+/// setting is not an `export.*` key nimbus export may change, does not validate for a wedge, or
+/// leaves a wedge's own export settings (the simulation already writes those files).
+fn export_settings(
+    opts: &SubmitOptions,
+    wedges: &[wedge::Wedge],
+) -> Result<Option<ExportSettings>> {
+    let Some(chunk) = opts.export_chunk else {
+        if !opts.export_sets.is_empty() || opts.export_name.is_some() {
+            return Err(Error::InvalidInput(
+                "--export-set and --export-name need --export-chunk N (frames per export task)"
+                    .into(),
+            ));
+        }
+        return Ok(None);
+    };
+    if chunk == 0 {
+        return Err(Error::InvalidInput(
+            "--export-chunk 0: give the frames per export task (1 or more)".into(),
+        ));
+    }
+    if opts.export_sets.is_empty() {
+        return Err(Error::InvalidInput(
+            "--export-chunk needs at least one --export-set export.KEY=VALUE: with the run's own              export settings the simulation writes those files itself"
+                .into(),
+        ));
+    }
+    crate::pipeline::reexport::check_sets(&opts.export_sets)
+        .map_err(|e| Error::InvalidInput(e.to_string().replace("--set ", "--export-set ")))?;
+    if let Some(n) = &opts.export_name {
+        crate::pipeline::reexport::check_name(n)
+            .map_err(|e| Error::InvalidInput(e.to_string().replace("--name", "--export-name")))?;
+    }
+    for w in wedges {
+        let sets = w.sets();
+        let own = config::load(&opts.config, &sets)?;
+        let mut with = sets.clone();
+        with.extend(opts.export_sets.iter().cloned());
+        let other = config::load(&opts.config, &with)?;
+        if other.export == own.export {
+            return Err(Error::InvalidInput(format!(
+                "--export-set {}: leaves the export settings of wedge {} as they are; the                  simulation writes those files itself",
+                opts.export_sets.join(" --export-set "),
+                w.name
+            )));
+        }
+    }
+    Ok(Some(ExportSettings {
+        chunk,
+        sets: opts.export_sets.clone(),
+        name: opts.export_name.clone(),
+    }))
 }
 
 /// Blender and the render script: found now, so a farm never fails on them hours later.

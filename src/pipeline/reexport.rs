@@ -11,8 +11,14 @@
 //!   the export settings, so farm jobs with the same `--set`s share one directory. Its manifest
 //!   is updated under an exclusive lock of `exports/<name>/.lock`, held only for that update.
 //!
-//! The run directory is held with a shared lock (`RunLock::acquire_shared`): exports run
-//! together, but not beside a `run`, `resume` or `preview` of the same directory.
+//! With the run's own settings it writes into the run directory, so it holds the run's lock
+//! shared (`RunLock::acquire_shared`): such exports run together, but not beside a `run`,
+//! `resume` or `preview` of the same directory. Into `exports/<name>/` it writes nothing in the
+//! run directory and reads only frames the manifest records (rewritten whole and atomically
+//! after each frame), each cache checked against its recorded size and SHA-256 before use, so
+//! it takes no run lock: a farm exports the first frames of a shot while the simulation (which
+//! holds the lock exclusively) goes on, and a simulation requeued meanwhile is never refused
+//! "in use" by an export.
 use super::lock::RunLock;
 use super::records::{file_record, FileRecord, FrameRecord, Manifest};
 use super::writer::{FrameJob, FrameWriter};
@@ -62,8 +68,9 @@ fn config_of(manifest: &Manifest, run_dir: &Path, sets: &[String]) -> Result<Sho
     crate::config::load_str(&text, &origin.to_string_lossy(), sets)
 }
 
-pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
-    for s in &req.sets {
+/// `nimbus export` changes `export.*` keys only, and not `export.particles`.
+pub fn check_sets(sets: &[String]) -> Result<()> {
+    for s in sets {
         let key = s.split_once('=').map_or(s.as_str(), |(k, _)| k).trim();
         if !key.starts_with("export.") || key == "export.particles" {
             return Err(Error::InvalidInput(format!(
@@ -71,8 +78,22 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
             )));
         }
     }
-    let _lock = RunLock::acquire_shared(run_dir)?;
+    Ok(())
+}
+
+pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
+    check_sets(&req.sets)?;
     let manifest = Manifest::load(run_dir)?;
+    let run_cfg = config_of(&manifest, run_dir, &[])?;
+    let own = config_of(&manifest, run_dir, &req.sets)?.export == run_cfg.export;
+    // Own settings write into the run directory: held shared, and the manifest read again
+    // under the lock. Another export directory needs no run lock (see the module's note).
+    let (_lock, manifest) = if own {
+        let lock = RunLock::acquire_shared(run_dir)?;
+        (Some(lock), Manifest::load(run_dir)?)
+    } else {
+        (None, manifest)
+    };
     let run_cfg = config_of(&manifest, run_dir, &[])?;
     if !run_cfg.export.particles {
         return Err(Error::InvalidInput(format!(
@@ -105,15 +126,12 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
         )));
     }
     let run_space = ExportSpace::from_config(&run_cfg);
-    let own = cfg.export == run_cfg.export;
     let dest = if own {
         run_dir.to_path_buf()
     } else {
-        let name = match &req.name {
-            Some(n) => check_name(n)?,
-            None => default_name(&cfg),
-        };
-        run_dir.join("exports").join(name)
+        run_dir
+            .join("exports")
+            .join(dir_name(&cfg, req.name.as_deref())?)
     };
     // The writer never writes caches again: it splats the ones it reads.
     let mut wcfg = cfg.clone();
@@ -305,7 +323,26 @@ fn lock_file(dest: &Path) -> Result<std::fs::File> {
     Ok(f)
 }
 
-fn check_name(n: &str) -> Result<String> {
+/// `exports/<name>` under the run for `sets` (`--set export.key=value`) and `--name`, or `None`
+/// when the sets leave the run's own export settings (the files then go to the run itself).
+pub fn destination(run_dir: &Path, sets: &[String], name: Option<&str>) -> Result<Option<PathBuf>> {
+    let manifest = Manifest::load(run_dir)?;
+    let run_cfg = config_of(&manifest, run_dir, &[])?;
+    let cfg = config_of(&manifest, run_dir, sets)?;
+    if cfg.export == run_cfg.export {
+        return Ok(None);
+    }
+    Ok(Some(run_dir.join("exports").join(dir_name(&cfg, name)?)))
+}
+
+fn dir_name(cfg: &ShotConfig, name: Option<&str>) -> Result<String> {
+    match name {
+        Some(n) => check_name(n),
+        None => Ok(default_name(cfg)),
+    }
+}
+
+pub fn check_name(n: &str) -> Result<String> {
     if n.is_empty()
         || n.len() > 100
         || n.starts_with('.')
