@@ -2,7 +2,9 @@
 //! a SIGKILL would) just before the N-th atomic rename of a file whose path contains PATTERN,
 //! i.e. with the temporary file fully written; `NIMBUS_FAULT=frame:N` aborts in the middle of
 //! simulating frame N; `NIMBUS_FAULT=nan:N` makes the temperature of particle 0 NaN in the state
-//! read back after frame N (for the divergence watchdog). Unset (always, outside tests) it costs one relaxed load.
+//! read back after frame N (for the divergence watchdog); `NIMBUS_FAULT=slow:MS` sleeps MS
+//! milliseconds in every frame (a run that stays alive while a test starts other processes on
+//! its directory; the output is unchanged). Unset (always, outside tests) it costs one relaxed load.
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::OnceLock;
 
@@ -10,6 +12,7 @@ enum Fault {
     Rename { pattern: String, nth: u32 },
     Frame(u32),
     Nan(u32),
+    Slow(u64),
 }
 
 fn fault() -> Option<&'static Fault> {
@@ -24,6 +27,7 @@ fn fault() -> Option<&'static Fault> {
             }),
             ["frame", n] => Some(Fault::Frame(n.parse().ok()?)),
             ["nan", n] => Some(Fault::Nan(n.parse().ok()?)),
+            ["slow", ms] => Some(Fault::Slow(ms.parse().ok()?)),
             _ => None,
         }
     })
@@ -45,11 +49,13 @@ pub fn before_rename(path: &std::path::Path) {
 
 /// Called by the frame loop between the substeps of a frame.
 pub fn during_frame(frame: u32) {
-    if let Some(Fault::Frame(n)) = fault() {
-        if *n == frame {
+    match fault() {
+        Some(Fault::Frame(n)) if *n == frame => {
             eprintln!("NIMBUS_FAULT: aborting while simulating frame {frame}");
             std::process::abort();
         }
+        Some(Fault::Slow(ms)) => std::thread::sleep(std::time::Duration::from_millis(*ms)),
+        _ => {}
     }
 }
 

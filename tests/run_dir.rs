@@ -26,18 +26,22 @@ fn tree(dir: &Path) -> BTreeMap<PathBuf, String> {
     out
 }
 
-fn spawn_tiny(out: &Path, extra: &[&str]) -> Child {
-    nimbus()
-        .arg("run")
+/// `nimbus run` of the tiny sample into `out`, stderr piped.
+fn tiny_command(out: &Path, extra: &[&str]) -> std::process::Command {
+    let mut c = nimbus();
+    c.arg("run")
         .arg(sample("tiny.yaml"))
         .arg("--out")
         .arg(out)
         .args(["--log-format", "json"])
         .args(extra)
         .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap()
+        .stderr(Stdio::piped());
+    c
+}
+
+fn spawn_tiny(out: &Path, extra: &[&str]) -> Child {
+    tiny_command(out, extra).spawn().unwrap()
 }
 
 fn resume(out: &Path) -> std::process::Command {
@@ -175,7 +179,12 @@ fn two_processes_on_one_directory() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("d");
     let long = ["--set", "output.frames.end=60"];
-    let child = spawn_tiny(&out, &long);
+    // slowed (0.5 s a frame, same output) so that it still runs while the five refused
+    // processes start one after the other: unslowed it could finish first on a fast adapter
+    let child = tiny_command(&out, &long)
+        .env("NIMBUS_FAULT", "slow:500")
+        .spawn()
+        .unwrap();
     let pid = child.id();
     wait_frames(&out, 1);
     let planted = out.join("vdb/tiny.0001.vdb.1-0000000000000000.nimbus-tmp");
@@ -192,9 +201,9 @@ fn two_processes_on_one_directory() {
     let lock_text = std::fs::read_to_string(out.join(".lock")).unwrap();
     kill(pid, "HUP");
     let first = child.wait_with_output().unwrap();
-    for o in &second {
-        assert_eq!(o.status.code(), Some(2), "{}", text(o));
-        assert!(stderr(o).contains(&want), "{}", text(o));
+    for (i, o) in second.iter().enumerate() {
+        assert_eq!(o.status.code(), Some(2), "second process {i}: {}", text(o));
+        assert!(stderr(o).contains(&want), "second process {i}: {}", text(o));
     }
     assert!(planted.exists(), "a refused process deleted a temp file");
     assert!(

@@ -80,7 +80,7 @@ impl RunLock {
         match file.try_lock() {
             Ok(()) => {}
             Err(std::fs::TryLockError::WouldBlock) => {
-                let holder = read_holder(&mut file);
+                let holder = read_holder_of_locked(&mut file);
                 return Err(in_use(dir, &holder, ""));
             }
             Err(std::fs::TryLockError::Error(e)) => {
@@ -154,7 +154,7 @@ impl RunLock {
         match file.try_lock_shared() {
             Ok(()) => Ok(SharedRunLock { _file: file }),
             Err(std::fs::TryLockError::WouldBlock) => {
-                let holder = read_holder(&mut file);
+                let holder = read_holder_of_locked(&mut file);
                 Err(in_use(dir, &holder, ""))
             }
             Err(std::fs::TryLockError::Error(e)) => Err(Error::InvalidInput(format!(
@@ -225,6 +225,20 @@ fn open_lock_file(dir: &Path) -> Result<(PathBuf, File)> {
             ))
         })?;
     Ok((path, file))
+}
+
+/// The holder of a lock another process holds. A process writes its holder just after it
+/// takes the lock, so an empty file is read again for up to half a second before it is
+/// reported as "no recorded holder" (two resumes started together: the loser names the winner).
+fn read_holder_of_locked(file: &mut File) -> Holder {
+    for _ in 0..25 {
+        let h = read_holder(file);
+        if h.pid.is_some() {
+            return h;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    read_holder(file)
 }
 
 fn read_holder(file: &mut File) -> Holder {
