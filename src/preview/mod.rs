@@ -122,7 +122,7 @@ impl PreviewParams {
             phase_g: 0.3,
             octaves: 4,
             octave_a: 0.5,
-            octave_b: 0.7,
+            octave_b: 0.5,
             octave_c: 0.5,
             ambient: 1.0,
             step: 0.75,
