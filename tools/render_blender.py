@@ -3,7 +3,8 @@
 Usage (Blender 3.4, Debian 12):
   blender -b --factory-startup --python-exit-code 1 -P tools/render_blender.py -- \
       RUN_DIR_OR_VDB OUT.png [--frame N] [--grid density] [--res W H] [--samples N] \
-      [--up auto|y|z] [--motion-blur] [--density-scale auto|X] [--min-coverage F]
+      [--up auto|y|z] [--motion-blur] [--density-scale auto|X] [--min-coverage F] \
+      [--framing auto|domain|volume]
 
 RUN_DIR is a nimbus run directory: its manifest.json names the frames and their files (size and
 SHA-256 are checked). The whole `<shot>.<digits>.vdb` sequence is imported as one Volume object
@@ -71,6 +72,15 @@ def parse_args():
         "depth of %g through the core from the grid's max and bbox" % CORE_OPTICAL_DEPTH,
     )
     p.add_argument(
+        "--framing",
+        choices=["auto", "domain", "volume"],
+        default="auto",
+        help="box the camera frames and --density-scale auto measures: the run's simulation "
+        "domain from its manifest (domain; the same for every frame, and what nimbus's preview "
+        "frames), or the volume's bounding box (volume); auto (default): domain for a run "
+        "directory, volume for a lone .vdb",
+    )
+    p.add_argument(
         "--min-coverage",
         type=float,
         default=0.01,
@@ -115,6 +125,11 @@ def resolve_input(a, report):
     report["export"] = man.get("export")
     report["fps"] = man.get("fps")
     report["voxel_size"] = man.get("voxel_size")
+    try:
+        size = [float(v) for v in man["config"]["domain"]["size"]]
+        report["domain_size"] = size if len(size) == 3 else None
+    except (KeyError, TypeError, ValueError):
+        report["domain_size"] = None
     report["grid_origin"] = man.get("grid_origin")
     with_vdb = [
         fr for fr in frames if any(str(x.get("path", "")).endswith(".vdb") for x in fr.get("files", []))
@@ -262,6 +277,15 @@ def world_bbox(obj):
     lo = Vector([min(c[i] for c in corners) for i in range(3)])
     hi = Vector([max(c[i] for c in corners) for i in range(3)])
     return lo, hi
+
+
+def domain_bbox(report):
+    """The run's domain [0, size] (metres, y up) in Blender's world: the export's scale, and
+    (x, y, z) -> (x, -z, y) whether the files are y-up (rotated on import) or z-up."""
+    exp = report.get("export") if isinstance(report.get("export"), dict) else {}
+    s = float(exp.get("scale") or 1.0)
+    sx, sy, sz = report["domain_size"]
+    return Vector((0.0, -sz / s, 0.0)), Vector((sx / s, 0.0, sy / s))
 
 
 def grid_max_pyopenvdb(path, grid):
@@ -456,6 +480,16 @@ def run(a, report):
     report["world_bbox"] = [[round(v, 6) for v in lo], [round(v, 6) for v in hi]]
     if not all(math.isfinite(v) for v in size) or min(size) <= 0:
         raise RenderFailure("empty volume: the grids have no active voxels")
+    framing = a.framing
+    if framing == "auto":
+        framing = "domain" if report.get("domain_size") else "volume"
+    if framing == "domain":
+        if not report.get("domain_size"):
+            raise RenderFailure("--framing domain needs a run directory whose manifest has the config")
+        lo, hi = domain_bbox(report)
+        size = hi - lo
+    report["framing"] = framing
+    report["frame_bbox"] = [[round(v, 6) for v in lo], [round(v, 6) for v in hi]]
     if a.density_scale == "auto":
         try:
             gmax = grid_max_pyopenvdb(path, a.grid)

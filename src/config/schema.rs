@@ -103,9 +103,13 @@ pub struct PreviewConfig {
     pub sun_color: [f64; 3],
     #[serde(default = "d_sun_intensity")]
     pub sun_intensity: f64,
-    /// Extinction per unit of density per metre.
+    /// Extinction per unit of density per metre (with `density_mode: fixed`).
     #[serde(default = "d_density_scale")]
     pub density_scale: f64,
+    /// `auto`: the extinction of tools/render_blender.py's `--density-scale auto` (optical depth
+    /// 4 through the core, from the frame's density maximum); `fixed`: `density_scale`.
+    #[serde(default)]
+    pub density_mode: DensityMode,
     /// Camera; `None` = auto-framed from the side.
     #[serde(default)]
     pub camera: Option<CameraConfig>,
@@ -116,14 +120,24 @@ pub struct PreviewConfig {
 fn d_preview_res() -> [u32; 2] {
     [640, 360]
 }
+/// How the preview turns density into extinction.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DensityMode {
+    #[default]
+    Auto,
+    Fixed,
+}
+/// tools/render_blender.py's sun: rotation (50, 0, 70) degrees in Blender's z-up frame, i.e.
+/// 40 degrees high from +x, a little towards +z (the camera's side).
 fn d_sun_dir() -> [f64; 3] {
-    [0.5, 0.6, 0.3]
+    [0.719_846, 0.642_788, 0.262_003]
 }
 fn d_sun_color() -> [f64; 3] {
-    [1.0, 0.97, 0.9]
+    [1.0, 1.0, 1.0]
 }
 fn d_sun_intensity() -> f64 {
-    3.0
+    5.0
 }
 fn d_density_scale() -> f64 {
     0.15
@@ -138,6 +152,7 @@ impl Default for PreviewConfig {
             sun_color: d_sun_color(),
             sun_intensity: d_sun_intensity(),
             density_scale: d_density_scale(),
+            density_mode: DensityMode::Auto,
             camera: None,
             movie: false,
         }

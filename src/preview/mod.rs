@@ -1,14 +1,21 @@
 //! CPU ray-marched preview images of a density grid, a contact sheet, and a particle debug view.
 //!
+//! The default scene is `tools/render_blender.py`'s, so that a preview shows what the Blender
+//! render of the same frame shows (docs/RENDERING.md measures how close): its camera (35 mm lens,
+//! 36 mm sensor, from the front, raised and to the right, framing the domain with a 10% margin),
+//! its sun (40 degrees up, white, strength 5), its uniform sky-blue world, a white cloud with
+//! anisotropy 0.3, its density multiplier (`density_mode: auto`: optical depth 4 through the
+//! core) and Blender's Standard view transform (sRGB, clipped at 1).
+//!
 //! Light model (per sample of the view ray, step of `step` voxels):
 //! - extinction sigma_t = density_scale * density (Beer-Lambert), scattering sigma_s = albedo sigma_t;
 //! - sun: single scattering with a Henyey-Greenstein phase function, the transmittance towards
 //!   the sun read from a coarse optical-depth volume precomputed once per frame; multiple
 //!   scattering approximated by Wrenninge's octaves: sum_i b^i exp(-a^i tau) HG(cos, c^i g);
-//! - ambient: the sky's mean radiance, attenuated by the optical depth towards the zenith;
+//! - ambient: the uniform sky's radiance, attenuated by the optical depths towards the zenith
+//!   and the nadir (Blender's world lights the cloud from below too);
 //! - each step is integrated analytically over its length (energy-conserving for thick media);
-//! - behind the cloud: a sky gradient above the horizon and a lit ground plane (y = 0), with the
-//!   clouds' shadows, below it.
+//! - behind the cloud: the uniform sky (Blender's world colour), no ground.
 //!
 //! Everything is deterministic: rows are rendered in parallel, each pixel independently, and the
 //! start offset that hides banding is a hash of the pixel coordinates.
@@ -19,7 +26,7 @@ mod volume;
 
 pub use sheet::{contact_sheet, write_contact_sheet};
 
-use crate::config::PreviewConfig;
+use crate::config::{DensityMode, PreviewConfig};
 use crate::error::{Error, Result};
 use crate::splat::SparseGrid;
 use rayon::prelude::*;
@@ -43,8 +50,12 @@ pub struct PreviewParams {
     pub sun_direction: [f64; 3],
     pub sun_color: [f64; 3],
     pub sun_intensity: f64,
-    /// Extinction per unit of density per metre.
+    /// Extinction per unit of density per metre (when `auto_density` is `None`).
     pub density_scale: f64,
+    /// `Some(size)`: the extinction is chosen per frame as tools/render_blender.py's
+    /// `--density-scale auto` does when it frames the domain `[0, size]` (metres):
+    /// `CORE_OPTICAL_DEPTH / (0.5 * max density * 0.5 * median side)`.
+    pub auto_density: Option<[f64; 3]>,
     /// Single-scattering albedo (clouds: ~1).
     pub albedo: f64,
     /// Henyey-Greenstein anisotropy (clouds scatter forward).
@@ -74,7 +85,7 @@ impl PreviewParams {
                 look_at: c.look_at,
                 fov_deg: c.fov_deg,
             },
-            None => auto_camera(domain_size, w as f64 / h.max(1) as f64, 45.0),
+            None => blender_camera([0.0; 3], domain_size, w as f64 / h.max(1) as f64),
         };
         let p = Self {
             width: w,
@@ -84,6 +95,10 @@ impl PreviewParams {
             sun_color: cfg.sun_color,
             sun_intensity: cfg.sun_intensity,
             density_scale: cfg.density_scale,
+            auto_density: match cfg.density_mode {
+                DensityMode::Auto => Some(domain_size),
+                DensityMode::Fixed => None,
+            },
             ..Self::defaults(camera, w, h)
         };
         p.validate()?;
@@ -101,8 +116,10 @@ impl PreviewParams {
             sun_color: d.sun_color,
             sun_intensity: d.sun_intensity,
             density_scale: d.density_scale,
-            albedo: 0.98,
-            phase_g: 0.5,
+            auto_density: None,
+            // Blender's Principled Volume, white: no absorption; anisotropy 0.3
+            albedo: 1.0,
+            phase_g: 0.3,
             octaves: 4,
             octave_a: 0.5,
             octave_b: 0.5,
@@ -178,6 +195,44 @@ impl PreviewParams {
     }
 }
 
+/// Optical depth through the core of the cloud that `auto_density` aims at (render_blender.py's
+/// `CORE_OPTICAL_DEPTH`).
+pub const CORE_OPTICAL_DEPTH: f64 = 4.0;
+
+/// tools/render_blender.py's camera for a volume whose world bounding box is `[lo, hi]` (nimbus
+/// frame, y up): a 35 mm lens on a 36 mm sensor fitted to the wider side of the image, looking at
+/// the box centre from direction (0.25, 0.18, 1) (Blender's (0.25, -1, 0.18), z up), at the
+/// distance where all eight corners fit the frame with a 10% margin.
+pub fn blender_camera(lo: [f64; 3], hi: [f64; 3], aspect: f64) -> Camera {
+    let aspect = aspect.max(1e-6);
+    let centre = [0, 1, 2].map(|a| 0.5 * (lo[a] + hi[a]));
+    let dir = normalize([0.25, 0.18, 1.0]);
+    let fov_wide = 2.0 * (36.0f64 / (2.0 * 35.0)).atan();
+    let fov_x = if aspect >= 1.0 {
+        fov_wide
+    } else {
+        2.0 * ((fov_wide / 2.0).tan() * aspect).atan()
+    };
+    let fov_y = 2.0 * ((fov_x / 2.0).tan() / aspect).atan();
+    // the camera basis of `ray`: looking along -dir, y up
+    let fwd = dir.map(|v| -v);
+    let right = normalize(cross(fwd, [0.0, 1.0, 0.0]));
+    let up = cross(right, fwd);
+    let (tx, ty) = ((fov_x / 2.0).tan() / 1.1, (fov_y / 2.0).tan() / 1.1);
+    let mut dist = 1e-6f64;
+    for i in 0..8 {
+        let p = [0, 1, 2].map(|k| if (i >> k) & 1 == 1 { hi[k] } else { lo[k] } - centre[k]);
+        dist = dist
+            .max(dot(p, right).abs() / tx + dot(p, dir))
+            .max(dot(p, up).abs() / ty + dot(p, dir));
+    }
+    Camera {
+        position: [0, 1, 2].map(|a| centre[a] + dir[a] * dist),
+        look_at: centre,
+        fov_deg: fov_y.to_degrees(),
+    }
+}
+
 /// The domain `[0, size]` seen from the side (+z looking towards -z), ground at the bottom: the
 /// front face fits the frame with a 5% margin.
 pub fn auto_camera(size: [f64; 3], aspect: f64, fov_deg: f64) -> Camera {
@@ -205,7 +260,8 @@ impl LinearImage {
         self.data[(y * self.width + x) as usize]
     }
 
-    /// Exposure, a filmic curve (ACES fit) and the sRGB transfer function, 8 bits.
+    /// Exposure and Blender's Standard view transform (the sRGB transfer function, clipped at
+    /// 1), 8 bits.
     pub fn to_srgb8(&self, exposure: f64) -> image::RgbImage {
         let mut out = image::RgbImage::new(self.width, self.height);
         for (px, v) in out.pixels_mut().zip(&self.data) {
@@ -216,8 +272,7 @@ impl LinearImage {
 }
 
 fn tonemap(x: f64) -> f64 {
-    let x = x.max(0.0);
-    ((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)).clamp(0.0, 1.0)
+    x.clamp(0.0, 1.0)
 }
 
 fn encode_srgb(x: f64) -> u8 {
@@ -229,48 +284,18 @@ fn encode_srgb(x: f64) -> u8 {
     (s * 255.0 + 0.5).clamp(0.0, 255.0) as u8
 }
 
-/// Radiance of the sky gradient towards `dir` (above the horizon).
-fn sky_gradient(dir: [f64; 3]) -> [f64; 3] {
-    let zenith = [0.16, 0.34, 0.75];
-    let horizon = [0.62, 0.74, 0.90];
-    let t = dir[1].clamp(0.0, 1.0).sqrt();
-    [0, 1, 2].map(|a| horizon[a] + (zenith[a] - horizon[a]) * t)
-}
+/// tools/render_blender.py's world: a uniform pale sky blue (linear RGB, strength 1).
+pub const SKY_RGB: [f64; 3] = [0.16, 0.28, 0.55];
 
-/// Mean sky radiance: the ambient light on clouds and ground.
+/// Sky radiance: the ambient light on the clouds.
 fn sky_ambient() -> [f64; 3] {
-    sky_gradient([0.0, 0.5, 0.0])
+    SKY_RGB
 }
 
-const GROUND_ALBEDO: [f64; 3] = [0.20, 0.22, 0.16];
-
-/// What a ray from `origin` along `dir` sees without any cloud: the sky above the horizon, the
-/// sunlit ground plane y = 0 below it (faded into the horizon haze with distance).
-pub fn sky(params: &PreviewParams, origin: [f64; 3], dir: [f64; 3]) -> [f64; 3] {
-    background(params, origin, dir, |_| 1.0)
-}
-
-fn background(
-    params: &PreviewParams,
-    origin: [f64; 3],
-    dir: [f64; 3],
-    sun_transmittance: impl Fn([f64; 3]) -> f64,
-) -> [f64; 3] {
-    if dir[1] < -1e-9 && origin[1] > 0.0 {
-        let t = -origin[1] / dir[1];
-        let p = [origin[0] + t * dir[0], 0.0, origin[2] + t * dir[2]];
-        let s = params.sun_direction;
-        let sun = params.sun_intensity * s[1].max(0.0) * sun_transmittance(p);
-        let amb = sky_ambient();
-        let haze = 1.0 - (-t / (50.0 * origin[1].max(1e-6))).exp();
-        let hz = sky_gradient([0.0, 0.0, 0.0]);
-        return [0, 1, 2].map(|a| {
-            let g = GROUND_ALBEDO[a] / std::f64::consts::PI
-                * (sun * params.sun_color[a] + std::f64::consts::PI * amb[a]);
-            g + (hz[a] - g) * haze
-        });
-    }
-    sky_gradient(dir)
+/// What a ray from `origin` along `dir` sees without any cloud: Blender's uniform world colour
+/// (there is no ground in the Blender scene).
+pub fn sky(_params: &PreviewParams, _origin: [f64; 3], _dir: [f64; 3]) -> [f64; 3] {
+    SKY_RGB
 }
 
 fn hg(cos: f64, g: f64) -> f64 {
@@ -288,6 +313,17 @@ pub fn render(grid: &SparseGrid<f32>, params: &PreviewParams) -> Result<LinearIm
         )));
     }
     let vol = Volume::new(grid, params.sun_direction);
+    let resolved;
+    let params = match params.auto_density {
+        Some(size) => {
+            resolved = PreviewParams {
+                density_scale: auto_density_scale(grid, size),
+                ..params.clone()
+            };
+            &resolved
+        }
+        None => params,
+    };
     let w = params.width;
     let rows: Vec<Vec<[f32; 4]>> = (0..params.height)
         .into_par_iter()
@@ -298,6 +334,28 @@ pub fn render(grid: &SparseGrid<f32>, params: &PreviewParams) -> Result<LinearIm
         height: params.height,
         data: rows.into_iter().flatten().collect(),
     })
+}
+
+/// render_blender.py's `--density-scale auto` for this grid, with its default framing of a run
+/// (the domain box, `size`): the chord through the core is half the box's median side, the
+/// density along it half the grid's maximum.
+fn auto_density_scale(grid: &SparseGrid<f32>, size: [f64; 3]) -> f64 {
+    let mut gmax = 0.0f64;
+    for l in &grid.leaves {
+        for (n, &v) in l.values.iter().enumerate() {
+            if l.is_active(n) && v.is_finite() {
+                gmax = gmax.max(v as f64);
+            }
+        }
+    }
+    let mut sides = size;
+    sides.sort_by(f64::total_cmp);
+    let chord = 0.5 * sides[1];
+    if gmax > 0.0 && chord > 0.0 {
+        CORE_OPTICAL_DEPTH / (0.5 * gmax * chord)
+    } else {
+        0.0
+    }
 }
 
 /// Deterministic per-pixel offset in [0, 1).
@@ -313,18 +371,7 @@ fn shade_pixel(vol: &Volume, p: &PreviewParams, x: u32, y: u32) -> [f32; 4] {
     let o = p.camera.position;
     let d = p.ray(x, y);
     let (l, trans) = march(vol, p, o, d, hash01(x, y));
-    let bg = if vol.is_empty() {
-        sky(p, o, d)
-    } else {
-        let cell_m = vol.coarse.stride as f64 * vol.voxel;
-        background(p, o, d, |g| {
-            let q = [0, 1, 2].map(|a| (g[a] - vol.origin[a]) / vol.voxel);
-            let tau = vol
-                .coarse
-                .march(vol.coarse.to_cell(q), p.sun_direction, cell_m);
-            (-p.density_scale * tau).exp()
-        })
-    };
+    let bg = sky(p, o, d);
     [
         (l[0] + trans * bg[0]) as f32,
         (l[1] + trans * bg[1]) as f32,
@@ -333,7 +380,7 @@ fn shade_pixel(vol: &Volume, p: &PreviewParams, x: u32, y: u32) -> [f32; 4] {
     ]
 }
 
-/// In-scattered radiance and transmittance along the ray through the volume (up to the ground).
+/// In-scattered radiance and transmittance along the ray through the volume.
 fn march(
     vol: &Volume,
     p: &PreviewParams,
@@ -365,10 +412,6 @@ fn march(
             t1 = t1.min(tb);
         }
     }
-    // Stop at the ground plane.
-    if d[1] < 0.0 && o[1] > 0.0 {
-        t1 = t1.min(-o[1] / d[1] / vol.voxel);
-    }
     if t0 >= t1 {
         return (l, trans);
     }
@@ -379,6 +422,7 @@ fn march(
         *ph = p.octave_b.powi(i as i32) * hg(cos, p.phase_g * p.octave_c.powi(i as i32));
     }
     let amb = sky_ambient();
+    let amb_norm: f64 = (0..p.octaves as i32).map(|i| p.octave_b.powi(i)).sum();
     let step = p.step;
     let step_m = step * vol.voxel;
     let mut t = t0 + jitter * step;
@@ -395,13 +439,32 @@ fn march(
             let sigma_t = p.density_scale * rho;
             let sigma_s = p.albedo * sigma_t;
             let tau_sun = p.density_scale * vol.coarse.tau_sun_at(q);
+            let (tau_up, tau_down) = (
+                p.density_scale * vol.coarse.tau_up_at(q),
+                p.density_scale * vol.coarse.tau_down_at(q),
+            );
+            // Light scattered more than once needs a cloud around it to scatter in: the higher
+            // octaves are weighted by the probability of a second interaction, from the optical
+            // depth of the column through this point (an optically thin wisp is single-scattering).
+            let ms = 1.0 - (-(tau_up + tau_down)).exp();
             let mut sun_l = 0.0;
             let mut a_i = 1.0;
-            for ph in &sun_phase[..p.octaves as usize] {
-                sun_l += ph * (-a_i * tau_sun).exp();
+            for (i, ph) in sun_phase[..p.octaves as usize].iter().enumerate() {
+                let w = if i == 0 { 1.0 } else { ms };
+                sun_l += w * ph * (-a_i * tau_sun).exp();
                 a_i *= p.octave_a;
             }
-            let amb_t = (-0.5 * p.density_scale * vol.coarse.tau_up_at(q)).exp() * p.ambient;
+            // The world lights the cloud from every side, the ground side too: half from above,
+            // half from below, through the same octaves as the sun (normalised: a thin wisp
+            // in-scatters the sky's radiance itself).
+            let mut amb_t = 0.0;
+            let (mut a_i, mut b_i) = (1.0, 1.0);
+            for _ in 0..p.octaves {
+                amb_t += b_i * 0.5 * ((-0.5 * a_i * tau_up).exp() + (-0.5 * a_i * tau_down).exp());
+                a_i *= p.octave_a;
+                b_i *= p.octave_b;
+            }
+            let amb_t = amb_t / amb_norm * p.ambient;
             let step_t = (-sigma_t * step_m).exp();
             // Integral of trans * exp(-sigma_t s) * S over the step, S = sigma_s * radiance.
             let k = trans * (1.0 - step_t) / sigma_t * sigma_s;

@@ -19,7 +19,8 @@ pub(crate) struct Volume {
     pub coarse: Coarse,
 }
 
-/// Coarse density (mean over `stride`^3 voxels) and optical depths, per unit `density_scale`.
+/// Coarse density (mean over `stride`^3 voxels) and optical depths (towards the sun, the zenith
+/// and the nadir), per unit `density_scale`.
 pub(crate) struct Coarse {
     pub stride: i32,
     /// Index-space position of voxel (0,0,0) of the coarse grid's first cell.
@@ -28,6 +29,7 @@ pub(crate) struct Coarse {
     pub density: Vec<f32>,
     pub tau_sun: Vec<f32>,
     pub tau_up: Vec<f32>,
+    pub tau_down: Vec<f32>,
 }
 
 impl Volume {
@@ -103,6 +105,7 @@ impl Volume {
                 density: vec![],
                 tau_sun: vec![],
                 tau_up: vec![],
+                tau_down: vec![],
             },
         };
         v.coarse = v.build_coarse(sun);
@@ -224,8 +227,9 @@ impl Volume {
             density,
             tau_sun: vec![0.0; n],
             tau_up: vec![0.0; n],
+            tau_down: vec![0.0; n],
         };
-        // Optical depth (per unit density scale, in metres) along columns towards +y.
+        // Optical depth (per unit density scale, in metres) along columns towards +y and -y.
         let cell_m = stride as f64 * self.voxel;
         for x in 0..dims[0] {
             for z in 0..dims[2] {
@@ -234,6 +238,13 @@ impl Volume {
                     let i = ((x * dims[1] + y) * dims[2] + z) as usize;
                     let d = c.density[i] as f64 * cell_m;
                     c.tau_up[i] = (acc + 0.5 * d) as f32;
+                    acc += d;
+                }
+                let mut acc = 0.0f64;
+                for y in 0..dims[1] {
+                    let i = ((x * dims[1] + y) * dims[2] + z) as usize;
+                    let d = c.density[i] as f64 * cell_m;
+                    c.tau_down[i] = (acc + 0.5 * d) as f32;
                     acc += d;
                 }
             }
@@ -286,6 +297,9 @@ impl Coarse {
     }
     pub fn tau_up_at(&self, q: [f64; 3]) -> f64 {
         self.lerp(&self.tau_up, self.to_cell(q))
+    }
+    pub fn tau_down_at(&self, q: [f64; 3]) -> f64 {
+        self.lerp(&self.tau_down, self.to_cell(q))
     }
 
     /// Marches from coarse-cell point `p` along `d` through the coarse density until it leaves the

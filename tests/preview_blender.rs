@@ -1,0 +1,290 @@
+//! The preview shows what the Blender render shows: a run's preview of its last frame and
+//! `tools/render_blender.py`'s render of the same frame, at the same resolution, have cloud
+//! silhouettes that overlap with IoU >= 0.8 and cloud pixels of mean luminance within 15%.
+//! Skipped, with a note, when `blender` is not on PATH; under `CI=true` a missing Blender fails.
+//!
+//! `quickstart_last_frame` (ignored) measures the same on a full run:
+//!   nimbus run pipelines/quickstart.yaml --out /tmp/q16b
+//!   NIMBUS_COMPARE_RUN=/tmp/q16b cargo test --release --test preview_blender -- --ignored
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// A pixel belongs to the silhouette when its 8-bit RGB differs from the image's background
+/// (median of its four corners) by more than this, summed over the channels: render_blender.py's
+/// coverage test.
+const THRESHOLD: i32 = 24;
+const MIN_IOU: f64 = 0.8;
+const MAX_LUMINANCE_DIFF: f64 = 0.15;
+
+fn blender_available() -> bool {
+    let ok = Command::new("blender")
+        .arg("--version")
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
+    if !ok && std::env::var("CI").as_deref() == Ok("true") {
+        panic!("CI=true but blender is not on PATH: CI must install it (tools/setup.sh --blender)");
+    }
+    ok
+}
+
+// the counts and means are read through Debug, in the messages
+#[allow(dead_code)]
+#[derive(Debug, Clone, Copy)]
+struct Comparison {
+    iou: f64,
+    /// Mean luminance of the preview's cloud pixels over that of Blender's.
+    luminance_ratio: f64,
+    preview_pixels: usize,
+    blender_pixels: usize,
+    preview_luminance: f64,
+    blender_luminance: f64,
+}
+
+fn srgb_to_linear(v: u8) -> f64 {
+    let s = v as f64 / 255.0;
+    if s <= 0.040_45 {
+        s / 12.92
+    } else {
+        ((s + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Relative luminance (Rec. 709 primaries, linear) of an 8-bit sRGB pixel.
+fn luminance(p: [u8; 3]) -> f64 {
+    0.2126 * srgb_to_linear(p[0]) + 0.7152 * srgb_to_linear(p[1]) + 0.0722 * srgb_to_linear(p[2])
+}
+
+/// Pixels that differ from the background (the median of the four corners, per channel).
+/// Blender's Monte Carlo noise is averaged out first with a 3x3 box filter, so the silhouette is
+/// the cloud's, not its speckle's.
+fn silhouette(img: &image::RgbImage) -> Vec<bool> {
+    let (w, h) = img.dimensions();
+    let corners =
+        [(0, 0), (w - 1, 0), (0, h - 1), (w - 1, h - 1)].map(|(x, y)| img.get_pixel(x, y).0);
+    let bg: [i32; 3] = [0, 1, 2].map(|c| {
+        let mut v = corners.map(|p| p[c] as i32);
+        v.sort();
+        (v[1] + v[2]) / 2
+    });
+    let mut mask = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let mut sum = [0i32; 3];
+            let mut n = 0;
+            for yy in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                for xx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                    let p = img.get_pixel(xx, yy).0;
+                    (0..3).for_each(|c| sum[c] += p[c] as i32);
+                    n += 1;
+                }
+            }
+            let d: i32 = (0..3).map(|c| (sum[c] / n - bg[c]).abs()).sum();
+            mask.push(d > THRESHOLD);
+        }
+    }
+    mask
+}
+
+fn compare(preview: &image::RgbImage, blender: &image::RgbImage) -> Comparison {
+    assert_eq!(
+        preview.dimensions(),
+        blender.dimensions(),
+        "the two images must have the same size"
+    );
+    let (a, b) = (silhouette(preview), silhouette(blender));
+    let inter = a.iter().zip(&b).filter(|(x, y)| **x && **y).count();
+    let union = a.iter().zip(&b).filter(|(x, y)| **x || **y).count();
+    let mean_lum = |img: &image::RgbImage, m: &[bool]| {
+        let (s, n) = img
+            .pixels()
+            .zip(m)
+            .filter(|(_, &k)| k)
+            .fold((0.0, 0usize), |(s, n), (p, _)| (s + luminance(p.0), n + 1));
+        s / n.max(1) as f64
+    };
+    let (la, lb) = (mean_lum(preview, &a), mean_lum(blender, &b));
+    Comparison {
+        iou: if union == 0 {
+            0.0
+        } else {
+            inter as f64 / union as f64
+        },
+        luminance_ratio: if lb > 0.0 { la / lb } else { f64::INFINITY },
+        preview_pixels: a.iter().filter(|&&k| k).count(),
+        blender_pixels: b.iter().filter(|&&k| k).count(),
+        preview_luminance: la,
+        blender_luminance: lb,
+    }
+}
+
+/// Renders `run_dir`'s last frame with tools/render_blender.py to `png`.
+fn blender_render(run_dir: &Path, png: &Path, res: [u32; 2], samples: u32) -> serde_json::Value {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let out = Command::new("blender")
+        .args(["-b", "--factory-startup", "--python-exit-code", "1", "-P"])
+        .arg(root.join("tools/render_blender.py"))
+        .arg("--")
+        .arg(run_dir)
+        .arg(png)
+        .args(["--res", &res[0].to_string(), &res[1].to_string()])
+        .args(["--samples", &samples.to_string()])
+        .output()
+        .expect("spawn blender");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let summary = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("NIMBUS_BLENDER "))
+        .unwrap_or_else(|| {
+            panic!(
+                "no summary line from the script:\n{stdout}\n{}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+    assert!(
+        out.status.success(),
+        "blender render failed ({}): {summary}",
+        out.status
+    );
+    serde_json::from_str(summary).expect("summary is JSON")
+}
+
+/// The preview PNG of the manifest's last frame.
+fn last_preview(run_dir: &Path) -> PathBuf {
+    let m = common::manifest(run_dir);
+    let last = m["frames"].as_array().unwrap().last().expect("a frame");
+    let rec = last["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|f| {
+            f["path"]
+                .as_str()
+                .is_some_and(|p| p.starts_with("preview/") && p.ends_with(".png"))
+        })
+        .unwrap_or_else(|| panic!("no preview PNG in the manifest record {last}"));
+    run_dir.join(rec["path"].as_str().unwrap())
+}
+
+fn load(p: &Path) -> image::RgbImage {
+    image::open(p)
+        .unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+        .to_rgb8()
+}
+
+/// Why `c` misses the targets, if it does.
+fn verdict(c: &Comparison) -> Result<(), String> {
+    if c.iou < MIN_IOU {
+        return Err(format!("silhouette IoU {:.3} < {MIN_IOU}: {c:?}", c.iou));
+    }
+    if (c.luminance_ratio - 1.0).abs() > MAX_LUMINANCE_DIFF {
+        return Err(format!(
+            "cloud luminance ratio {:.3} not within {MAX_LUMINANCE_DIFF}: {c:?}",
+            c.luminance_ratio
+        ));
+    }
+    Ok(())
+}
+
+fn check(c: &Comparison) {
+    if let Err(why) = verdict(c) {
+        panic!("{why}");
+    }
+}
+
+#[test]
+fn silhouette_iou_and_luminance_measure_what_they_say() {
+    let bg = image::Rgb([111u8, 144, 196]);
+    let disc = |cx: i32, r: i32, v: u8| {
+        image::RgbImage::from_fn(64, 48, |x, y| {
+            let (dx, dy) = (x as i32 - cx, y as i32 - 24);
+            if dx * dx + dy * dy <= r * r {
+                image::Rgb([v, v, v])
+            } else {
+                bg
+            }
+        })
+    };
+    let a = disc(32, 10, 250);
+    let same = compare(&a, &a);
+    assert!((same.iou - 1.0).abs() < 1e-12 && (same.luminance_ratio - 1.0).abs() < 1e-12);
+    // shifted by one radius: the overlap of two discs at distance r is ~0.24 of their union
+    let shifted = compare(&a, &disc(42, 10, 250));
+    assert!(shifted.iou > 0.15 && shifted.iou < 0.35, "{shifted:?}");
+    // a grey cloud against a white one of the same shape
+    let grey = compare(&disc(32, 10, 180), &a);
+    assert!(grey.iou > 0.85, "{grey:?}");
+    let want = luminance([180; 3]) / luminance([250; 3]);
+    // (the filtered silhouette takes in a ring of edge pixels that are background)
+    assert!(
+        (grey.luminance_ratio - want).abs() < 0.1,
+        "{grey:?} vs {want}"
+    );
+    assert!(verdict(&grey).unwrap_err().contains("luminance"));
+    assert!(verdict(&shifted).unwrap_err().contains("IoU"));
+    assert_eq!(verdict(&same), Ok(()));
+}
+
+/// The quickstart shot at twice its particle spacing and half its resolution (3k particles,
+/// seconds to run): by frame 40 its cloud has formed.
+#[test]
+fn preview_matches_blender_render() {
+    if !blender_available() {
+        eprintln!("note: blender not on PATH, skipping the preview/Blender comparison");
+        return;
+    }
+    const RES: [u32; 2] = [320, 180];
+    let base = Path::new(env!("CARGO_TARGET_TMPDIR")).join("preview_blender");
+    let _ = std::fs::remove_dir_all(&base);
+    std::fs::create_dir_all(&base).unwrap();
+    let run_dir = base.join("run");
+    let out = common::nimbus()
+        .args(["run", "pipelines/quickstart.yaml", "--out"])
+        .arg(&run_dir)
+        .args(["--set", "output.frames.end=40"])
+        .args(["--set", "output.preview.enabled=true"])
+        .args([
+            "--set",
+            &format!("output.preview.resolution=[{},{}]", RES[0], RES[1]),
+        ])
+        .args([
+            "--set",
+            "domain.spacing=100",
+            "--set",
+            "export.voxel_size=50",
+        ])
+        .output()
+        .expect("spawn nimbus");
+    assert!(out.status.success(), "{}", common::text(&out));
+    let png = base.join("blender.png");
+    let summary = blender_render(&run_dir, &png, RES, 16);
+    assert_eq!(summary["frame"], 40, "{summary}");
+    let c = compare(&load(&last_preview(&run_dir)), &load(&png));
+    eprintln!("preview vs Blender, reduced quickstart frame 40 at {RES:?}: {c:?}");
+    // a cloud, not a speck: the comparison means something
+    assert!(c.blender_pixels > 500, "{c:?}");
+    check(&c);
+}
+
+#[test]
+#[ignore = "needs a full quickstart run: NIMBUS_COMPARE_RUN=DIR"]
+fn quickstart_last_frame() {
+    let Some(run_dir) = std::env::var_os("NIMBUS_COMPARE_RUN").map(PathBuf::from) else {
+        panic!("set NIMBUS_COMPARE_RUN to a run directory of pipelines/quickstart.yaml");
+    };
+    assert!(blender_available(), "blender is not on PATH");
+    let preview = load(&last_preview(&run_dir));
+    let png = std::env::var_os("NIMBUS_COMPARE_PNG")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_TARGET_TMPDIR")).join("quickstart_blender.png"));
+    let summary = blender_render(&run_dir, &png, [preview.width(), preview.height()], 16);
+    let c = compare(&preview, &load(&png));
+    eprintln!(
+        "preview vs Blender, {} frame {}: {c:?}",
+        run_dir.display(),
+        summary["frame"]
+    );
+    check(&c);
+}
