@@ -3,6 +3,8 @@
 //! through `tools/render_blender.py`, with no scene fix-up for the axis or the velocity.
 //! Skipped, with a note, when `blender` is not on PATH; under `CI=true` (`.ci/run`, which
 //! installs Blender) a missing Blender fails the tests instead.
+mod common;
+use common::{blender_available, render_blender};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -12,18 +14,6 @@ const FRAMES_END: u32 = 40;
 /// Small image and few samples: this checks that Blender reads and renders the files, not looks.
 const RES: [u32; 2] = [160, 120];
 const SAMPLES: u32 = 4;
-
-fn blender_available() -> bool {
-    let ok = Command::new("blender")
-        .arg("--version")
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !ok && std::env::var("CI").as_deref() == Ok("true") {
-        panic!("CI=true but blender is not on PATH: CI must install it (tools/setup.sh --blender)");
-    }
-    ok
-}
 
 /// (width, height) from a PNG's IHDR chunk.
 fn png_size(bytes: &[u8]) -> Option<(u32, u32)> {
@@ -88,33 +78,22 @@ fn quickstart_sequence_renders_in_blender() {
     );
 
     let png = base.join("frame.png");
-    let out = Command::new("blender")
-        .args(["-b", "--factory-startup", "--python-exit-code", "1", "-P"])
-        .arg(root.join("tools/render_blender.py"))
-        .arg("--")
-        .arg(&run_dir)
-        .arg(&png)
-        .args(["--res", &RES[0].to_string(), &RES[1].to_string()])
-        .args(["--samples", &SAMPLES.to_string()])
-        .arg("--motion-blur")
-        .output()
-        .expect("spawn blender");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let summary = stdout
-        .lines()
-        .find_map(|l| l.strip_prefix("NIMBUS_BLENDER "))
-        .unwrap_or_else(|| {
-            panic!(
-                "no summary line from the script:\n{stdout}\n{}",
-                String::from_utf8_lossy(&out.stderr)
-            )
-        });
+    let (res, samples) = (RES.map(|v| v.to_string()), SAMPLES.to_string());
+    let (out, summary) = render_blender([
+        run_dir.as_os_str(),
+        png.as_os_str(),
+        "--res".as_ref(),
+        res[0].as_ref(),
+        res[1].as_ref(),
+        "--samples".as_ref(),
+        samples.as_ref(),
+        "--motion-blur".as_ref(),
+    ]);
     assert!(
         out.status.success(),
         "blender render failed ({}): {summary}",
         out.status
     );
-    let summary: serde_json::Value = serde_json::from_str(summary).expect("summary is JSON");
     assert_eq!(summary["ok"], true, "{summary}");
     // the whole sequence was imported as one Volume, and the last frame is what was rendered
     assert_eq!(summary["volume"]["is_sequence"], true, "{summary}");
@@ -223,7 +202,6 @@ fn script_fails_on_a_file_that_is_not_vdb() {
         eprintln!("note: blender not on PATH, skipping the Blender render test");
         return;
     }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let base = fresh_dir("blender_render_bad");
     let bad = base.join("bad.0001.vdb");
     std::fs::write(
@@ -232,20 +210,7 @@ fn script_fails_on_a_file_that_is_not_vdb() {
     )
     .expect("write");
     let png = base.join("bad.png");
-    let out = Command::new("blender")
-        .args(["-b", "--factory-startup", "--python-exit-code", "1", "-P"])
-        .arg(root.join("tools/render_blender.py"))
-        .arg("--")
-        .arg(&bad)
-        .arg(&png)
-        .output()
-        .expect("spawn blender");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let summary = stdout
-        .lines()
-        .find_map(|l| l.strip_prefix("NIMBUS_BLENDER "))
-        .expect("summary line");
-    let summary: serde_json::Value = serde_json::from_str(summary).expect("summary is JSON");
+    let (out, summary) = render_blender([&bad, &png]);
     assert_eq!(out.status.code(), Some(1), "{summary}");
     assert_eq!(summary["ok"], false, "{summary}");
     assert!(

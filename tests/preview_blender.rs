@@ -7,9 +7,9 @@
 //!   nimbus run pipelines/quickstart.yaml --out /tmp/q16b
 //!   NIMBUS_COMPARE_RUN=/tmp/q16b cargo test --release --test preview_blender -- --ignored
 mod common;
+use common::blender_available;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 /// A pixel belongs to the silhouette when its 8-bit RGB differs from the image's background
 /// (median of its four corners) by more than this, summed over the channels: render_blender.py's
@@ -17,18 +17,6 @@ use std::process::Command;
 const THRESHOLD: i32 = 24;
 const MIN_IOU: f64 = 0.8;
 const MAX_LUMINANCE_DIFF: f64 = 0.15;
-
-fn blender_available() -> bool {
-    let ok = Command::new("blender")
-        .arg("--version")
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !ok && std::env::var("CI").as_deref() == Ok("true") {
-        panic!("CI=true but blender is not on PATH: CI must install it (tools/setup.sh --blender)");
-    }
-    ok
-}
 
 // the counts and means are read through Debug, in the messages
 #[allow(dead_code)]
@@ -122,33 +110,22 @@ fn compare(preview: &image::RgbImage, blender: &image::RgbImage) -> Comparison {
 
 /// Renders `run_dir`'s last frame with tools/render_blender.py to `png`.
 fn blender_render(run_dir: &Path, png: &Path, res: [u32; 2], samples: u32) -> serde_json::Value {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let out = Command::new("blender")
-        .args(["-b", "--factory-startup", "--python-exit-code", "1", "-P"])
-        .arg(root.join("tools/render_blender.py"))
-        .arg("--")
-        .arg(run_dir)
-        .arg(png)
-        .args(["--res", &res[0].to_string(), &res[1].to_string()])
-        .args(["--samples", &samples.to_string()])
-        .output()
-        .expect("spawn blender");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let summary = stdout
-        .lines()
-        .find_map(|l| l.strip_prefix("NIMBUS_BLENDER "))
-        .unwrap_or_else(|| {
-            panic!(
-                "no summary line from the script:\n{stdout}\n{}",
-                String::from_utf8_lossy(&out.stderr)
-            )
-        });
+    let (res, samples) = (res.map(|v| v.to_string()), samples.to_string());
+    let (out, summary) = common::render_blender([
+        run_dir.as_os_str(),
+        png.as_os_str(),
+        "--res".as_ref(),
+        res[0].as_ref(),
+        res[1].as_ref(),
+        "--samples".as_ref(),
+        samples.as_ref(),
+    ]);
     assert!(
         out.status.success(),
         "blender render failed ({}): {summary}",
         out.status
     );
-    serde_json::from_str(summary).expect("summary is JSON")
+    summary
 }
 
 /// The preview PNG of the manifest's last frame.

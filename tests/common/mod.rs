@@ -93,3 +93,45 @@ pub fn kill(pid: u32, sig: &str) {
         .unwrap();
     assert!(ok.success());
 }
+
+/// Whether Blender runs here. Under CI=true (where .ci/run installs it) a missing Blender fails
+/// the test instead of skipping it.
+pub fn blender_available() -> bool {
+    let ok = Command::new("blender")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok && std::env::var("CI").as_deref() == Ok("true") {
+        panic!("CI=true but blender is not on PATH: CI must install it (tools/setup.sh --blender)");
+    }
+    ok
+}
+
+/// Runs tools/render_blender.py headless with `args` (after `--`); returns the process output
+/// and the script's `NIMBUS_BLENDER` JSON summary line (a missing line fails the test).
+pub fn render_blender<I, S>(args: I) -> (Output, serde_json::Value)
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<std::ffi::OsStr>,
+{
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let out = Command::new("blender")
+        .args(["-b", "--factory-startup", "--python-exit-code", "1", "-P"])
+        .arg(root.join("tools/render_blender.py"))
+        .arg("--")
+        .args(args)
+        .output()
+        .expect("spawn blender");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let summary = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("NIMBUS_BLENDER "))
+        .unwrap_or_else(|| {
+            panic!(
+                "no summary line from the script:\n{stdout}\n{}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+    let summary = serde_json::from_str(summary).expect("summary is JSON");
+    (out, summary)
+}
