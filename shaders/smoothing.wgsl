@@ -11,6 +11,14 @@
 // Walls: insulated (S.fixed_walls = 0: the boundary particles are left out, no heat crosses the
 // floor or the ceiling) or fixed-temperature (neighbours with their own temperature boundary.w,
 // level 0). kappa is the per-iteration share of the configured rate (SmoothParams::new).
+//
+// Vapor mixing (entrainment, docs/PHYSICS.md "Vapor mixing") rides on the same neighbour loop:
+//   v*_i = v_i + vapor_rate sum_j e_ij a_ij (v_i - v_j)   (vapor_rate = 2 D dt / iterations)
+// an explicit step of dv/dt = D lap v over the fluid pairs of which at least one holds cloud
+// water (e_ij = 1; clear air, and the stable inversion over it, does not diffuse); no vapor
+// crosses a wall. m_i e_ij a_ij = e_ij m_i V_j g_ij / (r^2 + eps) is symmetric in i and j, so
+// the pair terms cancel in sum_i m_i v_i: mixing moves vapor, it creates none. Validation keeps
+// the step convex.
 //!include shared/common.wgsl
 
 struct SmoothParams {
@@ -20,7 +28,7 @@ struct SmoothParams {
     epsilon: f32,
     volume0: f32,
     fixed_walls: u32,
-    _pad1: u32,
+    vapor_rate: f32,
     _pad2: u32,
 }
 
@@ -71,6 +79,9 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
     let li = info[i].y;
     let hi = radius_of_level(li);
     let ti = th.x;
+    let vi = th.y;
+    let cloudy_i = th.z > 0.0;
+    var cv = 0.0;
     var sum_a = 0.0;
     var sum_a2 = 0.0;
     var c = 0.0;
@@ -97,7 +108,9 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                     let a = laplacian_coefficient(r2, hi, fi, hj, spiky_factor(f0, lj), S.volume0 * exp2(-f32(lj)));
                     sum_a += a;
                     sum_a2 += a * a;
-                    c += a * (ti - thermo_in[j].x);
+                    let tj = thermo_in[j];
+                    c += a * (ti - tj.x);
+                    if (cloudy_i || tj.z > 0.0) { cv += a * (vi - tj.y); }
                 }
                 if (S.fixed_walls == 0u) { continue; }
                 let k_end = boundary_cell_start[e.y];
@@ -120,5 +133,6 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
         // T* = T + kappa lambda S with lambda = -C / g.
         out.x = ti - S.kappa * c * sum_a / g;
     }
+    out.y = vi + S.vapor_rate * cv;
     thermo_out[i] = out;
 }

@@ -1,6 +1,6 @@
 // Cloud thermodynamics of one substep, per particle (paper section 4, in the paper's order
 // after the PBF move and the temperature smoothing):
-//   ground heating (eq. 5) -> buoyancy and cloud weight (eq. 6) -> adiabatic cooling (eq. 7)
+//   ground heating (eq. 5, and the ground's evaporation) -> buoyancy and cloud weight (eq. 6) -> adiabatic cooling (eq. 7)
 //   -> phase transition (eqs. 8-10) -> latent heat (eq. 11).
 // f64 mirror: src/sim/reference/thermo.rs (`thermo_step`); noise mirror: src/sim/noise.rs.
 // No neighbours are read, so every particle is independent (deterministic).
@@ -45,7 +45,8 @@ struct ThermoParams {
     // (centre x, centre z, radius, strength K/s)
     sources: array<vec4<f32>, 8>,
     layer_height: f32,
-    _pad1: u32,
+    // vapor per kelvin of ground heating, 1 / (Bowen ratio Q) (0 = dry ground)
+    ground_vapor: f32,
     _pad2: u32,
     _pad3: u32,
     // the profile (m/s^2) at the layer centres, four a row (sim::thermo::LayerBuoyancy)
@@ -151,10 +152,14 @@ fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     var u = vel[i];
     let th = thermo[i];
     var temp = th.x;
+    var v = th.y;
 
-    // eq. 5: dT/dt = Se near the ground, in a noise pattern over the ground that drifts in time.
+    // eq. 5: dT/dt = Se near the ground, in a noise pattern over the ground that drifts in time;
+    // a moist ground also evaporates Se / (Bowen ratio Q) of vapor (not in the paper).
     if (p.y < P.heat_height) {
-        temp = temp + P.dt * heating_rate(p.x, p.z, P.time);
+        let heat = P.dt * heating_rate(p.x, p.z, P.time);
+        temp = temp + heat;
+        v = v + heat * P.ground_vapor;
     }
 
     // eq. 6: F = kb (T - T0) / T0 j - kg w j, applied as a velocity change dt F, less its
@@ -171,7 +176,6 @@ fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
 
     // eqs. 8-10: w moves towards v - gamma, gamma = min(A exp(B / (T + C)), v + w). The total
     // s = v + w is kept: w is clamped into [0, s] and v = s - w, so neither goes negative.
-    let v = th.y;
     let w = th.z;
     let s = v + w;
     let gamma = min(P.saturation_a * exp(P.saturation_b / max(temp + P.saturation_c, 1e-3)), s);

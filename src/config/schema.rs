@@ -293,6 +293,9 @@ pub struct PhysicsConfig {
     pub latent_heat: f64,
     /// Initial vapor as a fraction of saturation (kv, section 5).
     pub initial_vapor: f64,
+    /// Bowen ratio of the heated ground (sensible over latent heat flux): with it the ground
+    /// evaporates heating / (bowen_ratio latent_heat) of vapor; `null` = dry ground (paper).
+    pub bowen_ratio: Option<f64>,
     /// Maximum initial speed (m/s), random directions.
     pub initial_speed: f64,
     pub smoothing: SmoothingConfig,
@@ -319,6 +322,7 @@ impl Default for PhysicsConfig {
             saturation_c: -29.65,
             latent_heat: 2500.0,
             initial_vapor: 0.8,
+            bowen_ratio: None,
             initial_speed: 0.5,
             smoothing: SmoothingConfig::default(),
         }
@@ -340,6 +344,9 @@ pub struct EnvironmentConfig {
     pub inversion_strength: f64,
     /// K per metre above the inversion; `null` = `lapse_rate`.
     pub lapse_rate_above: Option<f64>,
+    /// Initial vapor above the inversion as a fraction of saturation (the dry free air over
+    /// the boundary layer); linear across the inversion layer; `null` = `initial_vapor`.
+    pub humidity_above: Option<f64>,
 }
 impl Default for EnvironmentConfig {
     fn default() -> Self {
@@ -349,6 +356,7 @@ impl Default for EnvironmentConfig {
             inversion_depth: 100.0,
             inversion_strength: 0.0,
             lapse_rate_above: None,
+            humidity_above: None,
         }
     }
 }
@@ -419,6 +427,9 @@ pub struct SmoothingConfig {
     pub epsilon: f64,
     /// Jacobi iterations per substep; each applies its share of kappa.
     pub iterations: u32,
+    /// Diffusivity D (m^2/s) of the vapor mixing between neighbouring particles that the same
+    /// pass applies (entrainment at cloud edges); 0 = none, as in the paper.
+    pub vapor_diffusivity: f64,
 }
 impl Default for SmoothingConfig {
     fn default() -> Self {
@@ -428,6 +439,7 @@ impl Default for SmoothingConfig {
             kappa: 0.1,
             epsilon: 1.0e-2,
             iterations: 1,
+            vapor_diffusivity: 0.0,
         }
     }
 }
@@ -659,6 +671,22 @@ impl EnvironmentConfig {
         self.lapse_rate_above.unwrap_or(self.lapse_rate)
     }
     /// Environment temperature T0(y) (K) for a ground temperature `ground` (K).
+    /// Initial vapor at height y as a fraction of saturation: `ground` (`initial_vapor`) below
+    /// the inversion, `humidity_above` above it, linear across the inversion layer.
+    pub fn humidity(&self, ground: f64, y: f64) -> f64 {
+        let (Some(base), Some(above)) = (self.inversion_height, self.humidity_above) else {
+            return ground;
+        };
+        let f = if self.inversion_depth > 0.0 {
+            ((y - base) / self.inversion_depth).clamp(0.0, 1.0)
+        } else if y > base {
+            1.0
+        } else {
+            0.0
+        };
+        ground + (above - ground) * f
+    }
+
     pub fn temperature(&self, ground: f64, y: f64) -> f64 {
         let Some(base) = self.inversion_height else {
             return ground - self.lapse_rate * y;

@@ -92,6 +92,8 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("physics.environment.inversion_depth", 0.0, 1.0e5),
     closed("physics.environment.inversion_strength", -100.0, 100.0),
     closed("physics.environment.lapse_rate_above", -0.1, 0.1),
+    closed("physics.environment.humidity_above", 0.0, 2.0),
+    closed("physics.bowen_ratio", 0.05, 100.0),
     closed("physics.sources[].center", 0.0, 1.0e5),
     above("physics.sources[].radius", 0.0, 1.0e5),
     closed("physics.sources[].strength", 0.0, 10.0),
@@ -115,6 +117,7 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("physics.initial_speed", 0.0, 1000.0),
     above("physics.smoothing.kappa", 0.0, 1.0),
     above("physics.smoothing.epsilon", 0.0, 1.0e6),
+    closed("physics.smoothing.vapor_diffusivity", 0.0, 1.0e4),
     above("adaptive.kp", 0.0, 1000.0),
     above("adaptive.kc", 0.0, 1.0e9),
     closed("adaptive.split_threshold", 0.0, 1000.0),
@@ -223,6 +226,10 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         ("physics.initial_speed", ph.initial_speed),
         ("physics.smoothing.kappa", ph.smoothing.kappa),
         ("physics.smoothing.epsilon", ph.smoothing.epsilon),
+        (
+            "physics.smoothing.vapor_diffusivity",
+            ph.smoothing.vapor_diffusivity,
+        ),
         ("adaptive.kp", a.kp),
         ("adaptive.kc", a.kc),
         ("adaptive.split_threshold", a.split_threshold),
@@ -253,6 +260,8 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
     for (key, x) in [
         ("physics.environment.inversion_height", env.inversion_height),
         ("physics.environment.lapse_rate_above", env.lapse_rate_above),
+        ("physics.environment.humidity_above", env.humidity_above),
+        ("physics.bowen_ratio", ph.bowen_ratio),
     ] {
         if let Some(x) = x {
             v.push((key.to_string(), key, x));
@@ -649,8 +658,54 @@ fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
             }
         }
     }
+    if p.bowen_ratio.is_some() && p.latent_heat <= 0.0 {
+        k.fail(
+            &["physics.bowen_ratio"],
+            "sets the evaporation against the latent heat: physics.latent_heat must be above 0"
+                .to_string(),
+        );
+    }
+    if env.humidity_above.is_some() && env.inversion_height.is_none() {
+        k.fail(
+            &["physics.environment.humidity_above"],
+            "is the humidity above the inversion: set physics.environment.inversion_height too"
+                .to_string(),
+        );
+    }
     let sm = &p.smoothing;
     k.uint_within("physics.smoothing.iterations", sm.iterations, 1, 100);
+    // The explicit vapor-mixing step is convex (no vapor goes negative) while
+    // D dt / iterations <= h^2 / 40 for the smallest kernel radius h: the SPH Laplacian's
+    // diagonal is about 15 / h^2 on a uniform lattice, so this leaves a margin of 1.3 for
+    // mixed levels. dt is at most frame_seconds / substeps (the CFL control only shortens it).
+    if sm.vapor_diffusivity > 0.0 && sm.iterations >= 1 && c.output.substeps >= 1 {
+        let levels = if c.adaptive.enabled {
+            c.adaptive.max_level
+        } else {
+            0
+        };
+        let h = c.domain.spacing * c.domain.kernel_ratio * (-(levels as f64) / 3.0).exp2();
+        let step = sm.vapor_diffusivity * c.output.frame_seconds
+            / (c.output.substeps as f64 * sm.iterations as f64);
+        let limit = h * h / 40.0;
+        if step.is_finite() && limit.is_finite() && step > limit {
+            let need = (step / limit * sm.iterations as f64).ceil();
+            k.fail(
+                &["physics.smoothing.vapor_diffusivity"],
+                format!(
+                    "vapor mixing of {} m^2/s over substeps of {} s takes steps of {} m^2, more \
+                     than the stable h^2/40 = {} m^2 of the smallest particles (h = {} m); \
+                     raise physics.smoothing.iterations to {} or output.substeps, or lower it",
+                    num(sm.vapor_diffusivity),
+                    num(c.output.frame_seconds / c.output.substeps as f64),
+                    num(step),
+                    num(limit),
+                    num(h),
+                    num(need)
+                ),
+            );
+        }
+    }
 
     // The environment must stay above absolute zero and above -C (eq. 10 divides by T + C).
     let height = c.domain.size[1];
@@ -859,6 +914,22 @@ mod tests {
             (
                 |c| c.physics.smoothing.kappa = 1.5,
                 "physics.smoothing.kappa",
+            ),
+            (
+                |c| c.physics.smoothing.vapor_diffusivity = 1000.0,
+                "physics.smoothing.vapor_diffusivity",
+            ),
+            (
+                |c| c.physics.environment.humidity_above = Some(0.3),
+                "physics.environment.humidity_above",
+            ),
+            (|c| c.physics.bowen_ratio = Some(0.0), "physics.bowen_ratio"),
+            (
+                |c| {
+                    c.physics.bowen_ratio = Some(0.5);
+                    c.physics.latent_heat = 0.0
+                },
+                "physics.bowen_ratio",
             ),
             (
                 |c| c.adaptive.merge_threshold = 0.5,

@@ -212,6 +212,8 @@ fn cloud_quantile(pts: &mut [(f64, f64)], total: f64, q: f64) -> f64 {
 ///   one frame to the next is the heat that stayed in the air;
 /// - `heat_input_mean` (K): the mass-weighted mean heating of this frame, estimated as the
 ///   heating rate of eq. 5 (with the sources) at the frame-end state times frame_seconds;
+/// - `water_input` (kg): the vapor a moist ground (`physics.bowen_ratio`) evaporated this
+///   frame, estimated the same way (0 over a dry ground): the expected rise of `total_water`;
 /// - `clamped_particles`: particles at the speed clamp (|v| >= 0.999 solver.max_speed).
 pub fn atmosphere_diagnostics(
     state: &ParticleState,
@@ -290,6 +292,10 @@ pub fn atmosphere_diagnostics(
     out.insert(
         "heat_input_mean".into(),
         mean(heating) * cfg.output.frame_seconds,
+    );
+    out.insert(
+        "water_input".into(),
+        heating * heat.ground_vapor as f64 * particle_mass0(cfg) * cfg.output.frame_seconds,
     );
     out.insert("clamped_particles".into(), clamped as f64);
     out

@@ -8,7 +8,7 @@
 use crate::config::ShotConfig;
 use crate::sim::grid_params::GridParams;
 use crate::sim::reference::kernels::poly6;
-use crate::sim::thermo::environment_temperature;
+use crate::sim::thermo::{environment_temperature, initial_thermo};
 use crate::sim::ParticleState;
 
 /// Particles per axis of the initial lattice and its spacing per axis: `round(size / d)` cells
@@ -60,12 +60,6 @@ pub fn hash_uniform(seed: u64, index: u64, draw: u64) -> f64 {
     (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
 }
 
-/// Saturation mixing ratio of eq. 10.
-pub fn saturation(cfg: &ShotConfig, t: f64) -> f64 {
-    let p = &cfg.physics;
-    p.saturation_a * (p.saturation_b / (t + p.saturation_c)).exp()
-}
-
 /// The fluid particles: a uniform lattice filling the box, random velocity directions with speeds
 /// uniform in [0, initial_speed], T = T0(y), cloud w = 0, vapor v = kv * gamma(T), level 0, id = index.
 pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
@@ -96,11 +90,9 @@ pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
                     speed * cos_t,
                     speed * sin_t * phi.sin(),
                 ];
-                let t = environment_temperature(&cfg.physics, p[1]);
-                let vapor = cfg.physics.initial_vapor * saturation(cfg, t);
                 s.pos.push([p[0] as f32, p[1] as f32, p[2] as f32, 0.0]);
                 s.vel.push([v[0] as f32, v[1] as f32, v[2] as f32, 0.0]);
-                s.thermo.push([t as f32, vapor as f32, 0.0, 0.0]);
+                s.thermo.push(initial_thermo(&cfg.physics, p[1]));
                 s.info.push([idx as u32, 0]);
             }
         }

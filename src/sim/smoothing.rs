@@ -5,8 +5,9 @@
 //! `sim::reference::smoothing::smooth_temperature`) reads the temperatures and writes the
 //! smoothed ones into a scratch buffer owned by the stage, which is then copied back into
 //! `thermo`; `physics.smoothing.iterations` such iterations run per substep, none when
-//! `physics.smoothing.enabled` is false. Neighbours come from the cell table (27 cells,
-//! minimum-image displacement); with `physics.smoothing.walls: fixed` the boundary particles take
+//! `physics.smoothing.enabled` is false and `physics.smoothing.vapor_diffusivity` is 0 (the same
+//! pass mixes vapor between neighbours, docs/PHYSICS.md "Vapor mixing"). Neighbours come from
+//! the cell table (27 cells, minimum-image displacement); with `physics.smoothing.walls: fixed` the boundary particles take
 //! part with their fixed temperature, by default (insulated) they are left out.
 //!
 //! Usage: `let mut stage = SmoothingStage::new(&ctx, &cfg)?;` once, then per substep
@@ -35,7 +36,9 @@ pub struct SmoothParams {
     pub volume0: f32,
     /// 1: the walls hold their temperature; 0: insulated walls (no heat crosses them).
     pub fixed_walls: u32,
-    pub _pad1: u32,
+    /// 2 D dt / iterations (m^2): one iteration's explicit step of vapor mixing with
+    /// diffusivity D = `physics.smoothing.vapor_diffusivity` (0 = off).
+    pub vapor_rate: f32,
     pub _pad2: u32,
 }
 
@@ -46,15 +49,21 @@ impl SmoothParams {
     /// substeps as at 8 (docs/PHYSICS.md "Substeps").
     pub fn new(cfg: &ShotConfig, count: u32, dt: f64) -> Self {
         let s = &cfg.physics.smoothing;
-        let share = dt / (cfg.solver.reference_step * s.iterations.max(1) as f64);
+        let iterations = s.iterations.max(1) as f64;
+        let share = dt / (cfg.solver.reference_step * iterations);
         Self {
             count,
             h0: (cfg.domain.spacing * cfg.domain.kernel_ratio) as f32,
-            kappa: rate_share(s.kappa, share) as f32,
+            // Temperature smoothing off while vapor mixing is on: the pass runs for the vapor.
+            kappa: if s.enabled {
+                rate_share(s.kappa, share) as f32
+            } else {
+                0.0
+            },
             epsilon: s.epsilon as f32,
             volume0: cfg.domain.spacing.powi(3) as f32,
             fixed_walls: (s.walls == crate::config::WallHeat::Fixed) as u32,
-            _pad1: 0,
+            vapor_rate: (2.0 * s.vapor_diffusivity * dt / iterations) as f32,
             _pad2: 0,
         }
     }
@@ -99,10 +108,11 @@ impl SmoothingStage {
         })
     }
 
-    /// Iterations per substep the config asks for (0 when smoothing is disabled).
+    /// Iterations per substep the config asks for (0 when neither temperature smoothing nor
+    /// vapor mixing is on).
     pub fn iterations(&self) -> u32 {
         let s = &self.cfg.physics.smoothing;
-        if s.enabled {
+        if s.enabled || s.vapor_diffusivity > 0.0 {
             s.iterations
         } else {
             0

@@ -81,7 +81,10 @@ pub struct ThermoParams {
     pub sources: [[f32; 4]; MAX_SOURCES],
     /// Thickness of a layer (m); the profile's values sit at the layer centres.
     pub layer_height: f32,
-    pub _pad: [u32; 3],
+    /// Vapor the ground evaporates per kelvin of heating, 1 / (Bowen ratio Q) (kg/kg per K;
+    /// 0 = dry ground, `physics.bowen_ratio`).
+    pub ground_vapor: f32,
+    pub _pad: [u32; 2],
     /// The profile (m/s^2), four layers a row: [`LayerBuoyancy`].
     pub layers: [[f32; 4]; MAX_LAYERS / 4],
 }
@@ -142,7 +145,8 @@ impl ThermoParams {
                 })
             }),
             layer_height: 0.0,
-            _pad: [0; 3],
+            ground_vapor: p.bowen_ratio.map_or(0.0, |b| 1.0 / (b * p.latent_heat)) as f32,
+            _pad: [0; 2],
             layers: [[0.0; 4]; MAX_LAYERS / 4],
         }
     }
@@ -222,13 +226,14 @@ pub fn saturation(p: &PhysicsConfig, temperature: f64) -> f64 {
     p.saturation_a * (p.saturation_b / (temperature + p.saturation_c).max(1e-3)).exp()
 }
 
-/// Initial thermo of a particle at height y (section 5): T = T0(y), v = kv A exp(B / (T + C)),
+/// Initial thermo of a particle at height y (section 5): T = T0(y), v = kv(y) A exp(B / (T + C))
+/// (kv(y) = `initial_vapor`, or `environment.humidity_above` over the inversion),
 /// w = 0, shape energy 0.
 pub fn initial_thermo(p: &PhysicsConfig, y: f64) -> [f32; 4] {
     let t = environment_temperature(p, y);
     [
         t as f32,
-        (p.initial_vapor * saturation(p, t)) as f32,
+        (p.environment.humidity(p.initial_vapor, y) * saturation(p, t)) as f32,
         0.0,
         0.0,
     ]

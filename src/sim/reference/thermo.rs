@@ -93,8 +93,10 @@ pub fn thermo_step_particle(
 ) {
     let dt = p.dt as f64;
     let mut temp = th[0];
-    // eq. 5
-    temp += dt * heating_rate(p, pos);
+    // eq. 5, and the ground's evaporation
+    let heat = dt * heating_rate(p, pos);
+    temp += heat;
+    th[1] += heat * p.ground_vapor as f64;
     // eq. 6
     let t0 = environment_temperature(p, pos[1]);
     let force = p.buoyancy as f64 * (temp - t0) / t0 - p.cloud_weight as f64 * th[2];
