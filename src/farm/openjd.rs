@@ -32,7 +32,7 @@ pub const RUN_LOG: &str = "logs/openjd_run.log";
 /// Longest notice OpenJD allows before it kills a canceled action (`notifyPeriodInSeconds`).
 pub const MAX_NOTIFY_S: u32 = 600;
 
-/// Where `--run-local` finds the `openjd` command: `NIMBUS_OPENJD`, else `openjd` on PATH.
+/// Where `--run-local` finds the `openjd` command first (see [`find_openjd`]).
 pub const OPENJD_ENV: &str = "NIMBUS_OPENJD";
 
 /// The OpenJD step of a plan job.
@@ -382,8 +382,11 @@ pub fn write(plan: &FarmPlan, farm_dir: &Path) -> Result<PathBuf> {
     Ok(path)
 }
 
-/// The `openjd` command: `NIMBUS_OPENJD`, else `openjd` on PATH; missing is exit 3 with the
-/// remedy.
+/// Where `tools/setup.sh --farm` installs the openjd CLI (a venv; `NIMBUS_OPENJD_VENV` there).
+pub const DEFAULT_VENV: &str = "/opt/nimbus/openjd";
+
+/// The `openjd` command: `NIMBUS_OPENJD`, else `openjd` on PATH, else the one tools/setup.sh
+/// --farm installs (`/opt/nimbus/openjd/bin/openjd`); missing is exit 3 with the remedy.
 pub fn find_openjd() -> Result<PathBuf> {
     if let Some(p) = std::env::var_os(OPENJD_ENV) {
         let p = PathBuf::from(p);
@@ -401,6 +404,7 @@ pub fn find_openjd() -> Result<PathBuf> {
                 .map(|d| d.join("openjd"))
                 .find(|p| p.is_file())
         })
+        .or_else(|| Some(Path::new(DEFAULT_VENV).join("bin/openjd")).filter(|p| p.is_file()))
         .ok_or_else(|| Error::Runtime(format!("openjd not found on PATH: {REMEDY}")))
 }
 
