@@ -8,7 +8,9 @@
 //!    interrupted, and running the template again (what a farm manager's task retry does)
 //!    resumes it until it is complete: frames byte-identical, none simulated twice.
 //!
-//! Skipped, with a note, without the openjd CLI (a failure under CI=true).
+//! 3. with `--render`, the Render step: Blender renders every (wedge, frame) task.
+//!
+//! Skipped, with a note, without the openjd CLI (or, for 3, Blender): a failure under CI=true.
 mod common;
 use common::{nimbus, openjd_cli, sample, text};
 use serde_json::Value;
@@ -175,12 +177,13 @@ fn openjd_timeout_stops_a_wedge_at_a_checkpoint_and_a_retry_resumes_it() {
     let local = base.join("local");
     local_run(&config, &local, &[]);
 
-    // 8 s per task: a 6 s timeout, then SIGTERM and 2 s to checkpoint; the shot takes longer
+    // 11 s per task: a 6 s timeout, then SIGTERM and 5 s to finish the frame and checkpoint
+    // (a loaded machine needs more than 2); the shot takes longer than 6 s
     let farm = base.join("farm");
     let o = nimbus()
         .args(["farm", "submit", "--backend", "openjd", "--run-local"])
         .arg(&config)
-        .args(["--time-limit", "0:08", "--signal-margin", "2"])
+        .args(["--time-limit", "0:11", "--signal-margin", "5"])
         .arg("--out")
         .arg(&farm)
         .env("NIMBUS_OPENJD", &openjd)
@@ -246,4 +249,50 @@ fn openjd_timeout_stops_a_wedge_at_a_checkpoint_and_a_retry_resumes_it() {
     assert!(seen[1..].iter().all(|n| *n == 1), "{seen:?}");
     assert_eq!(read_json(&farm.join("farm_report.json"))["complete"], true);
     assert_eq!(farm_status(&farm)["wedges"][0]["state"], "done");
+}
+
+/// With `--render`: the Render step (Blender through tools/render_blender.py) under
+/// `openjd run`, one task per (wedge, frame), every frame rendered and counted in the report.
+#[test]
+fn openjd_run_renders_every_frame_with_blender() {
+    let Some(openjd) = openjd_cli() else {
+        eprintln!("note: the openjd CLI is not installed (tools/setup.sh --farm); skipping");
+        return;
+    };
+    if !common::blender_available() {
+        eprintln!("note: blender is not on PATH (tools/setup.sh --blender); skipping");
+        return;
+    }
+    let base = fresh_dir("farm_openjd_render");
+    let config = base.join("shot.yaml");
+    let tiny = std::fs::read_to_string(sample("tiny.yaml")).unwrap();
+    std::fs::write(&config, tiny.replace("end: 8", "end: 2")).unwrap();
+    let farm = base.join("farm");
+    let o = nimbus()
+        .args([
+            "farm",
+            "submit",
+            "--backend",
+            "openjd",
+            "--run-local",
+            "--render",
+        ])
+        .arg(&config)
+        .arg("--out")
+        .arg(&farm)
+        .env("NIMBUS_OPENJD", &openjd)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let t = read_json(&farm.join("template.json"));
+    let render = &t["steps"][1];
+    assert_eq!(render["name"], "Render");
+    assert_eq!(render["parameterSpace"]["combination"], "Wedge * Frame");
+    for f in ["tiny.0001.png", "tiny.0002.png"] {
+        let png = std::fs::read(farm.join("runs/tiny_w0/render").join(f)).unwrap();
+        assert!(png.starts_with(b"\x89PNG"), "{f}");
+    }
+    let report = read_json(&farm.join("farm_report.json"));
+    assert_eq!(report["complete"], true, "{report}");
+    assert_eq!(report["wedges"][0]["frames_rendered"], 2, "{report}");
 }

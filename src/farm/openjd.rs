@@ -358,7 +358,7 @@ pub fn template(plan: &FarmPlan) -> Value {
     }
     json!({
         "specificationVersion": "jobtemplate-2023-09",
-        "name": format!("nimbus farm: {} ({} wedges)", plan.shot, plan.wedges.len()),
+        "name": format!("nimbus farm: {} ({} wedge(s))", plan.shot, plan.wedges.len()),
         "description": format!(
             "Written by nimbus {} farm submit --backend openjd from {}. The plan is farm.json in the farm directory.",
             plan.version,
