@@ -12,9 +12,11 @@
 //! - `Render` (with `--render`): a task per (wedge, frame), `Wedge * Frame`, Blender.
 //! - `Report`: `nimbus farm report FARM_DIR` after every other step.
 //!
-//! Job parameters `FarmDir` and `NimbusBin` (PATH, defaulting to this farm directory and this
-//! binary) carry every path, so a farm manager's path mapping applies to them. `openjd run`
-//! (PyPI `openjd-cli`) runs the template here (`--run-local`).
+//! The job parameter `FarmDir` (PATH, default `.`: the template's directory, which is the farm
+//! directory) carries every path of the farm, so a farm manager's path mapping applies to it;
+//! `NimbusBin` (STRING, default this binary: OpenJD allows only relative PATH defaults) is
+//! where the workers have nimbus. `openjd run` (PyPI `openjd-cli`) runs the template here
+//! (`--run-local`).
 use super::plan::{FarmPlan, Job, JobKind};
 use super::slurm::{sh, sim_sets};
 use crate::error::{Error, Result};
