@@ -439,3 +439,213 @@ fn export_task_requeues_while_its_simulation_waits_and_gives_up_when_it_is_gone(
         text(&o)
     );
 }
+
+#[test]
+fn backend_values_and_backend_only_flags_are_checked() {
+    let base = fresh_dir("farm_backend_flags");
+    let cases: [(&[&str], &str); 4] = [
+        (
+            &["--backend", "pbs"],
+            "--backend \"pbs\": expected slurm or openjd",
+        ),
+        (
+            &["--run-local"],
+            "--run-local runs an Open Job Description template: it needs --backend openjd",
+        ),
+        (
+            &["--backend", "openjd", "--partition", "main"],
+            "--partition is a Slurm setting",
+        ),
+        (
+            &["--backend", "openjd", "--signal-margin", "601"],
+            "--signal-margin 601: with --backend openjd it is the cancelation notice",
+        ),
+    ];
+    for (args, want) in cases {
+        let farm = base.join("farm");
+        let o = nimbus()
+            .args(["farm", "submit"])
+            .arg(sample("tiny.yaml"))
+            .args(args)
+            .arg("--out")
+            .arg(&farm)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", text(&o));
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(stderr.contains(want), "{args:?}: {stderr}");
+        assert_eq!(stderr.trim().lines().count(), 1, "one line: {stderr}");
+        assert!(!farm.exists(), "{args:?} wrote {}", farm.display());
+    }
+}
+
+/// The OpenJD template of a 2-wedge shot with export chunks and a time limit, without the
+/// openjd CLI (tests/farm_openjd.rs checks and runs it with the real one).
+#[test]
+fn openjd_backend_writes_the_plan_as_a_job_template() {
+    let base = fresh_dir("farm_openjd_template");
+    let farm = base.join("farm");
+    let o = nimbus()
+        .args(["farm", "submit", "--backend", "openjd"])
+        .arg(sample("tiny.yaml"))
+        .args(["--wedge", "physics.heat_source=0.2,0.3"])
+        .args([
+            "--export-chunk",
+            "3",
+            "--export-set",
+            "export.voxel_size=50",
+        ])
+        .args(["--time-limit", "10:00", "--signal-margin", "30"])
+        .arg("--out")
+        .arg(&farm)
+        // writing the template needs neither Slurm nor openjd
+        .env("PATH", path_without_sbatch(&base))
+        .env_remove("NIMBUS_OPENJD")
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let farm = farm.canonicalize().unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout.contains(&format!(
+            "wrote the Open Job Description template: {}",
+            farm.join("template.json").display()
+        )),
+        "{stdout}"
+    );
+    assert!(stdout.contains("openjd check "), "{stdout}");
+
+    let t: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(farm.join("template.json")).unwrap())
+            .unwrap();
+    assert_eq!(t["specificationVersion"], "jobtemplate-2023-09");
+    let names: Vec<&str> = t["steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["Simulation", "Export", "Report"]);
+    let params = t["parameterDefinitions"].as_array().unwrap();
+    assert_eq!(params[0]["name"], "FarmDir");
+    assert_eq!(params[0]["default"], ".");
+    let sim = &t["steps"][0];
+    assert_eq!(
+        sim["parameterSpace"]["taskParameterDefinitions"],
+        serde_json::json!([{"name": "Wedge", "type": "INT", "range": [0, 1]}])
+    );
+    let on_run = &sim["script"]["actions"]["onRun"];
+    // the time limit less the notice, then SIGTERM, 30 s to checkpoint
+    assert_eq!(on_run["timeout"], 570);
+    assert_eq!(
+        on_run["cancelation"],
+        serde_json::json!({"mode": "NOTIFY_THEN_TERMINATE", "notifyPeriodInSeconds": 30})
+    );
+    let script = sim["script"]["embeddedFiles"][0]["data"].as_str().unwrap();
+    assert!(
+        script.contains(
+            "1) RUN=\"$FARM\"/runs/tiny_w1_heat_source-0.3; SETS=(--set physics.heat_source=0.3 --set export.particles=true)"
+        ),
+        "{script}"
+    );
+    // 8 frames in chunks of 3, every wedge
+    let export = &t["steps"][1];
+    assert_eq!(
+        export["parameterSpace"],
+        serde_json::json!({
+            "taskParameterDefinitions": [
+                {"name": "Wedge", "type": "INT", "range": [0, 1]},
+                {"name": "Frames", "type": "STRING", "range": ["1-3", "4-6", "7-8"]},
+            ],
+            "combination": "Wedge * Frames",
+        })
+    );
+    assert_eq!(
+        export["dependencies"],
+        serde_json::json!([{"dependsOn": "Simulation"}])
+    );
+    assert_eq!(
+        t["steps"][2]["dependencies"],
+        serde_json::json!([{"dependsOn": "Simulation"}, {"dependsOn": "Export"}])
+    );
+    // every embedded script is valid bash
+    for step in t["steps"].as_array().unwrap() {
+        for f in step["script"]["embeddedFiles"]
+            .as_array()
+            .into_iter()
+            .flatten()
+        {
+            let path = base.join(f["filename"].as_str().unwrap());
+            std::fs::write(&path, f["data"].as_str().unwrap()).unwrap();
+            let syntax = std::process::Command::new("/bin/bash")
+                .arg("-n")
+                .arg(&path)
+                .output()
+                .unwrap();
+            assert!(
+                syntax.status.success(),
+                "{}: {}",
+                path.display(),
+                text(&syntax)
+            );
+        }
+    }
+    // the plan is the same plan as Slurm's, its jobs the template's steps
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(farm.join("farm.json")).unwrap()).unwrap();
+    assert_eq!(plan["backend"], "openjd");
+    let jobs: Vec<(&str, &str)> = plan["jobs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|j| (j["name"].as_str().unwrap(), j["script"].as_str().unwrap()))
+        .collect();
+    assert_eq!(
+        jobs,
+        [
+            ("sim", "template.json"),
+            ("export", "template.json"),
+            ("report", "template.json")
+        ]
+    );
+    // nothing ran: status says so from the files, and resubmit points at the farm manager
+    let o = nimbus()
+        .args(["farm", "status", "--log-format", "json"])
+        .arg(&farm)
+        .env("PATH", path_without_sbatch(&base))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let s: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(s["wedges"][0]["state"], "not run", "{s}");
+    assert_eq!(s["complete"], false);
+    let o = nimbus()
+        .args(["farm", "resubmit"])
+        .arg(&farm)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(
+        text(&o).contains("is not resubmitted by nimbus"),
+        "{}",
+        text(&o)
+    );
+    // --run-local without the openjd CLI: exit 3 with the remedy, the template still written
+    let farm2 = base.join("farm2");
+    let o = nimbus()
+        .args(["farm", "submit", "--backend", "openjd", "--run-local"])
+        .arg(sample("tiny.yaml"))
+        .arg("--out")
+        .arg(&farm2)
+        .env("PATH", path_without_sbatch(&base))
+        .env("NIMBUS_OPENJD", base.join("no-openjd"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(3), "{}", text(&o));
+    assert!(
+        text(&o).contains("no-openjd: no such file; install the Open Job Description CLI"),
+        "{}",
+        text(&o)
+    );
+    assert!(farm2.join("template.json").is_file());
+}

@@ -4,10 +4,14 @@
 #   tools/setup.sh --blender     also Blender 3.4 (for tools/render_blender.py and its test)
 #   tools/setup.sh --preview     also ffmpeg (output.preview.movie and its test)
 #   tools/setup.sh --farm        also Slurm and munge (for `nimbus farm` and its tests; a
-#                                one-node cluster on localhost: tools/slurm-local.sh)
+#                                one-node cluster on localhost: tools/slurm-local.sh), and the
+#                                Open Job Description CLI (PyPI openjd-cli, pinned) in a venv at
+#                                $NIMBUS_OPENJD_VENV (default /opt/nimbus/openjd), for
+#                                `farm submit --backend openjd` and tests/farm_openjd.rs
 # Flags combine: tools/setup.sh --blender --preview --farm
 set -euo pipefail
 
+farm=0
 packages=(
   mesa-vulkan-drivers libvulkan1   # Vulkan: lavapipe CPU device where there is no GPU
   libopenvdb-tools python3-openvdb # vdb_print + pyopenvdb: tests read our VDBs with real OpenVDB
@@ -18,7 +22,7 @@ for flag in "$@"; do
   case "$flag" in
     --blender) packages+=(blender) ;;
     --preview) packages+=(ffmpeg) ;;
-    --farm) packages+=(slurmctld slurmd slurm-client munge) ;;
+    --farm) packages+=(slurmctld slurmd slurm-client munge python3-venv) farm=1 ;;
     *) echo "setup: unknown flag $flag (known: --blender, --preview, --farm)" >&2; exit 2 ;;
   esac
 done
@@ -51,6 +55,20 @@ if [[ "$codename" == "bookworm" ]] && dpkg --compare-versions "$mesa" lt 25; the
   $sudo apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends \
     -t bookworm-backports mesa-vulkan-drivers >/dev/null
+fi
+
+# The Open Job Description CLI, from PyPI into its own venv (Debian's python3 is externally
+# managed). The version is pinned: it is the one tests/farm_openjd.rs was written against.
+OPENJD_CLI_VERSION=0.8.0
+if ((farm)); then
+  venv=${NIMBUS_OPENJD_VENV:-/opt/nimbus/openjd}
+  if ! "$venv/bin/openjd" --version 2>/dev/null | grep -q "$OPENJD_CLI_VERSION"; then
+    echo "setup: installing openjd-cli $OPENJD_CLI_VERSION into $venv" >&2
+    $sudo mkdir -p "$(dirname "$venv")"
+    $sudo python3 -m venv "$venv"
+    $sudo "$venv/bin/pip" install -q --disable-pip-version-check "openjd-cli==$OPENJD_CLI_VERSION"
+  fi
+  echo "setup: openjd: $venv/bin/openjd (nimbus finds it through NIMBUS_OPENJD or PATH)" >&2
 fi
 
 if ! command -v cargo >/dev/null; then

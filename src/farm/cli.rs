@@ -1,6 +1,6 @@
 //! `nimbus farm ...`: the subcommands' arguments and what each prints.
 use super::status;
-use super::submit::{self, SubmitOptions, Submitted, DEFAULT_SIGNAL_MARGIN_S};
+use super::submit::{self, Backend, SubmitOptions, Submitted, DEFAULT_SIGNAL_MARGIN_S};
 use crate::error::{Error, Result};
 use crate::pipeline::LogFormat;
 use clap::Subcommand;
@@ -11,10 +11,19 @@ pub enum FarmCommand {
     /// Write a farm directory (farm.json plan + sbatch scripts) for a shot and its wedges, and
     /// submit it to Slurm: a simulation job array (one task per wedge, requeued at the time
     /// limit until complete), an optional export array over frame chunks, an optional Blender
-    /// render array, and a report job.
+    /// render array, and a report job. With `--backend openjd`: the same plan as an Open Job
+    /// Description template (AWS Deadline Cloud), run here with `--run-local`.
     Submit {
         /// Shot config (YAML).
         config: PathBuf,
+        /// `slurm` (batch scripts submitted with sbatch) or `openjd` (an Open Job Description
+        /// template, `FARM/template.json`, for AWS Deadline Cloud or `openjd run`).
+        #[arg(long, value_name = "slurm|openjd", default_value = "slurm")]
+        backend: String,
+        /// With `--backend openjd`: run the template here with `openjd run` (every step, in
+        /// order; `openjd` on PATH or NIMBUS_OPENJD), output in FARM/logs/openjd_run.log.
+        #[arg(long)]
+        run_local: bool,
         /// Wedge a key over values, e.g. `--wedge physics.heat_source=0.2,0.3`; each --wedge
         /// multiplies the combinations (repeatable).
         #[arg(long = "wedge", value_name = "KEY=V1,V2,...")]
@@ -22,19 +31,22 @@ pub enum FarmCommand {
         /// Farm directory (default: `<shot>_farm`); wedge runs go to its runs/.
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Slurm partition of every job (default: the cluster's default partition).
+        /// Slurm partition of every job (default: the cluster's default partition; Slurm only).
         #[arg(long)]
         partition: Option<String>,
         /// Slurm time limit of each job (`--time`: minutes, MM:SS, HH:MM:SS, D-HH...). A
-        /// simulation longer than this goes on in its next job.
+        /// simulation longer than this goes on in its next job. With `--backend openjd`: the
+        /// Simulation action's timeout (this minus --signal-margin, in seconds).
         #[arg(long, value_name = "T")]
         time_limit: Option<String>,
         /// Seconds before the time limit at which a simulation is told to checkpoint and stop
-        /// (`--signal=B:TERM@SECS`).
+        /// (`--signal=B:TERM@SECS`; with `--backend openjd` the cancelation notice,
+        /// `notifyPeriodInSeconds`, at most 600).
         #[arg(long, value_name = "SECS", default_value_t = DEFAULT_SIGNAL_MARGIN_S)]
         signal_margin: u32,
         /// Times a simulation task is requeued after being killed (a lost node, kill -9) before
-        /// it is reported failed.
+        /// it is reported failed (Slurm only: OpenJD farm managers set task retries on the
+        /// queue or job).
         #[arg(long, value_name = "N", default_value_t = 1)]
         crash_requeues: u32,
         /// Also render every frame of every wedge with Blender (tools/render_blender.py) to
@@ -56,7 +68,8 @@ pub enum FarmCommand {
         /// settings).
         #[arg(long, value_name = "NAME")]
         export_name: Option<String>,
-        /// Write the farm directory and print the sbatch commands, submit nothing.
+        /// Write the farm directory and print the sbatch commands, submit nothing (`--backend
+        /// openjd` submits nothing anyway).
         #[arg(long)]
         dry_run: bool,
     },
@@ -86,6 +99,8 @@ pub fn run(cmd: FarmCommand) -> Result<()> {
     match cmd {
         FarmCommand::Submit {
             config,
+            backend,
+            run_local,
             wedge,
             out,
             partition,
@@ -98,8 +113,11 @@ pub fn run(cmd: FarmCommand) -> Result<()> {
             export_name,
             dry_run,
         } => {
+            let backend = parse_backend(&backend)?;
             let done = submit::submit(&SubmitOptions {
                 config,
+                backend,
+                run_local,
                 wedges: wedge,
                 out,
                 partition,
@@ -166,6 +184,17 @@ pub fn run(cmd: FarmCommand) -> Result<()> {
     }
 }
 
+/// `--backend`'s value; anything else is exit 2.
+pub fn parse_backend(value: &str) -> Result<Backend> {
+    match value {
+        "slurm" => Ok(Backend::Slurm),
+        "openjd" => Ok(Backend::OpenJd),
+        other => Err(Error::InvalidInput(format!(
+            "--backend {other:?}: expected slurm or openjd"
+        ))),
+    }
+}
+
 fn print_submitted(done: &Submitted, dry_run: bool) {
     println!(
         "farm {}: shot '{}', {} wedge(s)",
@@ -175,6 +204,10 @@ fn print_submitted(done: &Submitted, dry_run: bool) {
     );
     for w in &done.plan.wedges {
         println!("  {}  {}", w.name, w.label());
+    }
+    if let Some(t) = &done.template {
+        print_openjd(done, t);
+        return;
     }
     for (name, line, id) in &done.jobs {
         match id {
@@ -192,5 +225,43 @@ fn print_submitted(done: &Submitted, dry_run: bool) {
             "follow it with: nimbus farm status {}",
             super::slurm::sh(&done.farm_dir.to_string_lossy())
         );
+    }
+}
+
+fn print_openjd(done: &Submitted, template: &std::path::Path) {
+    use super::slurm::sh;
+    for (name, command, _) in &done.jobs {
+        println!("{name}: {command}");
+    }
+    let t = sh(&template.to_string_lossy());
+    println!(
+        "wrote the Open Job Description template: {}",
+        template.display()
+    );
+    match &done.local_run {
+        Some(r) => {
+            println!(
+                "ran it here in {:.1} s: {} (log: {})",
+                r.seconds,
+                r.command
+                    .iter()
+                    .map(|a| sh(a))
+                    .collect::<Vec<_>>()
+                    .join(" "),
+                r.log.display()
+            );
+            println!(
+                "report: {}",
+                done.farm_dir.join(super::plan::REPORT).display()
+            );
+        }
+        None => {
+            println!("check it: openjd check {t}");
+            println!("run it here: openjd run {t} --step Report --run-dependencies");
+            println!(
+                "submit it to AWS Deadline Cloud (a job bundle): deadline bundle submit {}",
+                sh(&template.parent().unwrap_or(template).to_string_lossy())
+            );
+        }
     }
 }

@@ -179,7 +179,7 @@ pub fn render_script(plan: &FarmPlan, job: &Job, farm_dir: &Path) -> Option<Stri
 
 /// Renders the frame; a frame before the cloud forms (an empty density grid, which the
 /// script's automatic exposure refuses) is rendered as the empty sky at a fixed density scale.
-const RENDER_BODY: &str = r#"echo "nimbus-farm: render $RUN frame $FRAME -> $PNG"
+pub(crate) const RENDER_BODY: &str = r#"echo "nimbus-farm: render $RUN frame $FRAME -> $PNG"
 OUT=$("${RENDER[@]}" 2>&1); RC=$?
 echo "$OUT"
 if [ $RC -ne 0 ] && grep -q "nothing to render" <<<"$OUT"; then

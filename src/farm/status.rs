@@ -1,6 +1,7 @@
 //! `nimbus farm status`: the state of every job and wedge, from the queue (`squeue`), the
 //! attempts each simulation task logs in `state/` and the run directories' manifests. The files
 //! keep the answer after Slurm has forgotten a finished job.
+use super::openjd;
 use super::plan::{run_dir, FarmPlan, JobKind, REPORT};
 use super::slurm::{self, QueueEntry};
 use crate::pipeline::records::Manifest;
@@ -78,9 +79,16 @@ pub fn collect(plan: &FarmPlan, farm_dir: &Path) -> FarmStatus {
         .iter()
         .filter_map(|j| j.slurm_id.as_deref())
         .collect();
-    let (queue, scheduler_error) = match slurm::queue(&ids) {
-        Ok(q) => (q, None),
-        Err(e) => (BTreeMap::new(), Some(e.to_string())),
+    // An OpenJD farm has no queue nimbus can ask (the farm manager's own tools show its
+    // tasks): its state comes from the farm's files alone.
+    let openjd = plan.backend == "openjd";
+    let (queue, scheduler_error) = if openjd {
+        (BTreeMap::new(), None)
+    } else {
+        match slurm::queue(&ids) {
+            Ok(q) => (q, None),
+            Err(e) => (BTreeMap::new(), Some(e.to_string())),
+        }
     };
     let frames_total = plan.frame_end - plan.frame_start + 1;
     let mut wedges = Vec::new();
@@ -99,14 +107,18 @@ pub fn collect(plan: &FarmPlan, farm_dir: &Path) -> FarmStatus {
         let own = task
             .as_ref()
             .is_some_and(|t| tries.iter().any(|a| &a.job == t));
-        let (state, note) = wedge_state(
-            complete,
-            job.is_some_and(|j| j.slurm_id.is_some()),
-            entry,
-            &tries,
-            own,
-            scheduler_error.is_some(),
-        );
+        let (state, note) = if openjd {
+            openjd_wedge_state(complete, &tries, frames_done)
+        } else {
+            wedge_state(
+                complete,
+                job.is_some_and(|j| j.slurm_id.is_some()),
+                entry,
+                &tries,
+                own,
+                scheduler_error.is_some(),
+            )
+        };
         wedges.push(WedgeStatus {
             index: w.index,
             name: w.name.clone(),
@@ -131,7 +143,11 @@ pub fn collect(plan: &FarmPlan, farm_dir: &Path) -> FarmStatus {
             name: j.name.clone(),
             kind: j.kind,
             slurm_id: j.slurm_id.clone(),
-            state: job_state(j.slurm_id.as_deref(), &j.tasks, j.kind, &queue, farm_dir),
+            state: if openjd {
+                openjd_job_state(j.kind, farm_dir)
+            } else {
+                job_state(j.slurm_id.as_deref(), &j.tasks, j.kind, &queue, farm_dir)
+            },
         })
         .collect();
     let report_path = farm_dir.join(REPORT);
@@ -139,7 +155,9 @@ pub fn collect(plan: &FarmPlan, farm_dir: &Path) -> FarmStatus {
         .ok()
         .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
         .is_some_and(|v| v["complete"] == true);
-    let failed = wedges.iter().any(|w| w.state == "failed");
+    let failed = wedges
+        .iter()
+        .any(|w| w.state == "failed" || w.state == "interrupted");
     FarmStatus {
         farm_dir: farm_dir.display().to_string(),
         shot: plan.shot.clone(),
@@ -152,13 +170,59 @@ pub fn collect(plan: &FarmPlan, farm_dir: &Path) -> FarmStatus {
             .exists()
             .then(|| report_path.display().to_string()),
         resubmit_command: failed.then(|| {
-            format!(
-                "nimbus farm resubmit {}",
-                slurm::sh(&farm_dir.to_string_lossy())
-            )
+            if openjd {
+                // Run again, the wedges resume from their checkpoints (in a farm manager: retry
+                // the failed tasks).
+                format!(
+                    "openjd run {} --step Report --run-dependencies",
+                    slurm::sh(&farm_dir.join(openjd::TEMPLATE).to_string_lossy())
+                )
+            } else {
+                format!(
+                    "nimbus farm resubmit {}",
+                    slurm::sh(&farm_dir.to_string_lossy())
+                )
+            }
         }),
         scheduler_error,
     }
+}
+
+/// A wedge of an OpenJD farm, from its run and the attempts its Simulation tasks logged: done,
+/// interrupted (stopped at a checkpoint: a retry resumes it), failed, not run, or incomplete
+/// (running now, or stopped without a record).
+fn openjd_wedge_state(complete: bool, tries: &[Attempt], frames_done: usize) -> (String, String) {
+    if complete {
+        return ("done".into(), String::new());
+    }
+    match tries.last() {
+        Some(a) if a.exit == 130 => (
+            "interrupted".into(),
+            "stopped at a checkpoint (exit 130); a retry of its task resumes it".into(),
+        ),
+        Some(a) if a.exit != 0 => (
+            "failed".into(),
+            if a.exit > 128 {
+                format!("killed by signal {} (exit {})", a.exit - 128, a.exit)
+            } else {
+                format!("exit {} (see the task's log)", a.exit)
+            },
+        ),
+        _ if frames_done == 0 => ("not run".into(), String::new()),
+        _ => (
+            "incomplete".into(),
+            "running, or stopped without a record".into(),
+        ),
+    }
+}
+
+/// A step of an OpenJD farm: only the report leaves a trace nimbus can read.
+fn openjd_job_state(kind: JobKind, farm_dir: &Path) -> String {
+    let step = openjd::step_name(kind);
+    if kind == JobKind::Report && farm_dir.join(REPORT).exists() {
+        return format!("step {step}: completed");
+    }
+    format!("step {step}")
 }
 
 /// A wedge's state from its run, its queue entry and its logged attempts.

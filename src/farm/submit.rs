@@ -1,6 +1,7 @@
 //! `nimbus farm submit` and `nimbus farm resubmit`: validate the wedges, write the farm
 //! directory (plan, config copy, batch scripts), then hand the jobs to `sbatch` in dependency
 //! order, recording each id in the plan as it is given.
+use super::openjd;
 use super::plan::{
     self, Dependency, ExportSettings, FarmPlan, Job, JobKind, RenderSettings, SlurmSettings,
 };
@@ -15,8 +16,29 @@ use std::path::{Path, PathBuf};
 /// production shot take well under this.
 pub const DEFAULT_SIGNAL_MARGIN_S: u32 = 120;
 
+/// Where a farm runs: `--backend`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Backend {
+    /// Batch scripts handed to `sbatch`.
+    Slurm,
+    /// One Open Job Description template (AWS Deadline Cloud; `openjd run` here).
+    OpenJd,
+}
+
+impl Backend {
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Slurm => "slurm",
+            Backend::OpenJd => "openjd",
+        }
+    }
+}
+
 pub struct SubmitOptions {
     pub config: PathBuf,
+    pub backend: Backend,
+    /// `--run-local`: run the OpenJD template here with `openjd run` (openjd backend only).
+    pub run_local: bool,
     pub wedges: Vec<String>,
     pub out: Option<PathBuf>,
     pub partition: Option<String>,
@@ -39,6 +61,10 @@ pub struct Submitted {
     pub plan: FarmPlan,
     /// (job name, sbatch command line, id when submitted).
     pub jobs: Vec<(String, String, Option<String>)>,
+    /// The OpenJD backend: the template written.
+    pub template: Option<PathBuf>,
+    /// The OpenJD backend with `--run-local`: what `openjd run` did.
+    pub local_run: Option<super::openjd::LocalRun>,
 }
 
 pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
@@ -65,6 +91,7 @@ pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
             )));
         }
     }
+    check_backend_flags(opts)?;
     let export = export_settings(opts, &wedges)?;
     let render = if opts.render {
         Some(render_settings(cfg.output.frame_padding)?)
@@ -125,7 +152,7 @@ pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
     let mut plan = FarmPlan {
         tool: "nimbus".into(),
         version: crate::VERSION.into(),
-        backend: "slurm".into(),
+        backend: opts.backend.name().into(),
         shot: cfg.shot.clone(),
         source_config: opts
             .config
@@ -147,7 +174,80 @@ pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
         jobs: Vec::new(),
     };
     add_jobs(&mut plan, &all, "");
-    write_and_submit(plan, farm_dir, opts.dry_run, 0)
+    match opts.backend {
+        Backend::Slurm => write_and_submit(plan, farm_dir, opts.dry_run, 0),
+        Backend::OpenJd => write_openjd(plan, farm_dir, opts.run_local),
+    }
+}
+
+/// The OpenJD backend: the plan's jobs as the steps of one template; with `--run-local`,
+/// `openjd run` of the whole template here.
+fn write_openjd(mut plan: FarmPlan, farm_dir: PathBuf, run_local: bool) -> Result<Submitted> {
+    openjd::adapt_jobs(&mut plan, &farm_dir);
+    let template = openjd::write(&plan, &farm_dir)?;
+    plan.save(&farm_dir)?;
+    let jobs = plan
+        .jobs
+        .iter()
+        .map(|j| {
+            (
+                format!("step {}", openjd::step_name(j.kind)),
+                j.command.clone(),
+                None,
+            )
+        })
+        .collect();
+    let local_run = if run_local {
+        Some(openjd::run_local(&farm_dir)?)
+    } else {
+        None
+    };
+    Ok(Submitted {
+        farm_dir,
+        plan,
+        jobs,
+        template: Some(template),
+        local_run,
+    })
+}
+
+/// Flags that belong to one backend are refused with the other (exit 2).
+fn check_backend_flags(opts: &SubmitOptions) -> Result<()> {
+    match opts.backend {
+        Backend::Slurm => {
+            if opts.run_local {
+                return Err(Error::InvalidInput(
+                    "--run-local runs an Open Job Description template: it needs --backend openjd"
+                        .into(),
+                ));
+            }
+        }
+        Backend::OpenJd => {
+            if opts.partition.is_some() {
+                return Err(Error::InvalidInput(
+                    "--partition is a Slurm setting; with --backend openjd the farm manager's \
+                     queue and host requirements choose the workers"
+                        .into(),
+                ));
+            }
+            if opts.signal_margin_s == 0 || opts.signal_margin_s > openjd::MAX_NOTIFY_S {
+                return Err(Error::InvalidInput(format!(
+                    "--signal-margin {}: with --backend openjd it is the cancelation notice \
+                     (notifyPeriodInSeconds), 1 to {} seconds",
+                    opts.signal_margin_s,
+                    openjd::MAX_NOTIFY_S
+                )));
+            }
+            if opts.run_local && opts.dry_run {
+                return Err(Error::InvalidInput(
+                    "--run-local and --dry-run contradict each other (without --run-local, \
+                     --backend openjd only writes the template)"
+                        .into(),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Adds the simulation, render and report jobs for `tasks` (wedge indices); `suffix` tells a
@@ -298,6 +398,8 @@ fn write_and_submit(
         farm_dir,
         plan,
         jobs: shown,
+        template: None,
+        local_run: None,
     })
 }
 
@@ -310,6 +412,16 @@ pub fn resubmit(farm_dir: &Path, dry_run: bool) -> Result<Submitted> {
         .canonicalize()
         .map_err(|e| Error::InvalidInput(format!("{}: {e}", farm_dir.display())))?;
     let mut plan = FarmPlan::load(&farm_dir)?;
+    if plan.backend == Backend::OpenJd.name() {
+        let template = farm_dir.join(openjd::TEMPLATE);
+        return Err(Error::InvalidInput(format!(
+            "{}: an Open Job Description farm (--backend openjd) is not resubmitted by nimbus: \
+             retry its failed tasks in the farm manager, or run it again here with `openjd run {} --step \
+             Report --run-dependencies`; either way the wedges resume from their checkpoints",
+            farm_dir.display(),
+            slurm::sh(&template.to_string_lossy())
+        )));
+    }
     // A --dry-run plan (nothing submitted yet) is submitted as it was written.
     if plan.jobs.iter().all(|j| j.slurm_id.is_none()) {
         return write_and_submit(plan, farm_dir, dry_run, 0);
@@ -444,7 +556,7 @@ fn find_on_path(name: &str) -> Option<PathBuf> {
 }
 
 /// Seconds of a Slurm `--time` value: `M`, `M:S`, `H:M:S`, `D-H`, `D-H:M`, `D-H:M:S`.
-fn time_limit_seconds(t: &str) -> Result<u64> {
+pub(crate) fn time_limit_seconds(t: &str) -> Result<u64> {
     let bad = || {
         Error::InvalidInput(format!(
             "--time-limit {t:?}: expected minutes, MM:SS, HH:MM:SS or D-HH[:MM[:SS]] (Slurm's --time)"

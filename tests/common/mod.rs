@@ -135,3 +135,32 @@ where
     let summary = serde_json::from_str(summary).expect("summary is JSON");
     (out, summary)
 }
+
+/// Where tools/setup.sh --farm installs the Open Job Description CLI (PyPI openjd-cli).
+pub const OPENJD_VENV: &str = "/opt/nimbus/openjd";
+
+/// The `openjd` command: NIMBUS_OPENJD, else `openjd` on PATH, else the one tools/setup.sh
+/// --farm installs in OPENJD_VENV. Under CI=true (where .ci/run installs it) a missing CLI
+/// fails the test instead of skipping it.
+pub fn openjd_cli() -> Option<PathBuf> {
+    let found = std::env::var_os("NIMBUS_OPENJD")
+        .map(PathBuf::from)
+        .into_iter()
+        .chain(
+            std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default())
+                .map(|d| d.join("openjd")),
+        )
+        .chain([Path::new(OPENJD_VENV).join("bin/openjd")])
+        .find(|p| {
+            Command::new(p)
+                .arg("--version")
+                .output()
+                .is_ok_and(|o| o.status.success())
+        });
+    if found.is_none() && std::env::var("CI").as_deref() == Ok("true") {
+        panic!(
+            "CI=true but the openjd CLI is not installed: CI must install it (tools/setup.sh --farm puts it in {OPENJD_VENV})"
+        );
+    }
+    found
+}
