@@ -13,12 +13,14 @@
 // level 0). kappa is the per-iteration share of the configured rate (SmoothParams::new).
 //
 // Vapor mixing (entrainment, docs/PHYSICS.md "Vapor mixing") rides on the same neighbour loop:
-//   v*_i = v_i + vapor_rate sum_j e_ij a_ij (v_i - v_j)   (vapor_rate = 2 D dt / iterations)
-// an explicit step of dv/dt = D lap v over the fluid pairs of which at least one holds cloud
-// water (e_ij = 1; clear air, and the stable inversion over it, does not diffuse); no vapor
-// crosses a wall. m_i e_ij a_ij = e_ij m_i V_j g_ij / (r^2 + eps) is symmetric in i and j, so
-// the pair terms cancel in sum_i m_i v_i: mixing moves vapor, it creates none. Validation keeps
-// the step convex.
+//   v*_i = v_i + vapor_rate sum_j e_ij min(l_i, l_j) a_ij (v_i - v_j)
+// (vapor_rate = 2 D dt / iterations): an explicit step of dv/dt = D lap v over the fluid pairs of
+// which at least one holds cloud water (e_ij = 1; clear air, and the stable inversion over it,
+// does not diffuse); no vapor crosses a wall. m_i e_ij a_ij = e_ij m_i V_j g_ij / (r^2 + eps) is
+// symmetric in i and j, so the pair terms cancel in sum_i m_i v_i: mixing moves vapor, it
+// creates none. The limiter l_i = min(1, 0.5 / (vapor_rate sum_j e_ij |a_ij|)) of the entry
+// `vapor_limit` (run first) keeps every step convex however close particles come (a_ij grows
+// as 1 / r): no vapor goes negative or overshoots, and the pair weights stay symmetric.
 //!include shared/common.wgsl
 
 struct SmoothParams {
@@ -41,6 +43,8 @@ struct SmoothParams {
 @group(0) @binding(6) var<storage, read> cell_start: array<u32>;
 @group(0) @binding(7) var<storage, read> boundary: array<vec4<f32>>;
 @group(0) @binding(8) var<storage, read> boundary_cell_start: array<u32>;
+// the vapor-mixing limiter l_i (written by vapor_limit, read by smooth_temperature)
+@group(0) @binding(9) var<storage, read_write> vapor_limit_of: array<f32>;
 
 fn radius_of_level(level: u32) -> f32 {
     return S.h0 * exp2(-f32(level) / 3.0);
@@ -70,6 +74,48 @@ fn laplacian_coefficient(r2: f32, hi: f32, fi: f32, hj: f32, fj: f32, volume: f3
     return volume * g / (r2 + S.epsilon);
 }
 
+// sum_j e_ij |a_ij| of particle i over its fluid neighbours (the vapor-mixing pairs).
+fn vapor_demand(i: u32) -> f32 {
+    let xi = pos[i].xyz;
+    let li = info[i].y;
+    let hi = radius_of_level(li);
+    let cloudy_i = thermo_in[i].z > 0.0;
+    let f0 = spiky_factor0();
+    let fi = spiky_factor(f0, li);
+    let h02 = S.h0 * S.h0;
+    let ci = cell_coord(xi, grid);
+    var sum = 0.0;
+    for (var dz = -1; dz <= 1; dz++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            let rows = row_entries(xi, ci, dy, dz, grid);
+            for (var s = 0u; s < 2u; s++) {
+                let e = select(rows.xy, rows.zw, s == 1u);
+                if (e.x == e.y) { continue; }
+                let j_end = cell_start[e.y];
+                for (var j = cell_start[e.x]; j < j_end; j++) {
+                    let xij = min_image(xi - pos[j].xyz, grid);
+                    let r2 = dot(xij, xij);
+                    if (j == i || r2 >= h02 || !(cloudy_i || thermo_in[j].z > 0.0)) { continue; }
+                    let lj = info[j].y;
+                    let hj = radius_of_level(lj);
+                    let hm = max(hi, hj);
+                    if (r2 >= hm * hm) { continue; }
+                    sum += abs(laplacian_coefficient(r2, hi, fi, hj, spiky_factor(f0, lj), S.volume0 * exp2(-f32(lj))));
+                }
+            }
+        }
+    }
+    return sum;
+}
+
+@compute @workgroup_size(64)
+fn vapor_limit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    if (i >= S.count) { return; }
+    let demand = S.vapor_rate * vapor_demand(i);
+    vapor_limit_of[i] = select(1.0, min(1.0, 0.5 / demand), demand > 0.0);
+}
+
 @compute @workgroup_size(64)
 fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
@@ -81,6 +127,9 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
     let ti = th.x;
     let vi = th.y;
     let cloudy_i = th.z > 0.0;
+    let mixing = S.vapor_rate > 0.0;
+    var limit_i = 1.0;
+    if (mixing) { limit_i = vapor_limit_of[i]; }
     var cv = 0.0;
     var sum_a = 0.0;
     var sum_a2 = 0.0;
@@ -110,7 +159,9 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                     sum_a2 += a * a;
                     let tj = thermo_in[j];
                     c += a * (ti - tj.x);
-                    if (cloudy_i || tj.z > 0.0) { cv += a * (vi - tj.y); }
+                    if (mixing && (cloudy_i || tj.z > 0.0)) {
+                        cv += min(limit_i, vapor_limit_of[j]) * a * (vi - tj.y);
+                    }
                 }
                 if (S.fixed_walls == 0u) { continue; }
                 let k_end = boundary_cell_start[e.y];

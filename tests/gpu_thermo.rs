@@ -451,8 +451,8 @@ fn smooth_temperature_matches_mirror() {
 }
 
 /// Vapor mixing (the .y of the same pass) against its mirror, with temperature smoothing on:
-/// 3 iterations at the stability limit validation allows for levels 0-2, every third particle
-/// cloudy (only pairs with cloud mix). Measured: agrees to
+/// 3 iterations at 10 times the rate a lattice of levels 0-2 takes explicitly (the limiter
+/// holds it), every third particle cloudy (only pairs with cloud mix). Measured: agrees to
 /// about 1e-9 kg/kg (tolerance 1e-8; values around 1e-2), and sum m v moves by about 1e-8
 /// relative in f32 (tolerance 1e-6, the total-water budget).
 #[test]
@@ -461,7 +461,7 @@ fn gpu_vapor_mixing_matches_mirror_and_conserves() {
     let s = scene(21);
     let mut p = smooth_params(&s, 0.1);
     let h_min = p.h0 as f64 * (-2.0f64 / 3.0).exp2();
-    p.vapor_rate = (2.0 * h_min * h_min / 40.0) as f32;
+    p.vapor_rate = (10.0 * 2.0 * h_min * h_min / 40.0) as f32;
     let mut rng = ChaCha8Rng::seed_from_u64(22);
     let thermo: Vec<[f32; 4]> = s
         .temp

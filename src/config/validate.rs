@@ -674,38 +674,6 @@ fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
     }
     let sm = &p.smoothing;
     k.uint_within("physics.smoothing.iterations", sm.iterations, 1, 100);
-    // The explicit vapor-mixing step is convex (no vapor goes negative) while
-    // D dt / iterations <= h^2 / 40 for the smallest kernel radius h: the SPH Laplacian's
-    // diagonal is about 15 / h^2 on a uniform lattice, so this leaves a margin of 1.3 for
-    // mixed levels. dt is at most frame_seconds / substeps (the CFL control only shortens it).
-    if sm.vapor_diffusivity > 0.0 && sm.iterations >= 1 && c.output.substeps >= 1 {
-        let levels = if c.adaptive.enabled {
-            c.adaptive.max_level
-        } else {
-            0
-        };
-        let h = c.domain.spacing * c.domain.kernel_ratio * (-(levels as f64) / 3.0).exp2();
-        let step = sm.vapor_diffusivity * c.output.frame_seconds
-            / (c.output.substeps as f64 * sm.iterations as f64);
-        let limit = h * h / 40.0;
-        if step.is_finite() && limit.is_finite() && step > limit {
-            let need = (step / limit * sm.iterations as f64).ceil();
-            k.fail(
-                &["physics.smoothing.vapor_diffusivity"],
-                format!(
-                    "vapor mixing of {} m^2/s over substeps of {} s takes steps of {} m^2, more \
-                     than the stable h^2/40 = {} m^2 of the smallest particles (h = {} m); \
-                     raise physics.smoothing.iterations to {} or output.substeps, or lower it",
-                    num(sm.vapor_diffusivity),
-                    num(c.output.frame_seconds / c.output.substeps as f64),
-                    num(step),
-                    num(limit),
-                    num(h),
-                    num(need)
-                ),
-            );
-        }
-    }
 
     // The environment must stay above absolute zero and above -C (eq. 10 divides by T + C).
     let height = c.domain.size[1];
@@ -916,7 +884,7 @@ mod tests {
                 "physics.smoothing.kappa",
             ),
             (
-                |c| c.physics.smoothing.vapor_diffusivity = 1000.0,
+                |c| c.physics.smoothing.vapor_diffusivity = -1.0,
                 "physics.smoothing.vapor_diffusivity",
             ),
             (

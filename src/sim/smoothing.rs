@@ -20,6 +20,7 @@ use crate::sim::thermo::{dispatch_size, entry};
 
 const SHADER: &str = "smoothing.wgsl";
 const ENTRY: &str = "smooth_temperature";
+const LIMIT_ENTRY: &str = "vapor_limit";
 
 /// Uniform of shaders/smoothing.wgsl (same layout).
 #[repr(C)]
@@ -91,20 +92,30 @@ pub struct SmoothingStage {
     device: wgpu::Device,
     pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
+    limit_pipeline: wgpu::ComputePipeline,
+    limit_layout: wgpu::BindGroupLayout,
     cfg: ShotConfig,
     scratch: Option<(wgpu::Buffer, u32)>,
+    /// The vapor-mixing limiter per particle (f32), `count` long while mixing is on; one
+    /// element otherwise (bound, never read: no cost when mixing is off).
+    limit: Option<(wgpu::Buffer, u32)>,
 }
 
 impl SmoothingStage {
     pub fn new(ctx: &Context, cfg: &ShotConfig) -> Result<Self> {
         let pipeline = gpu::shaders::compute_pipeline(&ctx.device, SHADER, ENTRY)?;
         let layout = pipeline.get_bind_group_layout(0);
+        let limit_pipeline = gpu::shaders::compute_pipeline(&ctx.device, SHADER, LIMIT_ENTRY)?;
+        let limit_layout = limit_pipeline.get_bind_group_layout(0);
         Ok(Self {
             device: ctx.device.clone(),
             pipeline,
             layout,
+            limit_pipeline,
+            limit_layout,
             cfg: cfg.clone(),
             scratch: None,
+            limit: None,
         })
     }
 
@@ -153,7 +164,17 @@ impl SmoothingStage {
             );
             self.scratch = Some((buf, count));
         }
-        let Some((scratch, _)) = &self.scratch else {
+        let mixing = params.vapor_rate > 0.0;
+        let limit_len = if mixing { count } else { 1 };
+        if self.limit.as_ref().is_none_or(|(_, cap)| *cap < limit_len) {
+            let buf = gpu::buffers::storage_zeroed::<f32>(
+                &self.device,
+                "vapor mixing limiter",
+                limit_len as usize,
+            );
+            self.limit = Some((buf, limit_len));
+        }
+        let (Some((scratch, _)), Some((limit, _))) = (&self.scratch, &self.limit) else {
             return;
         };
         let uniform = gpu::buffers::uniform_init(&self.device, "smoothing params", params);
@@ -170,11 +191,37 @@ impl SmoothingStage {
                 entry(6, bufs.cell_start),
                 entry(7, bufs.boundary),
                 entry(8, bufs.boundary_cell_start),
+                entry(9, limit),
             ],
+        });
+        // vapor_limit reads no boundary particles: its auto layout leaves them out.
+        let limit_bind = mixing.then(|| {
+            self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("vapor limit"),
+                layout: &self.limit_layout,
+                entries: &[
+                    entry(0, bufs.grid),
+                    entry(1, &uniform),
+                    entry(2, bufs.pos),
+                    entry(3, bufs.info),
+                    entry(4, bufs.thermo),
+                    entry(6, bufs.cell_start),
+                    entry(9, limit),
+                ],
+            })
         });
         let bytes = count as u64 * 16;
         let (x, y) = dispatch_size(count);
         for _ in 0..iterations {
+            if let Some(limit_bind) = &limit_bind {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("vapor_limit"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&self.limit_pipeline);
+                pass.set_bind_group(0, limit_bind, &[]);
+                pass.dispatch_workgroups(x, y, 1);
+            }
             {
                 let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                     label: Some("smooth_temperature"),
