@@ -132,13 +132,31 @@ pub fn bench_detail(
 
     let sim_ms = sim_ms_per_frame(run_dir);
     let mut rows = Vec::new();
-    let mut prev: Option<(
+    let rest_grids = |fr: &Frame, f: u32| -> Result<[SparseGrid<[f32; 3]>; 2]> {
+        let mut p = base.clone();
+        p.fields.density = false;
+        p.fields.rest = true;
+        let input = RestInput {
+            rest: &fr.rest,
+            codec,
+            weights: clock.weights(f),
+            dual: true,
+        };
+        let g = splat_with_rest(&fr.state, &p, Some(input))?;
+        match (g.rest, g.rest2) {
+            (Some(a), Some(b)) => Ok([a, b]),
+            _ => Err(Error::Runtime("no rest grids".into())),
+        }
+    };
+    type Prev = (
         u32,
         Frame,
         SparseGrid<f32>,
         SparseGrid<f32>,
         SparseGrid<f32>,
-    )> = None;
+    );
+    let mut prev: Option<Prev> = None;
+    let mut prev_rest: Option<[SparseGrid<[f32; 3]>; 2]> = None;
     for f in a..=b {
         let fr = read(f)?;
         let d0 = density(&fr, f, None)?;
@@ -155,15 +173,49 @@ pub fn bench_detail(
             row["energy_below_spacing_ratio"] = json!(e1 / e0);
             row["energy_below_spacing_ratio_world"] = json!(ew / e0);
         }
-        if let Some((pf, pfr, p0, p1, pw)) = &prev {
-            if s0 > 0.0 && grid_sum(p0) > 0.0 {
-                let rest_corr = correlation(pfr, p0, p1, &fr, &d0, &d1, spacing);
-                let world_corr = correlation(pfr, p0, pw, &fr, &d0, &dw, spacing);
-                row["correlation_frames"] = json!([pf, f]);
-                row["detail_correlation_rest"] = json!(rest_corr);
-                row["detail_correlation_world"] = json!(world_corr);
+        let rg = rest_grids(&fr, f)?;
+        if let (Some((_, pfr, ..)), Some(pr)) = (&prev, &prev_rest) {
+            let resets = clock.resets(f);
+            let mut d2 = Vec::new();
+            for k in 0..2 {
+                if !resets[k] {
+                    d2.extend(rest_moves(pfr, &pr[k], &fr, &rg[k]));
+                }
+            }
+            if !d2.is_empty() {
+                d2.sort_by(f64::total_cmp);
+                let rms = (d2.iter().sum::<f64>() / d2.len() as f64).sqrt();
+                row["rest_move_rms_m"] = json!(rms);
+                row["rest_move_median_m"] = json!(d2[d2.len() / 2].sqrt());
             }
         }
+        if let (Some((pf, pfr, p0, p1, pw)), Some(pr)) = (&prev, &prev_rest) {
+            if s0 > 0.0 && grid_sum(p0) > 0.0 {
+                row["correlation_frames"] = json!([pf, f]);
+                // the field that carries on (not reset on f), the younger one if both do
+                let resets = clock.resets(f);
+                let age = clock.ages(f);
+                let k = match resets {
+                    [false, true] => Some(0),
+                    [true, false] => Some(1),
+                    [false, false] => Some(if age[0] <= age[1] { 0 } else { 1 }),
+                    _ => None,
+                };
+                if let Some(k) = k {
+                    let m = RestMatch {
+                        rest_a: &pr[k],
+                        rest_b: &rg[k],
+                    };
+                    row["detail_correlation_rest"] = json!(m.correlation(p0, p1, &d0, &d1));
+                    row["detail_correlation_world"] = json!(m.correlation(p0, pw, &d0, &dw));
+                }
+                row["particle_correlation_rest"] =
+                    json!(correlation(pfr, p0, p1, &fr, &d0, &d1, spacing));
+                row["particle_correlation_world"] =
+                    json!(correlation(pfr, p0, pw, &fr, &d0, &dw, spacing));
+            }
+        }
+        prev_rest = Some(rg);
         // timings: best of two
         let timed = |w: &FrameWriter| -> Result<(f64, f64)> {
             let mut best = (f64::INFINITY, f64::INFINITY);
@@ -217,6 +269,9 @@ pub fn bench_detail(
             "detail_correlation_rest_mean": mean("detail_correlation_rest"),
             "detail_correlation_world_mean": mean("detail_correlation_world"),
             "detail_correlation_world_max": max("detail_correlation_world"),
+            "particle_correlation_rest_mean": mean("particle_correlation_rest"),
+            "particle_correlation_world_mean": mean("particle_correlation_world"),
+            "rest_move_median_m_mean": mean("rest_move_median_m"),
             "detail_total_ms_mean": mean("detail_total_ms"),
             "detail_total_ms_max": max("detail_total_ms"),
             "plain_total_ms_mean": mean("plain_splat_ms").zip(mean("plain_vdb_ms")).map(|(a, b)| a + b),
@@ -474,6 +529,132 @@ fn correlation(
         }
     }
     pearson(&xs, &ys)
+}
+
+/// Points of two frames matched by their rest coordinate (one rest field, not reset between
+/// them): for each active voxel y of the undetailed density of the second frame, the point x of
+/// the first with rest_a(x) = rest_b(y), by three Newton steps x -= rest_a(x) - rest_b(y) from
+/// x = y (d rest / dx is about the identity).
+struct RestMatch<'a> {
+    rest_a: &'a SparseGrid<[f32; 3]>,
+    rest_b: &'a SparseGrid<[f32; 3]>,
+}
+
+impl RestMatch<'_> {
+    fn correlation(
+        &self,
+        a0: &SparseGrid<f32>,
+        a1: &SparseGrid<f32>,
+        b0: &SparseGrid<f32>,
+        b1: &SparseGrid<f32>,
+    ) -> f64 {
+        let t = b0.transform;
+        let (mut xs, mut ys) = (Vec::new(), Vec::new());
+        for l in &b0.leaves {
+            for n in 0..512 {
+                if !l.is_active(n) {
+                    continue;
+                }
+                let ijk = [
+                    l.origin[0] + (n >> 6) as i32,
+                    l.origin[1] + ((n >> 3) & 7) as i32,
+                    l.origin[2] + (n & 7) as i32,
+                ];
+                let y = t.index_to_world(ijk.map(|v| v as f64));
+                let target = self.rest_b.get(ijk).map(|v| v as f64);
+                let mut x = y;
+                let mut ok = true;
+                for _ in 0..3 {
+                    let Some(r) = sample3(self.rest_a, x) else {
+                        ok = false;
+                        break;
+                    };
+                    for k in 0..3 {
+                        x[k] -= r[k] - target[k];
+                    }
+                }
+                if !ok {
+                    continue;
+                }
+                let u0 = sample(a0, x);
+                xs.push(sample(a1, x) - u0);
+                ys.push(b1.get(ijk) as f64 - l.values[n] as f64);
+            }
+        }
+        pearson(&xs, &ys)
+    }
+}
+
+/// Trilinear value of a vec3 grid; `None` where a corner is inactive.
+fn sample3(g: &SparseGrid<[f32; 3]>, p: [f64; 3]) -> Option<[f64; 3]> {
+    let x = g.transform.world_to_index(p);
+    let b = x.map(|v| v.floor());
+    let t = [0, 1, 2].map(|a| x[a] - b[a]);
+    let mut s = [0.0; 3];
+    for c in 0..8 {
+        let o = [c >> 2 & 1, c >> 1 & 1, c & 1];
+        let w: f64 = (0..3)
+            .map(|a| if o[a] == 1 { t[a] } else { 1.0 - t[a] })
+            .product();
+        let i = [0, 1, 2].map(|a| b[a] as i32 + o[a]);
+        let o = i.map(|v| v & !7);
+        let leaf = g.leaves.binary_search_by(|l| l.origin.cmp(&o)).ok()?;
+        let n = crate::splat::Leaf::<[f32; 3]>::offset(i[0], i[1], i[2]);
+        if !g.leaves[leaf].is_active(n) {
+            return None;
+        }
+        let v = g.leaves[leaf].values[n];
+        for a in 0..3 {
+            s[a] += w * v[a] as f64;
+        }
+    }
+    Some(s)
+}
+
+/// Squared change of a rest field's interpolated coordinate at each cloudy particle (matched by
+/// id) from one frame to the next: zero if the rest coordinate moved exactly with the particle.
+fn rest_moves(
+    fa: &Frame,
+    ra: &SparseGrid<[f32; 3]>,
+    fb: &Frame,
+    rb: &SparseGrid<[f32; 3]>,
+) -> Vec<f64> {
+    let mut where_b = std::collections::HashMap::new();
+    for (j, info) in fb.state.info.iter().enumerate() {
+        where_b.insert(info[0], j);
+    }
+    let sample3 = |g: &SparseGrid<[f32; 3]>, p: [f32; 4]| {
+        let x = g
+            .transform
+            .world_to_index([p[0] as f64, p[1] as f64, p[2] as f64]);
+        let b = x.map(|v| v.floor());
+        let t = [0, 1, 2].map(|a| x[a] - b[a]);
+        let mut s = [0.0; 3];
+        for c in 0..8 {
+            let o = [c >> 2 & 1, c >> 1 & 1, c & 1];
+            let w: f64 = (0..3)
+                .map(|a| if o[a] == 1 { t[a] } else { 1.0 - t[a] })
+                .product();
+            let v = g.get([0, 1, 2].map(|a| b[a] as i32 + o[a]));
+            for a in 0..3 {
+                s[a] += w * v[a] as f64;
+            }
+        }
+        s
+    };
+    let mut out = Vec::new();
+    for (i, info) in fa.state.info.iter().enumerate() {
+        if fa.state.thermo[i][2] <= 0.0 {
+            continue;
+        }
+        let Some(&j) = where_b.get(&info[0]) else {
+            continue;
+        };
+        let a = sample3(ra, fa.state.pos[i]);
+        let b = sample3(rb, fb.state.pos[j]);
+        out.push((0..3).map(|k| (a[k] - b[k]) * (a[k] - b[k])).sum());
+    }
+    out
 }
 
 fn pearson(x: &[f64], y: &[f64]) -> f64 {

@@ -598,7 +598,7 @@ impl Default for DetailConfig {
             amplitude: 0.6,
             octaves: 3,
             character: DetailCharacter::Billowy,
-            rest_period: 24,
+            rest_period: 8,
         }
     }
 }

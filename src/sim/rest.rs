@@ -82,7 +82,7 @@ impl RestClock {
         }
     }
     /// Age in frames of field A and B at `frame`.
-    fn ages(&self, frame: u32) -> [u32; 2] {
+    pub fn ages(&self, frame: u32) -> [u32; 2] {
         let f = frame.saturating_sub(self.start);
         if self.period == 0 {
             return [f, f];

@@ -105,7 +105,7 @@ impl DetailNoise {
                 cy: lambda,
                 cz,
                 pz,
-                seed: pcg_hash(p.seed ^ 0xde7a_11 ^ o),
+                seed: pcg_hash(p.seed ^ 0x00de_7a11 ^ o),
                 weight: w,
             });
         }
