@@ -18,6 +18,11 @@
 //! sort; every output leaf is computed by one thread, which visits the bins of its neighbour leaves
 //! in a fixed order and the particles of a bin in index order, accumulating in f64. The output is
 //! therefore byte-identical whatever the number of threads.
+//!
+//! With the frame's rest positions (`splat_with_rest`, `sim::rest`): the `rest` grids are the
+//! voxel centres less the Shepard-interpolated displacement since each rest reset (active where
+//! `vel` is), and `export.detail` modulates the density by noise at that rest coordinate
+//! (`detail`), renormalised to the undetailed total once per frame.
 pub mod detail;
 pub mod grid;
 pub use detail::{DetailParams, RestInput};
