@@ -140,6 +140,20 @@ enum BenchTopic {
         #[arg(long, default_value_t = 0)]
         threads: usize,
     },
+    /// The `export.detail` figures (mass, energy below the spacing, frame-to-frame correlation,
+    /// time) on a run's particle caches (docs/RENDERING.md "Sub-particle detail").
+    Detail {
+        run_dir: PathBuf,
+        /// Frames A-B (default: all the run has).
+        #[arg(long)]
+        frames: Option<String>,
+        /// Voxel size (m); default: spacing / 4.
+        #[arg(long)]
+        voxel: Option<f64>,
+        /// `export.detail.*` overrides of the run's settings.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+    },
     /// Checkpoint size and write time.
     Checkpoint {
         #[arg(long, default_value_t = 100_000)]
@@ -429,6 +443,17 @@ fn bench(topic: BenchTopic) -> Result<()> {
                 threads
             };
             nimbus::bench::preview::bench_preview(width, height, dim, threads)?
+        }
+        BenchTopic::Detail {
+            run_dir,
+            frames,
+            voxel,
+            set,
+        } => {
+            let frames = frames
+                .map(|f| nimbus::pipeline::reexport::parse_frames(&f))
+                .transpose()?;
+            nimbus::bench::detail::bench_detail(&run_dir, frames, voxel, &set)?
         }
         BenchTopic::Checkpoint { particles } => {
             nimbus::bench::checkpoint::bench_checkpoint(particles)?

@@ -19,6 +19,7 @@ fn params(size: [f64; 3], d: f64, voxel: f64, periodic: [bool; 2]) -> SplatParam
         cloud_scale: 1.0,
         min_coverage: 1e-3,
         fields: SplatFields::default(),
+        detail: None,
     }
 }
 
@@ -287,6 +288,7 @@ fn only_touched_blocks_are_allocated() {
         temperature: false,
         vapor: false,
         velocity: false,
+        rest: false,
     };
     let g2 = splat(&st, &p2).unwrap();
     assert!(g2.density.unwrap().leaves.is_empty());
@@ -307,4 +309,178 @@ fn bad_parameters_are_errors_not_panics() {
     let mut short = st.clone();
     short.density.pop();
     assert_eq!(splat(&short, &p).unwrap_err().exit_code(), 2);
+}
+
+mod detail {
+    use super::*;
+    use nimbus::config::DetailCharacter;
+    use nimbus::sim::rest::{RestCodec, RestFrame};
+    use nimbus::splat::detail::NoiseSpace;
+    use nimbus::splat::{splat_with_rest, DetailParams, RestInput};
+
+    const SIZE: [f64; 3] = [24.0, 16.0, 24.0];
+    const VOXEL: f64 = 0.25;
+
+    /// A ball of cloud in the middle of a periodic box of spacing 1, moved by `shift`.
+    fn ball(shift: [f64; 3]) -> ParticleState {
+        let mut st = lattice(SIZE, 1.0, |p| {
+            let r = ((p[0] - 12.0).powi(2) + (p[1] - 8.0).powi(2) + (p[2] - 12.0).powi(2)).sqrt();
+            (0.01 * (1.0 - r / 5.0).max(0.0)) as f32
+        });
+        for p in &mut st.pos {
+            for a in 0..3 {
+                p[a] += shift[a] as f32;
+            }
+        }
+        st
+    }
+
+    fn codec() -> RestCodec {
+        RestCodec::new(SIZE, [true, true])
+    }
+
+    /// Rest positions where the unshifted ball's particles are.
+    fn rest() -> RestFrame {
+        ball([0.0; 3])
+            .pos
+            .iter()
+            .map(|p| {
+                let q = codec().encode([p[0] as f64, p[1] as f64, p[2] as f64]);
+                [q[0], q[1], q[2], q[0], q[1], q[2]]
+            })
+            .collect()
+    }
+
+    fn params(space: Option<NoiseSpace>) -> SplatParams {
+        let mut p = super::params(SIZE, 1.0, VOXEL, [true, true]);
+        p.fields = SplatFields {
+            density: true,
+            temperature: false,
+            vapor: false,
+            velocity: false,
+            rest: true,
+        };
+        p.detail = space.map(|space| DetailParams {
+            scale: 1.6,
+            amplitude: 0.6,
+            octaves: 2,
+            character: DetailCharacter::Billowy,
+            seed: 3,
+            space,
+        });
+        p
+    }
+
+    fn run(st: &ParticleState, rest: &RestFrame, p: &SplatParams) -> nimbus::splat::SplatGrids {
+        let input = RestInput {
+            rest,
+            codec: codec(),
+            weights: [0.25, 0.75],
+            dual: true,
+        };
+        splat_with_rest(st, p, Some(input)).unwrap()
+    }
+
+    fn sum(g: &SparseGrid<f32>) -> f64 {
+        g.leaves
+            .iter()
+            .flat_map(|l| {
+                (0..512)
+                    .filter(|&n| l.is_active(n))
+                    .map(|n| l.values[n] as f64)
+            })
+            .sum()
+    }
+
+    #[test]
+    fn detail_keeps_the_mass_adds_structure_and_moves_with_the_rest_frame() {
+        let st = ball([0.0; 3]);
+        let rest = rest();
+        let plain = run(&st, &rest, &params(None)).density.unwrap();
+        let detailed = run(&st, &rest, &params(Some(NoiseSpace::Rest)));
+        let d = detailed.density.as_ref().unwrap();
+        let (s0, s1) = (sum(&plain), sum(d));
+        assert!((s1 / s0 - 1.0).abs() < 1e-3, "mass {s1} vs {s0}");
+        // the detail changes the voxels by tens of percent
+        let (mut diff, mut norm) = (0.0, 0.0);
+        for l in &plain.leaves {
+            for n in 0..512 {
+                let ijk = [0, 1, 2].map(|a| {
+                    l.origin[a] + [(n >> 6) as i32, ((n >> 3) & 7) as i32, (n & 7) as i32][a]
+                });
+                let (a, b) = (l.values[n] as f64, d.get(ijk) as f64);
+                diff += (a - b) * (a - b);
+                norm += a * a;
+            }
+        }
+        assert!(
+            (diff / norm).sqrt() > 0.1,
+            "relative change {}",
+            (diff / norm).sqrt()
+        );
+        // the rest grids: fresh rest positions are the voxel centres
+        let r = detailed.rest.as_ref().unwrap();
+        assert!(detailed.rest2.is_some());
+        let c = [48, 32, 48];
+        let x = r.transform.index_to_world(c.map(|v| v as f64));
+        let v = r.get(c);
+        for a in 0..3 {
+            assert!((v[a] as f64 - x[a]).abs() < 1e-3, "{v:?} vs {x:?}");
+        }
+
+        // Deterministic, whatever the threads.
+        let p = params(Some(NoiseSpace::Rest));
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| run(&st, &rest, &p));
+        assert_eq!(grid_bytes(one.density.as_ref().unwrap()), grid_bytes(d));
+
+        // Moved by a whole number of voxels with the rest positions kept, the detailed cloud is
+        // the same cloud, moved; world-space noise is not.
+        let shift = [1.0, 0.5, -0.75];
+        let moved = ball(shift);
+        let s = shift.map(|x| (x / VOXEL) as i32);
+        for (space, sticks) in [(NoiseSpace::Rest, true), (NoiseSpace::World, false)] {
+            let a = run(&st, &rest, &params(Some(space))).density.unwrap();
+            let b = run(&moved, &rest, &params(Some(space))).density.unwrap();
+            let (mut worst, mut max) = (0.0f64, 0.0f64);
+            for l in &a.leaves {
+                for n in 0..512 {
+                    let ijk = [0, 1, 2].map(|k| {
+                        l.origin[k] + [(n >> 6) as i32, ((n >> 3) & 7) as i32, (n & 7) as i32][k]
+                    });
+                    let there = [ijk[0] + s[0], ijk[1] + s[1], ijk[2] + s[2]];
+                    let (x, y) = (l.values[n] as f64, b.get(there) as f64);
+                    worst = worst.max((x - y).abs());
+                    max = max.max(x);
+                }
+            }
+            if sticks {
+                assert!(
+                    worst < 1e-3 * max,
+                    "{space:?}: moved detail differs by {worst} (max {max})"
+                );
+            } else {
+                assert!(
+                    worst > 0.1 * max,
+                    "{space:?}: world noise moved with the cloud ({worst})"
+                );
+            }
+        }
+
+        // Without rest positions the detail is refused, not skipped.
+        assert!(splat(&st, &params(Some(NoiseSpace::Rest))).is_err());
+        // And off, the rest input changes nothing.
+        let mut p0 = super::params(SIZE, 1.0, VOXEL, [true, true]);
+        p0.fields.velocity = false;
+        let without = splat(&st, &p0).unwrap();
+        let with = run(&st, &rest, &p0);
+        assert_eq!(
+            grid_bytes(without.density.as_ref().unwrap()),
+            grid_bytes(with.density.as_ref().unwrap())
+        );
+        assert!(with.rest.is_none());
+    }
 }

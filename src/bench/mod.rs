@@ -1,5 +1,6 @@
 //! Measurement commands: figures for docs/PERFORMANCE.md, never timed tests.
 pub mod checkpoint;
+pub mod detail;
 pub mod pbf;
 pub mod preview;
 pub mod splat;

@@ -60,6 +60,7 @@ pub fn bench_splat(particles: usize, voxel: f64) -> Result<serde_json::Value> {
         cloud_scale: 1.0,
         min_coverage: 1e-3,
         fields: SplatFields::default(),
+        detail: None,
     };
     let mut best = f64::INFINITY;
     let mut best_cpu = f64::INFINITY;

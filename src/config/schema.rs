@@ -525,9 +525,17 @@ pub struct ExportConfig {
     pub velocity_time: Option<VelocityTime>,
     /// Write `particles/<shot>.<frame>.ply` per frame (what `nimbus export` re-splats).
     pub particles: bool,
+    /// Sub-particle procedural detail, evaluated in the particles' rest frame (`splat::detail`).
+    pub detail: DetailConfig,
     pub grids: GridNames,
     pub vdb: VdbConfig,
     pub exr: ExrConfig,
+}
+impl ExportConfig {
+    /// The run carries rest positions (`sim::rest`): detail or a `rest` grid needs them.
+    pub fn tracks_rest(&self) -> bool {
+        self.detail.enabled || !self.grids.rest.is_empty()
+    }
 }
 impl Default for ExportConfig {
     fn default() -> Self {
@@ -540,6 +548,7 @@ impl Default for ExportConfig {
             up_axis: None,
             velocity_time: None,
             particles: false,
+            detail: DetailConfig::default(),
             grids: GridNames::default(),
             vdb: VdbConfig::default(),
             exr: ExrConfig::default(),
@@ -555,6 +564,9 @@ pub struct GridNames {
     pub temperature: String,
     pub vapor: String,
     pub velocity: String,
+    /// Name of the rest-position vector grids (`<name>` and, with dual rest fields, `<name>2`);
+    /// empty (the default) leaves them out.
+    pub rest: String,
     /// OpenVDB class of the velocity grid; unset: the profile's, else `unknown`.
     pub velocity_class: Option<VectorClass>,
     /// Extra names for the same grids (e.g. `heat: temperature` for Blender).
@@ -567,10 +579,50 @@ impl Default for GridNames {
             temperature: "temperature".into(),
             vapor: "vapor".into(),
             velocity: "vel".into(),
+            rest: String::new(),
             velocity_class: None,
             aliases: Default::default(),
         }
     }
+}
+
+/// `export.detail`: procedural noise finer than the particles, stuck to the flow.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DetailConfig {
+    pub enabled: bool,
+    /// Wavelength of the first (largest) octave (m).
+    pub scale: f64,
+    /// Relative density change of the noise: density x max(0, 1 + amplitude n), n in [-1, 1].
+    pub amplitude: f64,
+    /// Octaves, each half the wavelength of the one before and half its weight.
+    pub octaves: u32,
+    pub character: DetailCharacter,
+    /// Frames between two resets of each of the two rest fields (they alternate, half a period
+    /// apart); 0: one rest field, never reset.
+    pub rest_period: u32,
+}
+impl Default for DetailConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            scale: 40.0,
+            amplitude: 0.6,
+            octaves: 3,
+            character: DetailCharacter::Billowy,
+            rest_period: 8,
+        }
+    }
+}
+
+/// Shape of the detail noise.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DetailCharacter {
+    /// Rounded puffs: |noise| (turbulence) per octave.
+    Billowy,
+    /// Thin strands: ridged noise (1 - |noise|)^2 per octave.
+    Wispy,
 }
 
 /// Renderers with a preset of export conventions (`export::profile`).

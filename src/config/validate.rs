@@ -129,6 +129,8 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("export.threshold", 0.0, 1.0e6),
     above("export.density_scale", 0.0, 1.0e9),
     closed("export.scale", 1.0e-6, 1.0e6),
+    above("export.detail.scale", 0.0, 1.0e5),
+    closed("export.detail.amplitude", 0.0, 1.0),
 ];
 
 impl FloatRange {
@@ -241,6 +243,8 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         ("export.threshold", e.threshold),
         ("export.density_scale", e.density_scale),
         ("export.scale", e.scale),
+        ("export.detail.scale", e.detail.scale),
+        ("export.detail.amplitude", e.detail.amplitude),
     ] {
         one(key, x);
     }
@@ -785,7 +789,26 @@ fn check_export(k: &mut Checks, e: &ExportConfig, d: &DomainConfig) {
         ("export.grids.temperature", &g.temperature),
         ("export.grids.vapor", &g.vapor),
         ("export.grids.velocity", &g.velocity),
+        ("export.grids.rest", &g.rest),
     ];
+    k.uint_within("export.detail.octaves", e.detail.octaves, 1, 8);
+    k.uint_within(
+        "export.detail.rest_period",
+        e.detail.rest_period,
+        0,
+        crate::config::MAX_FRAME,
+    );
+    if !g.rest.is_empty() && e.detail.rest_period > 0 {
+        let second = format!("{}2", g.rest);
+        if let Some((other, _)) = named.iter().find(|(_, n)| **n == second) {
+            k.fail(
+                &["export.grids.rest"],
+                format!(
+                    "the second rest grid {second:?} (dual rest fields) is also used by {other}"
+                ),
+            );
+        }
+    }
     for (i, (key, name)) in named.iter().enumerate() {
         if name.is_empty() {
             continue;

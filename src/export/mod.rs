@@ -157,6 +157,12 @@ impl ExportSpace {
         })
     }
 
+    /// A grid of positions (the rest grids) in the export frame: each value mapped like a point.
+    pub fn point_grid(&self, g: SparseGrid<[f32; 3]>) -> SparseGrid<[f32; 3]> {
+        let s = self.clone();
+        self.remap(g, move |p| s.point(p.map(|x| x as f64)).map(|x| x as f32))
+    }
+
     /// A scalar grid read back from an export, in nimbus's frame again (the inverse of
     /// `float_grid` up to the transform's rounding).
     pub fn float_grid_to_sim(&self, g: SparseGrid<f32>) -> SparseGrid<f32> {

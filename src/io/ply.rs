@@ -6,8 +6,14 @@
 //! velocity basis) and stored as doubles: the f32 simulation values come back exactly through
 //! the inverse map (two f64 roundings are far below half an f32 ulp), so a re-export splats the
 //! very particles the run did, in the same order.
+//!
+//! When the run tracks rest positions (`export.detail` or a rest grid, `sim::rest`), six more
+//! floats follow: `rest_x rest_y rest_z rest2_x rest2_y rest2_z`, the two rest fields in the
+//! export frame (scene units, up axis). They hold the quantised rest positions exactly
+//! (`RestCodec::encode` of the value read back gives the run's u16 again).
 use crate::error::{Error, Result};
 use crate::export::ExportSpace;
+use crate::sim::rest::{RestCodec, RestFrame};
 use crate::sim::ParticleState;
 use std::path::Path;
 
@@ -29,6 +35,17 @@ pub const PROPERTIES: [(&str, &str); 13] = [
 ];
 /// Bytes per vertex.
 pub const VERTEX_BYTES: usize = 6 * 8 + 3 * 4 + 1 + 2 * 4 + 4;
+/// The rest properties that follow when the run tracks rest positions.
+pub const REST_PROPERTIES: [(&str, &str); 6] = [
+    ("float", "rest_x"),
+    ("float", "rest_y"),
+    ("float", "rest_z"),
+    ("float", "rest2_x"),
+    ("float", "rest2_y"),
+    ("float", "rest2_z"),
+];
+/// Bytes per vertex of the rest properties.
+pub const REST_BYTES: usize = 6 * 4;
 
 /// What the cache needs of the shot besides the particles.
 #[derive(Debug, Clone)]
@@ -37,6 +54,8 @@ pub struct CacheInfo<'a> {
     /// Level-0 kernel radius (m) and mass (kg).
     pub h0: f64,
     pub m0: f64,
+    /// The frame's rest positions (same order as the particles) and their quantisation.
+    pub rest: Option<(&'a RestFrame, RestCodec)>,
     /// Comment lines (shot, frame, units) for people reading the header.
     pub comments: Vec<String>,
 }
@@ -49,8 +68,13 @@ pub fn encode(state: &ParticleState, info: &CacheInfo) -> Result<Vec<u8>> {
             "particle cache: particle arrays differ in length".into(),
         ));
     }
-    let mut out = header(n, &info.comments).into_bytes();
-    out.reserve(n * VERTEX_BYTES);
+    if info.rest.is_some_and(|(r, _)| r.len() != n) {
+        return Err(Error::InvalidInput(
+            "particle cache: rest positions and particles differ in length".into(),
+        ));
+    }
+    let mut out = header(n, &info.comments, info.rest.is_some()).into_bytes();
+    out.reserve(n * (VERTEX_BYTES + REST_BYTES));
     let s = info.space;
     for j in 0..n {
         let p = s.point(state.pos[j].map(|x| x as f64)[..3].try_into().unwrap());
@@ -72,18 +96,28 @@ pub fn encode(state: &ParticleState, info: &CacheInfo) -> Result<Vec<u8>> {
         out.extend_from_slice(&(h as f32).to_le_bytes());
         out.extend_from_slice(&(m as f32).to_le_bytes());
         out.extend_from_slice(&id.to_le_bytes());
+        if let Some((rest, codec)) = &info.rest {
+            let q = rest[j];
+            for k in [0, 3] {
+                let r = s.point(codec.decode([q[k], q[k + 1], q[k + 2]]));
+                for x in r {
+                    out.extend_from_slice(&(x as f32).to_le_bytes());
+                }
+            }
+        }
     }
     Ok(out)
 }
 
-fn header(n: usize, comments: &[String]) -> String {
+fn header(n: usize, comments: &[String], rest: bool) -> String {
     let mut h = String::from("ply\nformat binary_little_endian 1.0\n");
     for c in comments {
         // a comment is one line
         h.push_str(&format!("comment {}\n", c.replace(['\n', '\r'], " ")));
     }
     h.push_str(&format!("element vertex {n}\n"));
-    for (t, name) in PROPERTIES {
+    let extra: &[(&str, &str)] = if rest { &REST_PROPERTIES } else { &[] };
+    for (t, name) in PROPERTIES.iter().chain(extra) {
         h.push_str(&format!("property {t} {name}\n"));
     }
     h.push_str("end_header\n");
@@ -93,6 +127,16 @@ fn header(n: usize, comments: &[String]) -> String {
 /// Reads a cache written by `encode` back into the simulation's frame and units (density set to
 /// `rest_density`, as the splat of a run uses it).
 pub fn decode(bytes: &[u8], space: &ExportSpace, rest_density: f32) -> Result<ParticleState> {
+    decode_with_rest(bytes, space, rest_density, None).map(|(s, _)| s)
+}
+
+/// `decode`, and the rest positions when the cache holds them (quantised by `codec`).
+pub fn decode_with_rest(
+    bytes: &[u8],
+    space: &ExportSpace,
+    rest_density: f32,
+    codec: Option<RestCodec>,
+) -> Result<(ParticleState, Option<RestFrame>)> {
     let bad = |m: &str| Error::InvalidInput(format!("particle cache: {m}"));
     let end = b"end_header\n";
     let at = bytes
@@ -114,15 +158,25 @@ pub fn decode(bytes: &[u8], space: &ExportSpace, rest_density: f32) -> Result<Pa
             return Err(bad(&format!("expected property {t} {name}")));
         }
     }
-    if lines.next().is_some() {
-        return Err(bad("unexpected header lines"));
-    }
+    let rest_lines: Vec<&str> = lines.collect();
+    let has_rest = match rest_lines.len() {
+        0 => false,
+        6 if rest_lines
+            .iter()
+            .zip(REST_PROPERTIES)
+            .all(|(l, (t, name))| *l == format!("property {t} {name}")) =>
+        {
+            true
+        }
+        _ => return Err(bad("unexpected header lines")),
+    };
+    let stride = VERTEX_BYTES + if has_rest { REST_BYTES } else { 0 };
     let body = &bytes[at + end.len()..];
-    if Some(body.len()) != n.checked_mul(VERTEX_BYTES) {
+    if Some(body.len()) != n.checked_mul(stride) {
         return Err(bad(&format!(
             "{} bytes of vertex data, {n} vertices need {}",
             body.len(),
-            n.saturating_mul(VERTEX_BYTES)
+            n.saturating_mul(stride)
         )));
     }
     let mut s = ParticleState {
@@ -134,7 +188,11 @@ pub fn decode(bytes: &[u8], space: &ExportSpace, rest_density: f32) -> Result<Pa
     };
     let f64_at = |b: &[u8], i: usize| f64::from_le_bytes(b[i..i + 8].try_into().unwrap());
     let f32_at = |b: &[u8], i: usize| f32::from_le_bytes(b[i..i + 4].try_into().unwrap());
-    for v in body.chunks_exact(VERTEX_BYTES) {
+    let mut rest: Option<RestFrame> = match (has_rest, codec) {
+        (true, Some(_)) => Some(Vec::with_capacity(n)),
+        _ => None,
+    };
+    for v in body.chunks_exact(stride) {
         let p = space.point_to_sim([f64_at(v, 0), f64_at(v, 8), f64_at(v, 16)]);
         let u = space.velocity_to_sim([f64_at(v, 24), f64_at(v, 32), f64_at(v, 40)]);
         s.pos.push([p[0] as f32, p[1] as f32, p[2] as f32, 0.0]);
@@ -144,13 +202,31 @@ pub fn decode(bytes: &[u8], space: &ExportSpace, rest_density: f32) -> Result<Pa
         let level = v[60] as u32;
         let id = u32::from_le_bytes(v[69..73].try_into().unwrap());
         s.info.push([id, level]);
+        if let (Some(out), Some(codec)) = (rest.as_mut(), codec) {
+            let r = |i: usize| {
+                let f = |k: usize| f32_at(v, VERTEX_BYTES + 4 * (i + k)) as f64;
+                codec.encode(space.point_to_sim([f(0), f(1), f(2)]))
+            };
+            let (a, b) = (r(0), r(3));
+            out.push([a[0], a[1], a[2], b[0], b[1], b[2]]);
+        }
     }
-    Ok(s)
+    Ok((s, rest))
 }
 
 pub fn read(path: &Path, space: &ExportSpace, rest_density: f32) -> Result<ParticleState> {
+    read_with_rest(path, space, rest_density, None).map(|(s, _)| s)
+}
+
+/// `read`, and the rest positions when the cache holds them.
+pub fn read_with_rest(
+    path: &Path,
+    space: &ExportSpace,
+    rest_density: f32,
+    codec: Option<RestCodec>,
+) -> Result<(ParticleState, Option<RestFrame>)> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    decode(&bytes, space, rest_density)
+    decode_with_rest(&bytes, space, rest_density, codec)
         .map_err(|e| Error::InvalidInput(format!("{}: {e}", path.display())))
 }
 
@@ -214,6 +290,7 @@ mod tests {
                 space: &sp,
                 h0: 10.0,
                 m0: 150.0,
+                rest: None,
                 comments: vec!["nimbus test\nframe 3".into()],
             };
             let bytes = encode(&st, &info).unwrap();
@@ -233,12 +310,43 @@ mod tests {
     }
 
     #[test]
+    fn rest_positions_round_trip_exactly() {
+        let st = state();
+        let codec = RestCodec::new([2000.0, 1400.0, 1600.0], [true, true]);
+        let rest: RestFrame = (0..st.len())
+            .map(|j| {
+                let a = codec.encode([j as f64 * 7.3, j as f64 * 3.1, 1599.0 - j as f64]);
+                let b = codec.encode([j as f64 * 1.9, 1400.0 - j as f64, j as f64 * 5.5]);
+                [a[0], a[1], a[2], b[0], b[1], b[2]]
+            })
+            .collect();
+        for sets in [vec![], vec!["export.scale=0.37", "export.up_axis=z"]] {
+            let sp = space(&sets);
+            let info = CacheInfo {
+                space: &sp,
+                h0: 10.0,
+                m0: 150.0,
+                rest: Some((&rest, codec)),
+                comments: vec![],
+            };
+            let bytes = encode(&st, &info).unwrap();
+            let (back, r) = decode_with_rest(&bytes, &sp, 1.0, Some(codec)).unwrap();
+            assert_eq!(r.as_ref(), Some(&rest), "{sets:?}");
+            assert_eq!(back.info, st.info);
+            // a reader that does not ask for them still reads the particles
+            assert_eq!(decode(&bytes, &sp, 1.0).unwrap().info, st.info);
+            assert!(decode(&bytes[..bytes.len() - 4], &sp, 1.0).is_err());
+        }
+    }
+
+    #[test]
     fn damaged_caches_are_refused() {
         let sp = space(&[]);
         let info = CacheInfo {
             space: &sp,
             h0: 10.0,
             m0: 150.0,
+            rest: None,
             comments: vec![],
         };
         let bytes = encode(&state(), &info).unwrap();

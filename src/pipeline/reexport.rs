@@ -77,6 +77,11 @@ pub fn check_sets(sets: &[String]) -> Result<()> {
                 "--set {key}: nimbus export changes export.* keys only, and not export.particles: it re-splats particles already simulated"
             )));
         }
+        if key == "export.detail.rest_period" {
+            return Err(Error::InvalidInput(format!(
+                "--set {key}: the rest positions in the particle caches were reset on the run's period; nimbus export cannot change it"
+            )));
+        }
     }
     Ok(())
 }
@@ -125,7 +130,22 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
             run_dir.display()
         )));
     }
+    if cfg.export.tracks_rest() && !run_cfg.export.tracks_rest() {
+        return Err(Error::InvalidInput(format!(
+            "{}: export.detail and export.grids.rest need rest positions, and the run's particle caches hold none (run with export.detail.enabled or export.grids.rest set)",
+            run_dir.display()
+        )));
+    }
     let run_space = ExportSpace::from_config(&run_cfg);
+    let codec = cfg.export.tracks_rest().then(|| {
+        crate::sim::rest::RestCodec::new(
+            run_cfg.domain.size,
+            [
+                run_cfg.domain.periodic.contains(&crate::config::Axis::X),
+                run_cfg.domain.periodic.contains(&crate::config::Axis::Z),
+            ],
+        )
+    });
     let dest = if own {
         run_dir.to_path_buf()
     } else {
@@ -168,16 +188,24 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
                 progress(&done, total, rec.frame, "unchanged", t);
                 return Ok((rec.frame, false));
             }
-            let state = crate::io::ply::read(
+            let (state, rest) = crate::io::ply::read_with_rest(
                 &run_dir.join(&ply.path),
                 &run_space,
                 run_cfg.solver.rest_density as f32,
+                codec,
             )?;
+            if codec.is_some() && rest.is_none() {
+                return Err(Error::InvalidInput(format!(
+                    "frame {}: {} holds no rest positions",
+                    rec.frame, ply.path
+                )));
+            }
             let written = writer.write(FrameJob {
                 frame: rec.frame,
                 state: Arc::new(state),
                 skip_write: false,
                 started: t,
+                rest: rest.map(Arc::new),
             })?;
             let new = written
                 .record

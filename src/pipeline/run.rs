@@ -10,6 +10,7 @@ use crate::config::{self, ShotConfig};
 use crate::error::{Error, Result};
 use crate::gpu;
 use crate::io::checkpoint;
+use crate::sim::rest::{self, RestTracker};
 use crate::sim::{ParticleState, SimClock, Simulation};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -120,6 +121,30 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
         }
     };
 
+    // Rest positions (`sim::rest`), on the host, carried in every checkpoint.
+    let mut rest = match (&resumed, cfg.export.tracks_rest()) {
+        (_, false) => None,
+        (None, true) => Some(RestTracker::default()),
+        (Some(ck), true) => match ck.extra.get(rest::CHECKPOINT_SECTION) {
+            Some(bytes) => Some(RestTracker::from_bytes(bytes)?),
+            None => {
+                return Err(Error::InvalidInput(format!(
+                    "cannot resume: the checkpoint of frame {} holds no rest positions, and                      export.detail / export.grids.rest need them; resume with them off, or run                      again from the start",
+                    ck.header.frame
+                )))
+            }
+        },
+    };
+    let rest_clock = rest::RestClock::from_config(cfg);
+    let rest_codec = rest::RestCodec::new(
+        cfg.domain.size,
+        [
+            cfg.domain.periodic.contains(&config::Axis::X),
+            cfg.domain.periodic.contains(&config::Axis::Z),
+        ],
+    );
+    let h0 = crate::sim::init::kernel_radius(cfg);
+
     let writer = FrameWriter::new(cfg, run_dir)?;
     let mut manifest = match (&resumed, Manifest::load(run_dir)) {
         (Some(_), Ok(m)) => m,
@@ -200,6 +225,9 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                      last good checkpoint are kept"
                 )));
             }
+            let frame_rest = rest
+                .as_mut()
+                .map(|t| Arc::new(t.update(&state, frame, &rest_clock, &rest_codec, h0)));
             let state = Arc::new(state);
             let clock = sim.clock();
             let mut diagnostics = report.diagnostics.clone();
@@ -232,6 +260,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                     state: state.clone(),
                     skip_write,
                     started: t0,
+                    rest: frame_rest,
                 },
             )?;
             loop_state.in_flight += 1;
@@ -242,8 +271,16 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                 && (frame - cfg.output.frames.start + 1).is_multiple_of(cfg.checkpoint.every);
             if due || stop || frame == end {
                 loop_state.collect(&done_rx, run_dir, &progress, true)?;
-                let path =
-                    write_checkpoint(cfg, &ckpt_dir, &sim_hash, &adapter, &state, frame, &sim)?;
+                let path = write_checkpoint(
+                    cfg,
+                    &ckpt_dir,
+                    &sim_hash,
+                    &adapter,
+                    &state,
+                    rest.as_ref(),
+                    frame,
+                    &sim,
+                )?;
                 progress.note("checkpoint", &format!("checkpoint {}", path.display()));
             }
             if stop && frame < end {
@@ -376,15 +413,25 @@ fn send(tx: &SyncSender<FrameJob>, job: FrameJob) -> Result<()> {
         .map_err(|_| Error::Runtime("the writer thread stopped unexpectedly".into()))
 }
 
+#[allow(clippy::too_many_arguments)]
 fn write_checkpoint(
     cfg: &ShotConfig,
     dir: &Path,
     sim_hash: &str,
     adapter: &str,
     state: &ParticleState,
+    rest: Option<&RestTracker>,
     frame: u32,
     sim: &Simulation,
 ) -> Result<PathBuf> {
+    let mut extra: std::collections::BTreeMap<String, Vec<u8>> = [(
+        checkpoint::CONFIG_SECTION.to_string(),
+        serde_json::to_vec_pretty(cfg).map_err(|e| Error::Runtime(e.to_string()))?,
+    )]
+    .into();
+    if let Some(r) = rest {
+        extra.insert(rest::CHECKPOINT_SECTION.to_string(), r.to_bytes());
+    }
     let clock = sim.clock();
     let ck = checkpoint::Checkpoint {
         header: checkpoint::CheckpointHeader {
@@ -400,12 +447,9 @@ fn write_checkpoint(
             next_id: clock.next_id,
         },
         state: state.clone(),
-        // The resolved config, so a run whose manifest was lost can still be resumed.
-        extra: [(
-            checkpoint::CONFIG_SECTION.to_string(),
-            serde_json::to_vec_pretty(cfg).map_err(|e| Error::Runtime(e.to_string()))?,
-        )]
-        .into(),
+        // The resolved config, so a run whose manifest was lost can still be resumed, and the
+        // rest positions when the run tracks them.
+        extra,
     };
     checkpoint::write_and_prune(dir, &ck, cfg.checkpoint.keep.max(1) as usize)
 }

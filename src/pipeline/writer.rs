@@ -6,6 +6,7 @@ use crate::config::ShotConfig;
 use crate::error::Result;
 use crate::export::ExportSpace;
 use crate::io::vdb::{VdbFile, VdbGrid, VdbOptions};
+use crate::sim::rest::{RestClock, RestCodec, RestFrame};
 use crate::sim::ParticleState;
 use crate::splat::{GridTransform, SparseGrid, SplatGrids};
 use std::collections::BTreeMap;
@@ -19,6 +20,9 @@ pub struct FrameJob {
     /// The frame is already on disk with matching checksums (a resume): do not rewrite it.
     pub skip_write: bool,
     pub started: Instant,
+    /// Rest positions of the particles, same order (`sim::rest`), when the run tracks them
+    /// (`ExportConfig::tracks_rest`).
+    pub rest: Option<Arc<RestFrame>>,
 }
 
 pub struct WrittenFrame {
@@ -40,6 +44,8 @@ pub struct FrameWriter {
     particle_mass: f64,
     splat: crate::splat::SplatParams,
     preview: Option<crate::preview::PreviewParams>,
+    rest_clock: RestClock,
+    rest_codec: RestCodec,
 }
 
 impl FrameWriter {
@@ -67,8 +73,10 @@ impl FrameWriter {
             } else {
                 0.0
             },
+            rest_codec: RestCodec::new(cfg.domain.size, splat.periodic),
             splat,
             preview,
+            rest_clock: RestClock::from_config(cfg),
         })
     }
 
@@ -115,7 +123,13 @@ impl FrameWriter {
         // density at rho0 within a few percent: the splat uses m / rho0 as particle volume.
         let mut state = (*job.state).clone();
         state.density.fill(self.cfg.solver.rest_density as f32);
-        let grids = crate::splat::splat(&state, &self.splat)?;
+        let rest = job.rest.as_deref().map(|r| crate::splat::RestInput {
+            rest: r,
+            codec: self.rest_codec,
+            weights: self.rest_clock.weights(job.frame),
+            dual: self.rest_clock.dual(),
+        });
+        let grids = crate::splat::splat_with_rest(&state, &self.splat, rest)?;
         phase_ms.insert("splat".into(), ms(t));
         let mut files = Vec::new();
         let c = &self.cfg;
@@ -160,7 +174,7 @@ impl FrameWriter {
         if c.export.particles {
             let t = Instant::now();
             let path = frame_file(&self.run_dir, "particles", &c.shot, job.frame, pad, "ply");
-            self.write_particles(&path, &job.state, job.frame)?;
+            self.write_particles(&path, &job.state, job.rest.as_deref(), job.frame)?;
             files.push(file_record(&self.run_dir, &path)?);
             phase_ms.insert("write_particles".into(), ms(t));
         }
@@ -213,10 +227,17 @@ impl FrameWriter {
     }
 
     /// The frame's particle cache (`io::ply`), in the export frame.
-    fn write_particles(&self, path: &Path, state: &ParticleState, frame: u32) -> Result<()> {
+    fn write_particles(
+        &self,
+        path: &Path,
+        state: &ParticleState,
+        rest: Option<&RestFrame>,
+        frame: u32,
+    ) -> Result<()> {
         let s = &self.space;
         let info = crate::io::ply::CacheInfo {
             space: s,
+            rest: rest.map(|r| (r, self.rest_codec)),
             h0: crate::sim::init::kernel_radius(&self.cfg),
             m0: self.particle_mass,
             comments: vec![
@@ -286,12 +307,37 @@ impl FrameWriter {
             vg.metadata = space.velocity_metadata();
             out.push(with_aliases(vg));
         }
+        let w = self.rest_clock.weights(frame);
+        let second = format!("{}2", names.rest);
+        for (name, grid, weight) in [
+            (&names.rest, grids.rest, w[0]),
+            (&second, grids.rest2, w[1]),
+        ] {
+            if let (false, Some(g)) = (names.rest.is_empty(), grid) {
+                let mut rg = VdbGrid::vec3(name.clone(), space.point_grid(g));
+                rg.metadata = self.rest_metadata(weight);
+                out.push(with_aliases(rg));
+            }
+        }
         let mut metadata = VdbFile::standard_metadata(frame as i64);
         metadata.extend(space.file_metadata(self.transform.voxel_size));
         VdbFile {
             grids: out,
             metadata,
         }
+    }
+
+    /// Metadata of a rest grid: its blend weight this frame (the two sum to 1; shaders
+    /// cross-fade noise(rest) and noise(rest2) by them) and the reset period.
+    fn rest_metadata(&self, weight: f64) -> Vec<(String, crate::io::vdb::MetaValue)> {
+        use crate::io::vdb::MetaValue;
+        vec![
+            ("nimbus_rest_weight".into(), MetaValue::Double(weight)),
+            (
+                "nimbus_rest_period_frames".into(),
+                MetaValue::Int64(self.rest_clock.period as i64),
+            ),
+        ]
     }
 
     fn vdb_options(&self) -> VdbOptions {

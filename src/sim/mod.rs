@@ -14,6 +14,7 @@ pub mod init;
 pub mod noise;
 pub mod pbf;
 pub mod reference;
+pub mod rest;
 mod simulation;
 pub mod smoothing;
 pub mod thermo;

@@ -18,7 +18,14 @@
 //! sort; every output leaf is computed by one thread, which visits the bins of its neighbour leaves
 //! in a fixed order and the particles of a bin in index order, accumulating in f64. The output is
 //! therefore byte-identical whatever the number of threads.
+//!
+//! With the frame's rest positions (`splat_with_rest`, `sim::rest`): the `rest` grids are the
+//! voxel centres less the Shepard-interpolated displacement since each rest reset (active where
+//! `vel` is), and `export.detail` modulates the density by noise at that rest coordinate
+//! (`detail`), renormalised to the undetailed total once per frame.
+pub mod detail;
 pub mod grid;
+pub use detail::{DetailParams, RestInput};
 pub use grid::{GridTransform, Leaf, SparseGrid, LEAF_DIM, LEAF_VOXELS};
 
 use crate::config::{Axis, ShotConfig};
@@ -33,6 +40,8 @@ pub struct SplatFields {
     pub temperature: bool,
     pub vapor: bool,
     pub velocity: bool,
+    /// The rest-position grids (`sim::rest`; needs a `RestInput`).
+    pub rest: bool,
 }
 
 impl Default for SplatFields {
@@ -42,6 +51,7 @@ impl Default for SplatFields {
             temperature: true,
             vapor: true,
             velocity: true,
+            rest: false,
         }
     }
 }
@@ -66,6 +76,8 @@ pub struct SplatParams {
     /// `temperature` and `vel` voxels whose coverage sum_j V_j W is below this stay inactive.
     pub min_coverage: f64,
     pub fields: SplatFields,
+    /// `export.detail` (needs a `RestInput`); `None`: off.
+    pub detail: Option<DetailParams>,
 }
 
 /// An isolated particle's own SPH density is m W(0) ~ 0.2 rho0 for h = 2d, so this clamp only
@@ -104,7 +116,9 @@ impl SplatParams {
                 temperature: !cfg.export.grids.temperature.is_empty(),
                 vapor: !cfg.export.grids.vapor.is_empty(),
                 velocity: !cfg.export.grids.velocity.is_empty(),
+                rest: !cfg.export.grids.rest.is_empty(),
             },
+            detail: DetailParams::from_config(cfg),
         };
         p.validate()?;
         Ok(p)
@@ -205,6 +219,9 @@ pub struct SplatGrids {
     pub temperature: Option<SparseGrid<f32>>,
     pub vapor: Option<SparseGrid<f32>>,
     pub velocity: Option<SparseGrid<[f32; 3]>>,
+    /// Rest positions of field A and, with dual rest fields, B (m, simulation frame).
+    pub rest: Option<SparseGrid<[f32; 3]>>,
+    pub rest2: Option<SparseGrid<[f32; 3]>>,
     pub stats: SplatStats,
 }
 
@@ -234,6 +251,8 @@ struct Source {
     vapor: f64,
     temp: f64,
     vel: [f64; 3],
+    /// Displacement since the rest reset of field A and B (minimum image), m.
+    disp: [[f64; 3]; 2],
 }
 
 fn leaf_of(i: f64) -> i32 {
@@ -242,8 +261,33 @@ fn leaf_of(i: f64) -> i32 {
 
 /// Splats `state` onto the requested sparse grids (see the module docs for the formulas).
 pub fn splat(state: &ParticleState, params: &SplatParams) -> Result<SplatGrids> {
+    splat_with_rest(state, params, None)
+}
+
+/// `splat` with the frame's rest positions, which `export.detail` and the rest grids need.
+pub fn splat_with_rest(
+    state: &ParticleState,
+    params: &SplatParams,
+    rest: Option<RestInput>,
+) -> Result<SplatGrids> {
     params.validate()?;
     let n = state.len();
+    let wants_rest = params.fields.rest || params.detail.is_some();
+    match rest {
+        None if wants_rest => {
+            return Err(Error::InvalidInput(
+                "splat: export.detail and the rest grid need the particles' rest positions".into(),
+            ))
+        }
+        Some(r) if r.rest.len() != n => {
+            return Err(Error::InvalidInput(format!(
+                "splat: {} rest positions for {n} particles",
+                r.rest.len()
+            )))
+        }
+        _ => {}
+    }
+    let rest = if wants_rest { rest } else { None };
     let need_vel = params.fields.velocity;
     if state.thermo.len() != n
         || state.info.len() != n
@@ -264,7 +308,7 @@ pub fn splat(state: &ParticleState, params: &SplatParams) -> Result<SplatGrids> 
     let (lo, hi, period) = params.index_range();
     // Particles with zero cloud and vapor add nothing to those grids: skip them unless a
     // normalised field needs every particle.
-    let all = f.temperature || f.velocity;
+    let all = f.temperature || f.velocity || rest.is_some();
     let rho_min = MIN_DENSITY_RATIO * params.rest_density;
 
     let per_particle: Vec<Vec<Source>> = (0..n)
@@ -304,6 +348,17 @@ pub fn splat(state: &ParticleState, params: &SplatParams) -> Result<SplatGrids> 
             } else {
                 [0.0; 3]
             };
+            let disp = match &rest {
+                Some(r) => {
+                    let q = r.rest[j];
+                    let x = [pw[0] as f64, pw[1] as f64, pw[2] as f64];
+                    [
+                        r.codec.diff(x, r.codec.decode([q[0], q[1], q[2]])),
+                        r.codec.diff(x, r.codec.decode([q[3], q[4], q[5]])),
+                    ]
+                }
+                None => [[0.0; 3]; 2],
+            };
             // Shifts (in voxels) of the images whose support meets the output range.
             let mut shifts: [Vec<f64>; 3] = Default::default();
             for a in 0..3 {
@@ -336,6 +391,7 @@ pub fn splat(state: &ParticleState, params: &SplatParams) -> Result<SplatGrids> 
                             vapor: th[1] as f64,
                             temp: th[0] as f64,
                             vel,
+                            disp,
                         });
                     }
                 }
@@ -378,6 +434,15 @@ pub fn splat(state: &ParticleState, params: &SplatParams) -> Result<SplatGrids> 
     let max_r = sources.iter().map(|s| s.r).fold(0.0f64, f64::max);
     let reach = (max_r / LEAF_DIM as f64).ceil() as i32;
 
+    let noise = match (&params.detail, &rest) {
+        (Some(d), Some(r)) => Some(detail::DetailNoise::new(
+            d,
+            params.domain_size,
+            v,
+            r.weights,
+        )),
+        _ => None,
+    };
     let ctx = LeafCtx {
         sources: &sources,
         bin_keys: &bin_keys,
@@ -387,8 +452,31 @@ pub fn splat(state: &ParticleState, params: &SplatParams) -> Result<SplatGrids> 
         hi,
         voxel: v,
         params,
+        rest: rest.is_some(),
+        dual: rest.is_some_and(|r| r.dual),
+        noise: noise.as_ref(),
     };
-    let leaves: Vec<LeafOut> = touched.par_iter().map(|&k| ctx.compute(k)).collect();
+    let mut leaves: Vec<LeafOut> = touched.par_iter().map(|&k| ctx.compute(k)).collect();
+    if noise.is_some() {
+        // One factor per frame keeps the total: sums in leaf order (deterministic).
+        let (mut s0, mut s1) = (0.0f64, 0.0f64);
+        for l in &leaves {
+            if let Some(d) = &l.detailed {
+                s0 += d.undetailed_sum;
+                s1 += d.detailed_sum;
+            }
+        }
+        let k = if s1 > 0.0 { s0 / s1 } else { 1.0 };
+        let thr = params.threshold;
+        leaves.par_iter_mut().for_each(|l| {
+            if let Some(d) = l.detailed.take() {
+                l.density = leaf_from(d.origin, |n| {
+                    let x = d.values[n] * k;
+                    (x > 0.0 && x >= thr).then_some(x as f32)
+                });
+            }
+        });
+    }
 
     let stats = SplatStats {
         particles,
@@ -400,12 +488,23 @@ pub fn splat(state: &ParticleState, params: &SplatParams) -> Result<SplatGrids> 
     let mut temp = Vec::new();
     let mut vap = Vec::new();
     let mut vel = Vec::new();
+    let mut rest_a = Vec::new();
+    let mut rest_b = Vec::new();
     for l in leaves {
         dens.extend(l.density);
         temp.extend(l.temperature);
         vap.extend(l.vapor);
         vel.extend(l.velocity);
+        rest_a.extend(l.rest[0].clone());
+        rest_b.extend(l.rest[1].clone());
     }
+    let vec_grid = |name: &str, leaves| SparseGrid {
+        name: name.into(),
+        background: [0.0f32; 3],
+        transform: t,
+        leaves,
+    };
+    let rest_grids = f.rest && rest.is_some();
     let grid = |name: &str, leaves| SparseGrid {
         name: name.into(),
         background: 0.0f32,
@@ -416,12 +515,9 @@ pub fn splat(state: &ParticleState, params: &SplatParams) -> Result<SplatGrids> 
         density: f.density.then(|| grid("density", dens)),
         temperature: f.temperature.then(|| grid("temperature", temp)),
         vapor: f.vapor.then(|| grid("vapor", vap)),
-        velocity: f.velocity.then(|| SparseGrid {
-            name: "vel".into(),
-            background: [0.0f32; 3],
-            transform: t,
-            leaves: vel,
-        }),
+        velocity: f.velocity.then(|| vec_grid("vel", vel)),
+        rest: rest_grids.then(|| vec_grid("rest", rest_a)),
+        rest2: (rest_grids && ctx.dual).then(|| vec_grid("rest2", rest_b)),
         stats,
     })
 }
@@ -435,6 +531,11 @@ struct LeafCtx<'a> {
     hi: [i64; 3],
     voxel: f64,
     params: &'a SplatParams,
+    /// Sources carry displacements to interpolate.
+    rest: bool,
+    /// The second rest field is in use (its grid is written).
+    dual: bool,
+    noise: Option<&'a detail::DetailNoise>,
 }
 
 struct LeafOut {
@@ -442,6 +543,17 @@ struct LeafOut {
     temperature: Option<Leaf<f32>>,
     vapor: Option<Leaf<f32>>,
     velocity: Option<Leaf<[f32; 3]>>,
+    rest: [Option<Leaf<[f32; 3]>>; 2],
+    /// With detail: the detailed density before the frame's normalisation and threshold.
+    detailed: Option<Detailed>,
+}
+
+struct Detailed {
+    origin: [i32; 3],
+    values: Box<[f64; LEAF_VOXELS]>,
+    /// Sum of the undetailed active values and of the detailed values.
+    undetailed_sum: f64,
+    detailed_sum: f64,
 }
 
 impl LeafCtx<'_> {
@@ -453,6 +565,11 @@ impl LeafCtx<'_> {
         let mut vap = [0.0f64; LEAF_VOXELS];
         let mut tnum = [0.0f64; LEAF_VOXELS];
         let mut vnum = [[0.0f64; 3]; LEAF_VOXELS];
+        let mut dnum = if self.rest {
+            vec![[0.0f64; 6]; LEAF_VOXELS]
+        } else {
+            Vec::new()
+        };
         // Voxels of this leaf inside the output range.
         let vlo = [0, 1, 2].map(|a| (o[a] as i64).max(self.lo[a]));
         let vhi = [0, 1, 2].map(|a| (o[a] as i64 + 7).min(self.hi[a]));
@@ -493,6 +610,13 @@ impl LeafCtx<'_> {
                                     for (acc, u) in vnum[n].iter_mut().zip(s.vel) {
                                         *acc += w * u;
                                     }
+                                    if self.rest {
+                                        let dn = &mut dnum[n];
+                                        for a in 0..3 {
+                                            dn[a] += w * s.disp[0][a];
+                                            dn[3 + a] += w * s.disp[1][a];
+                                        }
+                                    }
                                 }
                             }
                         }
@@ -508,7 +632,60 @@ impl LeafCtx<'_> {
                 (x > 0.0 && x >= thr).then_some(x as f32)
             })
         };
+        // Rest coordinates of voxel n: its centre less the interpolated displacement.
+        let t = self.params.transform;
+        let centre = |n: usize| {
+            let l = [(n >> 6) as i32, ((n >> 3) & 7) as i32, (n & 7) as i32];
+            t.index_to_world([0, 1, 2].map(|a| (o[a] + l[a]) as f64))
+        };
+        let rest_of = |n: usize| {
+            let x = centre(n);
+            let c = cov[n];
+            let d = &dnum[n];
+            let r = |k: usize| [0, 1, 2].map(|a| if c > 0.0 { x[a] - d[k + a] / c } else { x[a] });
+            (x, [r(0), r(3)])
+        };
+        let rest_leaf = |k: usize| {
+            leaf_from(o, |n| {
+                (cov[n] >= minc).then(|| rest_of(n).1[k].map(|x| x as f32))
+            })
+        };
+        let want_rest = self.rest && f.rest;
+        let detailed = match (self.noise, f.density) {
+            (Some(noise), true) => {
+                let mut values = Box::new([0.0f64; LEAF_VOXELS]);
+                let (mut s0, mut s1) = (0.0, 0.0);
+                for n in 0..LEAF_VOXELS {
+                    let x = dens[n];
+                    if x > 0.0 {
+                        if x >= thr {
+                            s0 += x;
+                        }
+                        let (c, r) = rest_of(n);
+                        let y = x * noise.factor(c, r);
+                        values[n] = y;
+                        s1 += y;
+                    }
+                }
+                Some(Detailed {
+                    origin: o,
+                    values,
+                    undetailed_sum: s0,
+                    detailed_sum: s1,
+                })
+            }
+            _ => None,
+        };
         LeafOut {
+            rest: [
+                if want_rest { rest_leaf(0) } else { None },
+                if want_rest && self.dual {
+                    rest_leaf(1)
+                } else {
+                    None
+                },
+            ],
+            detailed,
             density: if f.density { plain(&dens) } else { None },
             vapor: if f.vapor { plain(&vap) } else { None },
             temperature: if f.temperature {

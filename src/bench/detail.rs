@@ -1,0 +1,695 @@
+//! `nimbus bench detail RUN_DIR`: the figures of `export.detail` (docs/RENDERING.md "Sub-particle
+//! detail", docs/PERFORMANCE.md), measured on a run's particle caches (the run needs
+//! `export.particles` and `export.detail.enabled` or `export.grids.rest`, so the caches hold the
+//! rest positions). Per frame, at `--voxel` (default: spacing / 4), with the run's detail settings
+//! (detail switched on if the run had it off):
+//! - mass: sum of the detailed density over the undetailed one, and per 8^3 leaf (the
+//!   particle-scale block: 2 spacings at spacing / 4) the density-weighted mean |ratio - 1|;
+//! - energy below the particle spacing: the density grid's power spectrum (3-D FFT of the
+//!   active bounding box, zero-padded to powers of two) summed over wavenumbers |k| > 1 / spacing,
+//!   detailed over undetailed;
+//! - frame-to-frame correlation of the detail component (detailed - undetailed density) at the
+//!   same material points: each particle present in frames f and f+1 (matched by id) and 26
+//!   points a quarter spacing around it, sampled at its position in each frame (trilinear);
+//!   Pearson correlation over the points where either frame has density, for the rest-frame noise
+//!   and for the same noise evaluated in world space;
+//! - time: `FrameWriter::write` of the frame with the run's grids at that voxel size and VDB only
+//!   (no EXR, preview or cache): splat + detail, and the VDB write, against the simulation's own
+//!   milliseconds per frame from the run's stats.jsonl.
+use crate::config::ShotConfig;
+use crate::error::{Error, Result};
+use crate::export::ExportSpace;
+use crate::pipeline::records::Manifest;
+use crate::pipeline::writer::{FrameJob, FrameWriter};
+use crate::sim::rest::{RestClock, RestCodec, RestFrame};
+use crate::sim::ParticleState;
+use crate::splat::detail::NoiseSpace;
+use crate::splat::{splat_with_rest, RestInput, SparseGrid, SplatFields, SplatParams};
+use serde_json::json;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+struct Frame {
+    state: ParticleState,
+    rest: RestFrame,
+}
+
+pub fn bench_detail(
+    run_dir: &Path,
+    frames: Option<(u32, u32)>,
+    voxel: Option<f64>,
+    sets: &[String],
+) -> Result<serde_json::Value> {
+    crate::pipeline::reexport::check_sets(sets)?;
+    let manifest = Manifest::load(run_dir)?;
+    let text =
+        serde_json::to_string(&manifest.config).map_err(|e| Error::Runtime(e.to_string()))?;
+    let mut cfg: ShotConfig = crate::config::load_str(&text, "manifest.json", sets)?;
+    if !cfg.export.particles || !cfg.export.tracks_rest() {
+        return Err(Error::InvalidInput(format!(
+            "{}: needs a run with export.particles and export.detail.enabled (or export.grids.rest): its caches hold the rest positions",
+            run_dir.display()
+        )));
+    }
+    let spacing = cfg.domain.spacing;
+    let voxel = voxel.unwrap_or(spacing / 4.0);
+    let space = ExportSpace::from_config(&cfg);
+    cfg.export.voxel_size = voxel;
+    cfg.export.detail.enabled = true;
+    let codec = RestCodec::new(
+        cfg.domain.size,
+        [
+            cfg.domain.periodic.contains(&crate::config::Axis::X),
+            cfg.domain.periodic.contains(&crate::config::Axis::Z),
+        ],
+    );
+    let clock = RestClock::from_config(&cfg);
+    let (a, b) = frames.unwrap_or((
+        manifest.frames.first().map_or(0, |f| f.frame),
+        manifest.frames.last().map_or(0, |f| f.frame),
+    ));
+    let read = |f: u32| -> Result<Frame> {
+        let rec = manifest
+            .frame(f)
+            .ok_or_else(|| Error::InvalidInput(format!("frame {f} is not in the manifest")))?;
+        let ply = rec
+            .files
+            .iter()
+            .find(|x| x.path.ends_with(".ply"))
+            .ok_or_else(|| Error::InvalidInput(format!("frame {f}: no particle cache")))?;
+        let (state, rest) = crate::io::ply::read_with_rest(
+            &run_dir.join(&ply.path),
+            &space,
+            cfg.solver.rest_density as f32,
+            Some(codec),
+        )?;
+        let rest =
+            rest.ok_or_else(|| Error::InvalidInput(format!("frame {f}: no rest positions")))?;
+        Ok(Frame { state, rest })
+    };
+    let mut base = SplatParams::from_config(&cfg)?;
+    base.fields = SplatFields {
+        density: true,
+        temperature: false,
+        vapor: false,
+        velocity: false,
+        rest: false,
+    };
+    let detail = base.detail.clone().expect("detail on");
+    let density = |fr: &Frame, f: u32, space: Option<NoiseSpace>| -> Result<SparseGrid<f32>> {
+        let mut p = base.clone();
+        p.detail = space.map(|s| {
+            let mut d = detail.clone();
+            d.space = s;
+            d
+        });
+        let input = RestInput {
+            rest: &fr.rest,
+            codec,
+            weights: clock.weights(f),
+            dual: clock.dual(),
+        };
+        let g = splat_with_rest(&fr.state, &p, Some(input))?;
+        g.density
+            .ok_or_else(|| Error::Runtime("no density grid".into()))
+    };
+
+    // The timed export: the run's grids at this voxel size, VDB only, into a scratch directory.
+    let scratch = std::env::temp_dir().join(format!("nimbus-bench-detail-{}", std::process::id()));
+    let mut wcfg = cfg.clone();
+    wcfg.export.exr.enabled = false;
+    wcfg.output.preview.enabled = false;
+    wcfg.export.particles = false;
+    for d in crate::pipeline::naming::DIRS {
+        std::fs::create_dir_all(scratch.join(d)).map_err(|e| Error::io(scratch.join(d), e))?;
+    }
+    let writer = FrameWriter::new(&wcfg, &scratch)?;
+    let mut plain_cfg = wcfg.clone();
+    plain_cfg.export.detail.enabled = false;
+    plain_cfg.export.grids.rest = String::new();
+    let plain_writer = FrameWriter::new(&plain_cfg, &scratch)?;
+
+    let sim_ms = sim_ms_per_frame(run_dir);
+    let mut rows = Vec::new();
+    let rest_grids = |fr: &Frame, f: u32| -> Result<[SparseGrid<[f32; 3]>; 2]> {
+        let mut p = base.clone();
+        p.fields.density = false;
+        p.fields.rest = true;
+        let input = RestInput {
+            rest: &fr.rest,
+            codec,
+            weights: clock.weights(f),
+            dual: true,
+        };
+        let g = splat_with_rest(&fr.state, &p, Some(input))?;
+        match (g.rest, g.rest2) {
+            (Some(a), Some(b)) => Ok([a, b]),
+            _ => Err(Error::Runtime("no rest grids".into())),
+        }
+    };
+    type Prev = (
+        u32,
+        Frame,
+        SparseGrid<f32>,
+        SparseGrid<f32>,
+        SparseGrid<f32>,
+    );
+    let mut prev: Option<Prev> = None;
+    let mut prev_rest: Option<[SparseGrid<[f32; 3]>; 2]> = None;
+    for f in a..=b {
+        let fr = read(f)?;
+        let d0 = density(&fr, f, None)?;
+        let d1 = density(&fr, f, Some(NoiseSpace::Rest))?;
+        let dw = density(&fr, f, Some(NoiseSpace::World))?;
+        let s0 = grid_sum(&d0);
+        let mut row = json!({"frame": f, "active_voxels": d0.active_voxel_count(), "detailed_active_voxels": d1.active_voxel_count()});
+        if s0 > 0.0 {
+            row["mass_ratio"] = json!(grid_sum(&d1) / s0);
+            row["block_mass_deviation"] = json!(block_deviation(&d0, &d1));
+            let e0 = high_energy(&d0, spacing);
+            let e1 = high_energy(&d1, spacing);
+            let ew = high_energy(&dw, spacing);
+            row["energy_below_spacing_ratio"] = json!(e1 / e0);
+            row["energy_below_spacing_ratio_world"] = json!(ew / e0);
+        }
+        let rg = rest_grids(&fr, f)?;
+        if let (Some((_, pfr, ..)), Some(pr)) = (&prev, &prev_rest) {
+            let resets = clock.resets(f);
+            let mut d2 = Vec::new();
+            for k in 0..2 {
+                if !resets[k] {
+                    d2.extend(rest_moves(pfr, &pr[k], &fr, &rg[k]));
+                }
+            }
+            if !d2.is_empty() {
+                d2.sort_by(f64::total_cmp);
+                let rms = (d2.iter().sum::<f64>() / d2.len() as f64).sqrt();
+                row["rest_move_rms_m"] = json!(rms);
+                row["rest_move_median_m"] = json!(d2[d2.len() / 2].sqrt());
+            }
+        }
+        if let (Some((pf, pfr, p0, p1, pw)), Some(pr)) = (&prev, &prev_rest) {
+            if s0 > 0.0 && grid_sum(p0) > 0.0 {
+                row["correlation_frames"] = json!([pf, f]);
+                // the field that carries on (not reset on f), the younger one if both do
+                let resets = clock.resets(f);
+                let age = clock.ages(f);
+                let k = match resets {
+                    [false, true] => Some(0),
+                    [true, false] => Some(1),
+                    [false, false] => Some(if age[0] <= age[1] { 0 } else { 1 }),
+                    _ => None,
+                };
+                if let Some(k) = k {
+                    let m = RestMatch {
+                        rest_a: &pr[k],
+                        rest_b: &rg[k],
+                    };
+                    row["detail_correlation_rest"] = json!(m.correlation(p0, p1, &d0, &d1));
+                    row["detail_correlation_world"] = json!(m.correlation(p0, pw, &d0, &dw));
+                }
+                row["particle_correlation_rest"] =
+                    json!(correlation(pfr, p0, p1, &fr, &d0, &d1, spacing));
+                row["particle_correlation_world"] =
+                    json!(correlation(pfr, p0, pw, &fr, &d0, &dw, spacing));
+            }
+        }
+        prev_rest = Some(rg);
+        // timings: best of two
+        let timed = |w: &FrameWriter| -> Result<(f64, f64)> {
+            let mut best = (f64::INFINITY, f64::INFINITY);
+            for _ in 0..2 {
+                let out = w.write(FrameJob {
+                    frame: f,
+                    state: Arc::new(fr.state.clone()),
+                    skip_write: false,
+                    started: Instant::now(),
+                    rest: Some(Arc::new(fr.rest.clone())),
+                })?;
+                let s = out.phase_ms.get("splat").copied().unwrap_or(0.0);
+                let v = out.phase_ms.get("write_vdb").copied().unwrap_or(0.0);
+                if s + v < best.0 + best.1 {
+                    best = (s, v);
+                }
+            }
+            Ok(best)
+        };
+        let (ds, dv) = timed(&writer)?;
+        let (ps, pv) = timed(&plain_writer)?;
+        row["detail_splat_ms"] = json!(ds);
+        row["detail_vdb_ms"] = json!(dv);
+        row["detail_total_ms"] = json!(ds + dv);
+        row["plain_splat_ms"] = json!(ps);
+        row["plain_vdb_ms"] = json!(pv);
+        eprintln!("{row}");
+        rows.push(row);
+        prev = Some((f, fr, d0, d1, dw));
+    }
+    let _ = std::fs::remove_dir_all(&scratch);
+    let mean = |key: &str| {
+        let v: Vec<f64> = rows.iter().filter_map(|r| r[key].as_f64()).collect();
+        (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+    };
+    let min = |key: &str| rows.iter().filter_map(|r| r[key].as_f64()).reduce(f64::min);
+    let max = |key: &str| rows.iter().filter_map(|r| r[key].as_f64()).reduce(f64::max);
+    Ok(json!({
+        "run": run_dir.display().to_string(),
+        "voxel_size": voxel,
+        "spacing": spacing,
+        "detail": serde_json::to_value(&cfg.export.detail).unwrap_or_default(),
+        "frames": [a, b],
+        "summary": {
+            "mass_ratio_min": min("mass_ratio"),
+            "mass_ratio_max": max("mass_ratio"),
+            "block_mass_deviation_mean": mean("block_mass_deviation"),
+            "energy_below_spacing_ratio_min": min("energy_below_spacing_ratio"),
+            "energy_below_spacing_ratio_mean": mean("energy_below_spacing_ratio"),
+            "detail_correlation_rest_min": min("detail_correlation_rest"),
+            "detail_correlation_rest_mean": mean("detail_correlation_rest"),
+            "detail_correlation_world_mean": mean("detail_correlation_world"),
+            "detail_correlation_world_max": max("detail_correlation_world"),
+            "particle_correlation_rest_mean": mean("particle_correlation_rest"),
+            "particle_correlation_world_mean": mean("particle_correlation_world"),
+            "rest_move_median_m_mean": mean("rest_move_median_m"),
+            "detail_total_ms_mean": mean("detail_total_ms"),
+            "detail_total_ms_max": max("detail_total_ms"),
+            "plain_total_ms_mean": mean("plain_splat_ms").zip(mean("plain_vdb_ms")).map(|(a, b)| a + b),
+            "sim_ms_per_frame_mean": sim_ms,
+        },
+        "rows": rows,
+    }))
+}
+
+/// Mean simulation milliseconds per frame from the run's stats.jsonl (the GPU phases: every
+/// phase but the writer's).
+fn sim_ms_per_frame(run_dir: &Path) -> Option<f64> {
+    let text = std::fs::read_to_string(run_dir.join("stats.jsonl")).ok()?;
+    let writer = [
+        "splat",
+        "write_exr",
+        "write_vdb",
+        "preview",
+        "write_particles",
+    ];
+    let mut v = Vec::new();
+    for line in text.lines() {
+        let s: serde_json::Value = serde_json::from_str(line).ok()?;
+        let ms: f64 = s["phase_ms"]
+            .as_object()?
+            .iter()
+            .filter(|(k, _)| !writer.contains(&k.as_str()))
+            .filter_map(|(_, x)| x.as_f64())
+            .sum();
+        v.push(ms);
+    }
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+fn grid_sum(g: &SparseGrid<f32>) -> f64 {
+    let mut s = 0.0;
+    for l in &g.leaves {
+        for n in 0..512 {
+            if l.is_active(n) {
+                s += l.values[n] as f64;
+            }
+        }
+    }
+    s
+}
+
+fn leaf_sums(g: &SparseGrid<f32>) -> std::collections::BTreeMap<[i32; 3], f64> {
+    g.leaves
+        .iter()
+        .map(|l| {
+            let s: f64 = (0..512)
+                .filter(|&n| l.is_active(n))
+                .map(|n| l.values[n] as f64)
+                .sum();
+            (l.origin, s)
+        })
+        .collect()
+}
+
+/// Density-weighted mean of |detailed / undetailed - 1| over the 8^3 leaves.
+fn block_deviation(d0: &SparseGrid<f32>, d1: &SparseGrid<f32>) -> f64 {
+    let a = leaf_sums(d0);
+    let b = leaf_sums(d1);
+    let (mut num, mut den) = (0.0, 0.0);
+    for (k, s0) in &a {
+        if *s0 > 0.0 {
+            let s1 = b.get(k).copied().unwrap_or(0.0);
+            num += (s1 - s0).abs();
+            den += s0;
+        }
+    }
+    if den > 0.0 {
+        num / den
+    } else {
+        0.0
+    }
+}
+
+/// Spectral energy at wavelengths below `spacing` (|k| > 1 / spacing).
+fn high_energy(g: &SparseGrid<f32>, spacing: f64) -> f64 {
+    let Some((lo, hi)) = g.active_bbox() else {
+        return 0.0;
+    };
+    let dims = [0, 1, 2].map(|a| ((hi[a] - lo[a] + 1) as usize).next_power_of_two());
+    let [nx, ny, nz] = dims;
+    let mut re = vec![0.0f64; nx * ny * nz];
+    let mut im = vec![0.0f64; nx * ny * nz];
+    let idx = |x: usize, y: usize, z: usize| (x * ny + y) * nz + z;
+    for l in &g.leaves {
+        for n in 0..512 {
+            if l.is_active(n) {
+                let p = [
+                    l.origin[0] + (n >> 6) as i32 - lo[0],
+                    l.origin[1] + ((n >> 3) & 7) as i32 - lo[1],
+                    l.origin[2] + (n & 7) as i32 - lo[2],
+                ];
+                re[idx(p[0] as usize, p[1] as usize, p[2] as usize)] = l.values[n] as f64;
+            }
+        }
+    }
+    // along z, y, x
+    let mut line_re = Vec::new();
+    let mut line_im = Vec::new();
+    for axis in 0..3 {
+        let n = dims[axis];
+        for i in 0..dims[(axis + 1) % 3] {
+            for j in 0..dims[(axis + 2) % 3] {
+                let at = |k: usize| {
+                    let mut c = [0usize; 3];
+                    c[axis] = k;
+                    c[(axis + 1) % 3] = i;
+                    c[(axis + 2) % 3] = j;
+                    idx(c[0], c[1], c[2])
+                };
+                line_re.clear();
+                line_im.clear();
+                for k in 0..n {
+                    line_re.push(re[at(k)]);
+                    line_im.push(im[at(k)]);
+                }
+                fft(&mut line_re, &mut line_im);
+                for k in 0..n {
+                    re[at(k)] = line_re[k];
+                    im[at(k)] = line_im[k];
+                }
+            }
+        }
+    }
+    let v = g.transform.voxel_size;
+    let kmin = 1.0 / spacing;
+    let freq = |k: usize, n: usize| {
+        let k = if k > n / 2 {
+            k as f64 - n as f64
+        } else {
+            k as f64
+        };
+        k / (n as f64 * v)
+    };
+    let mut e = 0.0;
+    for x in 0..nx {
+        for y in 0..ny {
+            for z in 0..nz {
+                let f = [freq(x, nx), freq(y, ny), freq(z, nz)];
+                if (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt() > kmin {
+                    let i = idx(x, y, z);
+                    e += re[i] * re[i] + im[i] * im[i];
+                }
+            }
+        }
+    }
+    e
+}
+
+/// In-place radix-2 FFT (length a power of two).
+fn fft(re: &mut [f64], im: &mut [f64]) {
+    let n = re.len();
+    if n < 2 {
+        return;
+    }
+    let mut j = 0;
+    for i in 1..n {
+        let mut bit = n >> 1;
+        while j & bit != 0 {
+            j ^= bit;
+            bit >>= 1;
+        }
+        j |= bit;
+        if i < j {
+            re.swap(i, j);
+            im.swap(i, j);
+        }
+    }
+    let mut len = 2;
+    while len <= n {
+        let ang = -2.0 * std::f64::consts::PI / len as f64;
+        for start in (0..n).step_by(len) {
+            for k in 0..len / 2 {
+                let (s, c) = (ang * k as f64).sin_cos();
+                let a = start + k;
+                let b = a + len / 2;
+                let tr = re[b] * c - im[b] * s;
+                let ti = re[b] * s + im[b] * c;
+                re[b] = re[a] - tr;
+                im[b] = im[a] - ti;
+                re[a] += tr;
+                im[a] += ti;
+            }
+        }
+        len <<= 1;
+    }
+}
+
+/// Trilinear value at a world position (background 0 outside the active voxels).
+fn sample(g: &SparseGrid<f32>, p: [f64; 3]) -> f64 {
+    let x = g.transform.world_to_index(p);
+    let b = x.map(|v| v.floor());
+    let t = [0, 1, 2].map(|a| x[a] - b[a]);
+    let mut s = 0.0;
+    for c in 0..8 {
+        let o = [c >> 2 & 1, c >> 1 & 1, c & 1];
+        let w: f64 = (0..3)
+            .map(|a| if o[a] == 1 { t[a] } else { 1.0 - t[a] })
+            .product();
+        let i = [0, 1, 2].map(|a| b[a] as i32 + o[a]);
+        s += w * g.get(i) as f64;
+    }
+    s
+}
+
+/// Correlation of the detail component (detailed - undetailed) between two frames at the same
+/// material points (see the module docs).
+fn correlation(
+    fa: &Frame,
+    a0: &SparseGrid<f32>,
+    a1: &SparseGrid<f32>,
+    fb: &Frame,
+    b0: &SparseGrid<f32>,
+    b1: &SparseGrid<f32>,
+    spacing: f64,
+) -> f64 {
+    let mut where_b = std::collections::HashMap::new();
+    for (j, info) in fb.state.info.iter().enumerate() {
+        where_b.insert(info[0], j);
+    }
+    let q = spacing / 4.0;
+    let (mut xs, mut ys) = (Vec::new(), Vec::new());
+    for (i, info) in fa.state.info.iter().enumerate() {
+        let Some(&j) = where_b.get(&info[0]) else {
+            continue;
+        };
+        let pa = fa.state.pos[i];
+        let pb = fb.state.pos[j];
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let o = [dx as f64 * q, dy as f64 * q, dz as f64 * q];
+                    let x = [
+                        pa[0] as f64 + o[0],
+                        pa[1] as f64 + o[1],
+                        pa[2] as f64 + o[2],
+                    ];
+                    let y = [
+                        pb[0] as f64 + o[0],
+                        pb[1] as f64 + o[1],
+                        pb[2] as f64 + o[2],
+                    ];
+                    let (u0, v0) = (sample(a0, x), sample(b0, y));
+                    if u0 <= 0.0 && v0 <= 0.0 {
+                        continue;
+                    }
+                    xs.push(sample(a1, x) - u0);
+                    ys.push(sample(b1, y) - v0);
+                }
+            }
+        }
+    }
+    pearson(&xs, &ys)
+}
+
+/// Points of two frames matched by their rest coordinate (one rest field, not reset between
+/// them): for each active voxel y of the undetailed density of the second frame, the point x of
+/// the first with rest_a(x) = rest_b(y), by three Newton steps x -= rest_a(x) - rest_b(y) from
+/// x = y (d rest / dx is about the identity).
+struct RestMatch<'a> {
+    rest_a: &'a SparseGrid<[f32; 3]>,
+    rest_b: &'a SparseGrid<[f32; 3]>,
+}
+
+impl RestMatch<'_> {
+    fn correlation(
+        &self,
+        a0: &SparseGrid<f32>,
+        a1: &SparseGrid<f32>,
+        b0: &SparseGrid<f32>,
+        b1: &SparseGrid<f32>,
+    ) -> f64 {
+        let t = b0.transform;
+        let (mut xs, mut ys) = (Vec::new(), Vec::new());
+        for l in &b0.leaves {
+            for n in 0..512 {
+                if !l.is_active(n) {
+                    continue;
+                }
+                let ijk = [
+                    l.origin[0] + (n >> 6) as i32,
+                    l.origin[1] + ((n >> 3) & 7) as i32,
+                    l.origin[2] + (n & 7) as i32,
+                ];
+                let y = t.index_to_world(ijk.map(|v| v as f64));
+                let target = self.rest_b.get(ijk).map(|v| v as f64);
+                let mut x = y;
+                let mut ok = true;
+                for _ in 0..3 {
+                    let Some(r) = sample3(self.rest_a, x) else {
+                        ok = false;
+                        break;
+                    };
+                    for k in 0..3 {
+                        x[k] -= r[k] - target[k];
+                    }
+                }
+                if !ok {
+                    continue;
+                }
+                let u0 = sample(a0, x);
+                xs.push(sample(a1, x) - u0);
+                ys.push(b1.get(ijk) as f64 - l.values[n] as f64);
+            }
+        }
+        pearson(&xs, &ys)
+    }
+}
+
+/// Trilinear value of a vec3 grid; `None` where a corner is inactive.
+fn sample3(g: &SparseGrid<[f32; 3]>, p: [f64; 3]) -> Option<[f64; 3]> {
+    let x = g.transform.world_to_index(p);
+    let b = x.map(|v| v.floor());
+    let t = [0, 1, 2].map(|a| x[a] - b[a]);
+    let mut s = [0.0; 3];
+    for c in 0..8 {
+        let o = [c >> 2 & 1, c >> 1 & 1, c & 1];
+        let w: f64 = (0..3)
+            .map(|a| if o[a] == 1 { t[a] } else { 1.0 - t[a] })
+            .product();
+        let i = [0, 1, 2].map(|a| b[a] as i32 + o[a]);
+        let o = i.map(|v| v & !7);
+        let leaf = g.leaves.binary_search_by(|l| l.origin.cmp(&o)).ok()?;
+        let n = crate::splat::Leaf::<[f32; 3]>::offset(i[0], i[1], i[2]);
+        if !g.leaves[leaf].is_active(n) {
+            return None;
+        }
+        let v = g.leaves[leaf].values[n];
+        for a in 0..3 {
+            s[a] += w * v[a] as f64;
+        }
+    }
+    Some(s)
+}
+
+/// Squared change of a rest field's interpolated coordinate at each cloudy particle (matched by
+/// id) from one frame to the next: zero if the rest coordinate moved exactly with the particle.
+fn rest_moves(
+    fa: &Frame,
+    ra: &SparseGrid<[f32; 3]>,
+    fb: &Frame,
+    rb: &SparseGrid<[f32; 3]>,
+) -> Vec<f64> {
+    let mut where_b = std::collections::HashMap::new();
+    for (j, info) in fb.state.info.iter().enumerate() {
+        where_b.insert(info[0], j);
+    }
+    let sample3 = |g: &SparseGrid<[f32; 3]>, p: [f32; 4]| {
+        let x = g
+            .transform
+            .world_to_index([p[0] as f64, p[1] as f64, p[2] as f64]);
+        let b = x.map(|v| v.floor());
+        let t = [0, 1, 2].map(|a| x[a] - b[a]);
+        let mut s = [0.0; 3];
+        for c in 0..8 {
+            let o = [c >> 2 & 1, c >> 1 & 1, c & 1];
+            let w: f64 = (0..3)
+                .map(|a| if o[a] == 1 { t[a] } else { 1.0 - t[a] })
+                .product();
+            let v = g.get([0, 1, 2].map(|a| b[a] as i32 + o[a]));
+            for a in 0..3 {
+                s[a] += w * v[a] as f64;
+            }
+        }
+        s
+    };
+    let mut out = Vec::new();
+    for (i, info) in fa.state.info.iter().enumerate() {
+        if fa.state.thermo[i][2] <= 0.0 {
+            continue;
+        }
+        let Some(&j) = where_b.get(&info[0]) else {
+            continue;
+        };
+        let a = sample3(ra, fa.state.pos[i]);
+        let b = sample3(rb, fb.state.pos[j]);
+        out.push((0..3).map(|k| (a[k] - b[k]) * (a[k] - b[k])).sum());
+    }
+    out
+}
+
+fn pearson(x: &[f64], y: &[f64]) -> f64 {
+    let n = x.len() as f64;
+    if n < 2.0 {
+        return f64::NAN;
+    }
+    let mx = x.iter().sum::<f64>() / n;
+    let my = y.iter().sum::<f64>() / n;
+    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+    for (a, b) in x.iter().zip(y) {
+        sxy += (a - mx) * (b - my);
+        sxx += (a - mx) * (a - mx);
+        syy += (b - my) * (b - my);
+    }
+    sxy / (sxx * syy).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fft_of_a_cosine_has_its_two_peaks() {
+        let n = 16;
+        let mut re: Vec<f64> = (0..n)
+            .map(|k| (2.0 * std::f64::consts::PI * 3.0 * k as f64 / n as f64).cos())
+            .collect();
+        let mut im = vec![0.0; n];
+        fft(&mut re, &mut im);
+        for k in 0..n {
+            let p = (re[k] * re[k] + im[k] * im[k]).sqrt();
+            let want = if k == 3 || k == 13 { 8.0 } else { 0.0 };
+            assert!((p - want).abs() < 1e-9, "{k}: {p}");
+        }
+        assert!((pearson(&[1.0, 2.0, 3.0], &[2.0, 4.0, 6.1]) - 1.0).abs() < 1e-3);
+    }
+}
