@@ -178,62 +178,69 @@ impl SmoothingStage {
             return;
         };
         let uniform = gpu::buffers::uniform_init(&self.device, "smoothing params", params);
+        let entries = [
+            entry(0, bufs.grid),
+            entry(1, &uniform),
+            entry(2, bufs.pos),
+            entry(3, bufs.info),
+            entry(4, bufs.thermo),
+            entry(5, scratch),
+            entry(6, bufs.cell_start),
+            entry(7, bufs.boundary),
+            entry(8, bufs.boundary_cell_start),
+            entry(9, limit),
+        ];
         let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("smoothing"),
             layout: &self.layout,
-            entries: &[
-                entry(0, bufs.grid),
-                entry(1, &uniform),
-                entry(2, bufs.pos),
-                entry(3, bufs.info),
-                entry(4, bufs.thermo),
-                entry(5, scratch),
-                entry(6, bufs.cell_start),
-                entry(7, bufs.boundary),
-                entry(8, bufs.boundary_cell_start),
-                entry(9, limit),
-            ],
+            entries: &entries,
         });
-        // vapor_limit reads no boundary particles: its auto layout leaves them out.
+        // vapor_limit writes no temperatures and reads no boundary particles: its auto layout
+        // leaves bindings 5, 7 and 8 out.
         let limit_bind = mixing.then(|| {
+            let used: Vec<_> = entries
+                .iter()
+                .filter(|e| ![5, 7, 8].contains(&e.binding))
+                .cloned()
+                .collect();
             self.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("vapor limit"),
                 layout: &self.limit_layout,
-                entries: &[
-                    entry(0, bufs.grid),
-                    entry(1, &uniform),
-                    entry(2, bufs.pos),
-                    entry(3, bufs.info),
-                    entry(4, bufs.thermo),
-                    entry(6, bufs.cell_start),
-                    entry(9, limit),
-                ],
+                entries: &used,
             })
         });
         let bytes = count as u64 * 16;
         let (x, y) = dispatch_size(count);
         for _ in 0..iterations {
             if let Some(limit_bind) = &limit_bind {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("vapor_limit"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(&self.limit_pipeline);
-                pass.set_bind_group(0, limit_bind, &[]);
-                pass.dispatch_workgroups(x, y, 1);
+                dispatch(
+                    encoder,
+                    LIMIT_ENTRY,
+                    &self.limit_pipeline,
+                    limit_bind,
+                    (x, y),
+                );
             }
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("smooth_temperature"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(&self.pipeline);
-                pass.set_bind_group(0, &bind, &[]);
-                pass.dispatch_workgroups(x, y, 1);
-            }
+            dispatch(encoder, ENTRY, &self.pipeline, &bind, (x, y));
             encoder.copy_buffer_to_buffer(scratch, 0, bufs.thermo, 0, bytes);
         }
     }
+}
+
+fn dispatch(
+    encoder: &mut wgpu::CommandEncoder,
+    label: &str,
+    pipeline: &wgpu::ComputePipeline,
+    bind: &wgpu::BindGroup,
+    (x, y): (u32, u32),
+) {
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some(label),
+        timestamp_writes: None,
+    });
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, bind, &[]);
+    pass.dispatch_workgroups(x, y, 1);
 }
 
 /// The fraction a relaxation applies over `share` reference intervals when it applies `c` over
