@@ -20,6 +20,7 @@ fn params(size: [f64; 3], d: f64, voxel: f64, periodic: [bool; 2]) -> SplatParam
         min_coverage: 1e-3,
         fields: SplatFields::default(),
         detail: None,
+        rest_smoothing: 1.0,
     }
 }
 

@@ -61,6 +61,7 @@ pub fn bench_splat(particles: usize, voxel: f64) -> Result<serde_json::Value> {
         min_coverage: 1e-3,
         fields: SplatFields::default(),
         detail: None,
+        rest_smoothing: 1.0,
     };
     let mut best = f64::INFINITY;
     let mut best_cpu = f64::INFINITY;

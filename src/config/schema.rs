@@ -601,6 +601,10 @@ pub struct DetailConfig {
     /// Frames between two resets of each of the two rest fields (they alternate, half a period
     /// apart); 0: one rest field, never reset.
     pub rest_period: u32,
+    /// Radius of the kernel that interpolates the rest displacement at a voxel, in units of
+    /// the particle's own kernel radius (the density splat's): wider averages the particles'
+    /// shuffle out of the rest coordinate.
+    pub rest_smoothing: f64,
 }
 impl Default for DetailConfig {
     fn default() -> Self {
@@ -611,6 +615,7 @@ impl Default for DetailConfig {
             octaves: 3,
             character: DetailCharacter::Billowy,
             rest_period: 8,
+            rest_smoothing: 1.5,
         }
     }
 }

@@ -131,6 +131,7 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("export.scale", 1.0e-6, 1.0e6),
     above("export.detail.scale", 0.0, 1.0e5),
     closed("export.detail.amplitude", 0.0, 1.0),
+    closed("export.detail.rest_smoothing", 1.0, 4.0),
 ];
 
 impl FloatRange {
@@ -245,6 +246,7 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         ("export.scale", e.scale),
         ("export.detail.scale", e.detail.scale),
         ("export.detail.amplitude", e.detail.amplitude),
+        ("export.detail.rest_smoothing", e.detail.rest_smoothing),
     ] {
         one(key, x);
     }

@@ -5,9 +5,14 @@
 //! Per voxel of the splat:
 //! - rest coordinate of field f: r_f = x - D_f, where D_f = sum_j V_j W (x_j - rest_j,f) /
 //!   sum_j V_j W is the Shepard-interpolated displacement since the reset (minimum image on
-//!   periodic axes), so r_f is continuous across the periodic faces;
-//! - noise n = (w_A N(r_A) + w_B N(r_B)) / sqrt(w_A^2 + w_B^2) with the rest clock's triangle
-//!   weights (the normalisation keeps the contrast the same through the cross-fade);
+//!   periodic axes), so r_f is continuous across the periodic faces; W is the poly6 kernel of
+//!   radius `rest_smoothing` x h_j (1.5 by default), wider than the density splat's, so that
+//!   the particles' shuffle at the particle scale averages out of the rest coordinate;
+//! - noise n = sin(t) N(r_A) + cos(t) N(r_B), t = (pi / 2) w_A, with the rest clock's triangle
+//!   weights (w_A + w_B = 1, linear in time): an equal-power cross-fade (the contrast stays the
+//!   same) that turns by the same angle every frame, pi / P, so two consecutive frames share
+//!   cos(pi / P) of their noise (0.92 at P = 8) where the linear weights' worst step shared
+//!   0.89;
 //! - N is fractal value noise (`sim::noise::value_noise3`, tiled over the periodic extents):
 //!   octave o has wavelength scale / 2^o and weight 2^-o; an octave under two voxels is left out
 //!   (it would alias). Per octave, with g in [-1, 1): billowy = 2|g| - 1 (round puffs, sharp
@@ -153,7 +158,10 @@ impl DetailNoise {
         };
         let a = if wa > 0.0 { self.noise(ra) } else { 0.0 };
         let b = if wb > 0.0 { self.noise(rb) } else { 0.0 };
-        (wa * a + wb * b) / (wa * wa + wb * wb).sqrt()
+        // equal-power cross-fade at a constant angular rate: the blend turns from one field to
+        // the other by the same angle every frame (the clock's weight is linear in time)
+        let th = std::f64::consts::FRAC_PI_2 * wa / (wa + wb);
+        th.sin() * a + th.cos() * b
     }
 
     /// Density factor of a voxel before the frame's normalisation.
