@@ -591,36 +591,26 @@ impl RestMatch<'_> {
     ) -> f64 {
         let t = b0.transform;
         let (mut xs, mut ys) = (Vec::new(), Vec::new());
-        for l in &b0.leaves {
-            for n in 0..512 {
-                if !l.is_active(n) {
-                    continue;
+        for ijk in b0.active_voxels() {
+            let y = t.index_to_world(ijk.map(|v| v as f64));
+            let target = self.rest_b.get(ijk).map(|v| v as f64);
+            let mut x = y;
+            let mut ok = true;
+            for _ in 0..3 {
+                let Some(r) = sample3(self.rest_a, x) else {
+                    ok = false;
+                    break;
+                };
+                for k in 0..3 {
+                    x[k] -= r[k] - target[k];
                 }
-                let ijk = [
-                    l.origin[0] + (n >> 6) as i32,
-                    l.origin[1] + ((n >> 3) & 7) as i32,
-                    l.origin[2] + (n & 7) as i32,
-                ];
-                let y = t.index_to_world(ijk.map(|v| v as f64));
-                let target = self.rest_b.get(ijk).map(|v| v as f64);
-                let mut x = y;
-                let mut ok = true;
-                for _ in 0..3 {
-                    let Some(r) = sample3(self.rest_a, x) else {
-                        ok = false;
-                        break;
-                    };
-                    for k in 0..3 {
-                        x[k] -= r[k] - target[k];
-                    }
-                }
-                if !ok {
-                    continue;
-                }
-                let u0 = sample(a0, x);
-                xs.push(sample(a1, x) - u0);
-                ys.push(b1.get(ijk) as f64 - l.values[n] as f64);
             }
+            if !ok {
+                continue;
+            }
+            let u0 = sample(a0, x);
+            xs.push(sample(a1, x) - u0);
+            ys.push(b1.get(ijk) as f64 - b0.get(ijk) as f64);
         }
         pearson(&xs, &ys)
     }
@@ -791,50 +781,40 @@ fn exact_correlation(
     let t = b0.transform;
     let (mut xs, mut ys, mut xw, mut yw) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (mut ms, mut my, mut mw, mut mwy) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    for l in &b0.leaves {
-        for n in 0..512 {
-            if !l.is_active(n) {
-                continue;
-            }
-            let ijk = [
-                l.origin[0] + (n >> 6) as i32,
-                l.origin[1] + ((n >> 3) & 7) as i32,
-                l.origin[2] + (n & 7) as i32,
-            ];
-            let y = t.index_to_world(ijk.map(|v| v as f64));
-            let Some((_, rb)) = ps_b.eval(y) else {
-                continue;
+    for ijk in b0.active_voxels() {
+        let y = t.index_to_world(ijk.map(|v| v as f64));
+        let Some((_, rb)) = ps_b.eval(y) else {
+            continue;
+        };
+        let target = rb[k];
+        let mut x = y;
+        let mut last = None;
+        for _ in 0..4 {
+            let Some(e) = ps.eval(x) else {
+                last = None;
+                break;
             };
-            let target = rb[k];
-            let mut x = y;
-            let mut last = None;
-            for _ in 0..4 {
-                let Some(e) = ps.eval(x) else {
-                    last = None;
-                    break;
-                };
-                for a in 0..3 {
-                    x[a] -= e.1[k][a] - target[a];
-                }
-                last = Some(e);
+            for a in 0..3 {
+                x[a] -= e.1[k][a] - target[a];
             }
-            if last.is_none() {
-                continue;
-            }
-            let Some((d0, r)) = ps.eval(x) else {
-                continue;
-            };
-            let v0 = l.values[n] as f64;
-            xs.push(d0 * (norm[0] * noise_rest.factor(x, r) - 1.0));
-            ys.push(b1.get(ijk) as f64 - v0);
-            xw.push(d0 * (norm[1] * noise_world.factor(x, r) - 1.0));
-            yw.push(bw.get(ijk) as f64 - v0);
-            if d0 > 0.0 && v0 > 0.0 {
-                ms.push(norm[0] * noise_rest.factor(x, r) - 1.0);
-                my.push(b1.get(ijk) as f64 / v0 - 1.0);
-                mw.push(norm[1] * noise_world.factor(x, r) - 1.0);
-                mwy.push(bw.get(ijk) as f64 / v0 - 1.0);
-            }
+            last = Some(e);
+        }
+        if last.is_none() {
+            continue;
+        }
+        let Some((d0, r)) = ps.eval(x) else {
+            continue;
+        };
+        let v0 = b0.get(ijk) as f64;
+        xs.push(d0 * (norm[0] * noise_rest.factor(x, r) - 1.0));
+        ys.push(b1.get(ijk) as f64 - v0);
+        xw.push(d0 * (norm[1] * noise_world.factor(x, r) - 1.0));
+        yw.push(bw.get(ijk) as f64 - v0);
+        if d0 > 0.0 && v0 > 0.0 {
+            ms.push(norm[0] * noise_rest.factor(x, r) - 1.0);
+            my.push(b1.get(ijk) as f64 / v0 - 1.0);
+            mw.push(norm[1] * noise_world.factor(x, r) - 1.0);
+            mwy.push(bw.get(ijk) as f64 / v0 - 1.0);
         }
     }
     [
@@ -855,21 +835,11 @@ fn normalisation(
 ) -> f64 {
     let t = d0.transform;
     let (mut s0, mut s1) = (0.0, 0.0);
-    for l in &d0.leaves {
-        for n in 0..512 {
-            if !l.is_active(n) {
-                continue;
-            }
-            let ijk = [
-                l.origin[0] + (n >> 6) as i32,
-                l.origin[1] + ((n >> 3) & 7) as i32,
-                l.origin[2] + (n & 7) as i32,
-            ];
-            let x = t.index_to_world(ijk.map(|v| v as f64));
-            if let Some((d, r)) = ps.eval(x) {
-                s0 += d;
-                s1 += d * noise.factor(x, r);
-            }
+    for ijk in d0.active_voxels() {
+        let x = t.index_to_world(ijk.map(|v| v as f64));
+        if let Some((d, r)) = ps.eval(x) {
+            s0 += d;
+            s1 += d * noise.factor(x, r);
         }
     }
     if s1 > 0.0 {

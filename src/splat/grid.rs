@@ -69,6 +69,18 @@ impl<T: Copy> SparseGrid<T> {
     pub fn active_voxel_count(&self) -> u64 {
         self.leaves.iter().map(|l| l.active_count()).sum()
     }
+    /// Index coordinates of the active voxels, leaf by leaf in storage order.
+    pub fn active_voxels(&self) -> impl Iterator<Item = [i32; 3]> + '_ {
+        self.leaves.iter().flat_map(|leaf| {
+            (0..LEAF_VOXELS).filter(|&n| leaf.is_active(n)).map(|n| {
+                [
+                    leaf.origin[0] + (n >> 6) as i32,
+                    leaf.origin[1] + ((n >> 3) & 7) as i32,
+                    leaf.origin[2] + (n & 7) as i32,
+                ]
+            })
+        })
+    }
     /// Inclusive index bounding box of the active voxels, `None` when empty.
     pub fn active_bbox(&self) -> Option<([i32; 3], [i32; 3])> {
         let mut lo = [i32::MAX; 3];
