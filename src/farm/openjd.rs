@@ -18,7 +18,7 @@
 //! where the workers have nimbus. `openjd run` (PyPI `openjd-cli`) runs the template here
 //! (`--run-local`).
 use super::plan::{FarmPlan, Job, JobKind};
-use super::slurm::{sh, sim_sets};
+use super::slurm::{export_array, sh, sim_sets};
 use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
 use serde_json::{json, Value};
@@ -198,15 +198,7 @@ fn export_script(plan: &FarmPlan) -> Option<String> {
         "#!/usr/bin/env bash\n# Written by nimbus farm submit --backend openjd: a (wedge, frame chunk) export task.\nset -u\nNIMBUS=$1; FARM=$(cd \"$2\" && pwd -P) || exit 3; WEDGE=$3; FRAMES=$4\n",
     );
     s += &wedge_case(plan);
-    let mut args: Vec<String> = e
-        .sets
-        .iter()
-        .map(|kv| format!("--set {}", sh(kv)))
-        .collect();
-    if let Some(n) = &e.name {
-        args.push(format!("--name {}", sh(n)));
-    }
-    s += &format!("EXPORT=({})\n", args.join(" "));
+    s += &export_array(e);
     s += r#"CMD=("$NIMBUS" export "$RUN" --frames "$FRAMES" "${EXPORT[@]}")
 echo "nimbus-farm: export wedge $WEDGE frames $FRAMES at $(date -u +%FT%TZ): ${CMD[*]}"
 exec "${CMD[@]}"

@@ -209,6 +209,13 @@ pub fn export_script(plan: &FarmPlan, job: &Job, farm_dir: &Path) -> Option<Stri
     s += "WEDGE=$((SLURM_ARRAY_TASK_ID / CHUNKS))\nC=$((SLURM_ARRAY_TASK_ID % CHUNKS))\n";
     s += "A=$((START + C * CHUNK))\nB=$((A + CHUNK - 1))\nif [ $B -gt $END ]; then B=$END; fi\n";
     s += &wedge_case(plan, farm_dir).replace("\"$SLURM_ARRAY_TASK_ID\"", "\"$WEDGE\"");
+    s += &export_array(e);
+    s += EXPORT_BODY;
+    Some(s)
+}
+
+/// The bash array `EXPORT=(...)` of an export task's `nimbus export` flags (every backend).
+pub fn export_array(e: &super::plan::ExportSettings) -> String {
     let mut args: Vec<String> = e
         .sets
         .iter()
@@ -217,9 +224,7 @@ pub fn export_script(plan: &FarmPlan, job: &Job, farm_dir: &Path) -> Option<Stri
     if let Some(n) = &e.name {
         args.push(format!("--name {}", sh(n)));
     }
-    s += &format!("EXPORT=({})\n", args.join(" "));
-    s += EXPORT_BODY;
-    Some(s)
+    format!("EXPORT=({})\n", args.join(" "))
 }
 
 /// Shared by every export task (bash).
