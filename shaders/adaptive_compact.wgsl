@@ -15,23 +15,24 @@
 @group(0) @binding(6) var<storage, read_write> vel: array<vec4<f32>>;
 @group(0) @binding(7) var<storage, read_write> thermo: array<vec4<f32>>;
 @group(0) @binding(8) var<storage, read_write> info: array<vec2<u32>>;
+@group(0) @binding(9) var<storage, read> live: Live;
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG_BLOCK)
 fn compact_holes(@builtin(global_invocation_id) gid: vec3<u32>,
                  @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = thread_index(gid, nwg, 256u);
-    if (i >= params.count) { return; }
+    let i = thread_index(gid, nwg, WG_BLOCK);
+    if (i >= live.count) { return; }
     if (i < counters[C_NEWCOUNT] && (flags[i] & FLAG_DEAD) != 0u) {
         hole_index[scan[i]] = i;
     }
 }
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG_BLOCK)
 fn compact_move(@builtin(global_invocation_id) gid: vec3<u32>,
                 @builtin(num_workgroups) nwg: vec3<u32>) {
-    let j = thread_index(gid, nwg, 256u);
+    let j = thread_index(gid, nwg, WG_BLOCK);
     let newcount = counters[C_NEWCOUNT];
-    if (j >= params.count || j < newcount) { return; }
+    if (j >= live.count || j < newcount) { return; }
     let f = flags[j];
     if ((f & FLAG_DEAD) == 0u) {
         let rank = (j - newcount) - (scan[j] - scan[newcount]);

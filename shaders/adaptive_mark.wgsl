@@ -11,6 +11,7 @@
 @group(0) @binding(4) var<storage, read> info: array<vec2<u32>>;
 @group(0) @binding(5) var<storage, read> cell_start: array<u32>;
 @group(0) @binding(6) var<storage, read_write> flags: array<u32>;
+@group(0) @binding(7) var<storage, read> live: Live;
 
 fn split_fits(i: u32, x: vec3<f32>, id: u32, level: u32) -> bool {
     let hc = level_radius(params.h0, level + 1u);
@@ -39,11 +40,11 @@ fn split_fits(i: u32, x: vec3<f32>, id: u32, level: u32) -> bool {
     return true;
 }
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG_BLOCK)
 fn adaptive_mark(@builtin(global_invocation_id) gid: vec3<u32>,
                  @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = thread_index(gid, nwg, 256u);
-    if (i >= params.count) { return; }
+    let i = thread_index(gid, nwg, WG_BLOCK);
+    if (i >= live.count) { return; }
     var t = thermo[i];
     let e = params.kp * (1.0 - exp(-params.kc * t.z));
     t.w = e;

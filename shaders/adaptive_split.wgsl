@@ -15,13 +15,14 @@
 @group(0) @binding(6) var<storage, read_write> vel: array<vec4<f32>>;
 @group(0) @binding(7) var<storage, read_write> thermo: array<vec4<f32>>;
 @group(0) @binding(8) var<storage, read_write> info: array<vec2<u32>>;
+@group(0) @binding(9) var<storage, read> live: Live;
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG_BLOCK)
 fn adaptive_split(@builtin(global_invocation_id) gid: vec3<u32>,
                   @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = thread_index(gid, nwg, 256u);
+    let i = thread_index(gid, nwg, WG_BLOCK);
     let newcount = counters[C_NEWCOUNT];
-    if (i >= params.count || i >= newcount || (flags[i] & FLAG_SPLIT) == 0u) { return; }
+    if (i >= live.count || i >= newcount || (flags[i] & FLAG_SPLIT) == 0u) { return; }
     let k = scan[i];
     if (k >= counters[C_SPLITS]) { return; }
     let slot = newcount + k;
@@ -34,5 +35,5 @@ fn adaptive_split(@builtin(global_invocation_id) gid: vec3<u32>,
     vel[slot] = vel[i];
     thermo[slot] = thermo[i];
     info[i] = vec2<u32>(inf.x, inf.y + 1u);
-    info[slot] = vec2<u32>(params.next_id + k, inf.y + 1u);
+    info[slot] = vec2<u32>(live.next_id + k, inf.y + 1u);
 }

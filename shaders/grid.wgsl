@@ -8,19 +8,20 @@
 @group(0) @binding(2) var<storage, read_write> keys: array<u32>;
 @group(0) @binding(3) var<storage, read_write> vals: array<u32>;
 @group(0) @binding(4) var<storage, read_write> cell_start: array<u32>;
+@group(0) @binding(5) var<storage, read> live: Live;
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn cell_keys(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if (i >= grid.n_particles) { return; }
+    if (i >= live.count) { return; }
     keys[i] = slice_key(pos_in[i].xyz, grid);
     vals[i] = i;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn cell_table(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    let n = grid.n_particles;
+    let n = live.count;
     if (i >= n) { return; }
     let k = keys[i];
     var first = 0u;

@@ -22,9 +22,9 @@ struct PbfParams {
     vorticity: f32,
     gravity: f32,
     max_speed: f32,
-    // 1 when every particle is on level 0 (no split particles): the pair terms then skip the
-    // level look-up and the per-level kernel pairs (same values: eq. 19 of equal radii is W)
-    single_level: u32,
+    // (live.single_level, 1 while every particle is on level 0, lets the pair terms skip the
+    // level look-up and the per-level kernel pairs: eq. 19 of equal radii is W)
+    _pad0: u32,
     // under-density up to this fraction is left alone (solver.expansion_tolerance)
     expansion_tolerance: f32,
     // the share of that correction split particles get (solver.split_expansion_weight)
@@ -51,6 +51,7 @@ struct PbfParams {
 // boundary particles: xyz, w = temperature; cell-ordered with their own table
 @group(0) @binding(9) var<storage, read> bpos: array<vec4<f32>>;
 @group(0) @binding(10) var<storage, read> bcell_start: array<u32>;
+@group(0) @binding(11) var<storage, read> live: Live;
 
 // min_image with a reciprocal (one multiply instead of a divide per pair; the rounded image is the
 // same for every pair closer than half the domain, i.e. every pair that counts)
@@ -122,10 +123,10 @@ fn clamp_speed(v: vec3<f32>) -> vec3<f32> {
     return v;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn predict(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if (i >= grid.n_particles) { return; }
+    if (i >= live.count) { return; }
     var v = vel[i].xyz;
     v.y = v.y - prm.gravity * prm.dt;
     v = clamp_speed(v);
@@ -193,7 +194,7 @@ fn gw0(xij: vec3<f32>, r: f32) -> vec3<f32> {
 fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) {
     let xij = min_image_r(me.p - pred[j].xyz, me.inv);
     let r2 = dot(xij, xij);
-    if (prm.single_level != 0u) {
+    if (live.single_level != 0u) {
         if (r2 < prm.h0 * prm.h0) {
             let m = prm.lv[0].w;
             (*a).rho += m * w0(r2);
@@ -232,10 +233,10 @@ fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
     }
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if (i >= grid.n_particles) { return; }
+    if (i >= live.count) { return; }
     let me = me_of(i, vec4<f32>(pred[i].xyz, 0.0));
     var a = LamAcc(vec3<f32>(0.0), 0.0, 0.0, false);
     let c = cell_coord(me.p, grid);
@@ -284,7 +285,7 @@ fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
     let pj = scratch[j];
     let xij = min_image_r(me.p - pj.xyz, me.inv);
     let r2 = dot(xij, xij);
-    if (prm.single_level != 0u) {
+    if (live.single_level != 0u) {
         if (r2 < prm.h0 * prm.h0) {
             let m = prm.lv[0].w;
             var sc = 0.0;
@@ -318,10 +319,10 @@ fn delta_wall(dp: ptr<function, vec3<f32>>, me: Me, k: u32) {
     }
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if (i >= grid.n_particles) { return; }
+    if (i >= live.count) { return; }
     let me = me_of(i, scratch[i]);
     var dp = vec3<f32>(0.0);
     let c = cell_coord(me.p, grid);
@@ -341,10 +342,10 @@ fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
     pred[i] = vec4<f32>(confine(me.p + dp / prm.rest_density), 0.0);
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn update_velocity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if (i >= grid.n_particles) { return; }
+    if (i >= live.count) { return; }
     // w: the height gained in this substep, for the adiabatic cooling of eq. 7 (thermo.wgsl)
     let d = min_image(pred[i].xyz - pos[i].xyz, grid);
     vel[i] = vec4<f32>(d * prm.inv_dt, d.y);
@@ -357,26 +358,26 @@ struct Pair {
     lvj: vec4<f32>,
 }
 fn pair_of(r2: f32, hi: f32, j: u32) -> Pair {
-    if (prm.single_level != 0u) { return Pair(true, prm.lv[0]); }
+    if (live.single_level != 0u) { return Pair(true, prm.lv[0]); }
     let lvj = lv_of(level_of(j));
     let hm = max(hi, lvj.x);
     return Pair(r2 < hm * hm, lvj);
 }
 // W and grad W of eq. 19 (level 0 alone: the same values without the per-level selects)
 fn pair_w(r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> f32 {
-    if (prm.single_level != 0u) { return w0(r2); }
+    if (live.single_level != 0u) { return w0(r2); }
     return wsym(r2, lvi, lvj);
 }
 fn pair_g(xij: vec3<f32>, r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> vec3<f32> {
-    if (prm.single_level != 0u) { return gw0(xij, sqrt(r2)); }
+    if (live.single_level != 0u) { return gw0(xij, sqrt(r2)); }
     return gsym(xij, sqrt(r2), lvi, lvj);
 }
 
 // omega_i = sum_j V_j (v_i - v_j) x grad_i W_ij, V_j = m_j / rho_j; written over pos (x is dead).
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if (i >= grid.n_particles) { return; }
+    if (i >= live.count) { return; }
     let p = pred[i].xyz;
     let vi = vel[i].xyz;
     let lvi = lv_of(level_of(i));
@@ -413,10 +414,10 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
 // XSPH viscosity v_i += c sum_j 2 m_j / (rho_i + rho_j) (v_j - v_i) W_ij and vorticity confinement
 // a = eps (N x omega_i), N = eta / |eta|, eta = sum_j V_j (|omega_j| - |omega_i|) grad_i W_ij;
 // then the speed clamp. Writes the new velocity to scratch.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if (i >= grid.n_particles) { return; }
+    if (i >= live.count) { return; }
     let p = pred[i].xyz;
     let vi = vel[i].xyz;
     let lvi = lv_of(level_of(i));

@@ -24,7 +24,7 @@
 //!include shared/common.wgsl
 
 struct SmoothParams {
-    count: u32,
+    _pad0: u32,
     h0: f32,
     kappa: f32,
     epsilon: f32,
@@ -45,6 +45,7 @@ struct SmoothParams {
 @group(0) @binding(8) var<storage, read> boundary_cell_start: array<u32>;
 // the vapor-mixing limiter l_i (written by vapor_limit, read by smooth_temperature)
 @group(0) @binding(9) var<storage, read_write> vapor_limit_of: array<f32>;
+@group(0) @binding(10) var<storage, read> live: Live;
 
 fn radius_of_level(level: u32) -> f32 {
     return S.h0 * exp2(-f32(level) / 3.0);
@@ -108,18 +109,18 @@ fn vapor_demand(i: u32) -> f32 {
     return sum;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn vapor_limit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if (i >= S.count) { return; }
+    if (i >= live.count) { return; }
     let demand = S.vapor_rate * vapor_demand(i);
     vapor_limit_of[i] = select(1.0, min(1.0, 0.5 / demand), demand > 0.0);
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if (i >= S.count) { return; }
+    if (i >= live.count) { return; }
     let th = thermo_in[i];
     let xi = pos[i].xyz;
     let li = info[i].y;

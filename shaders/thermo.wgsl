@@ -10,7 +10,7 @@
 struct ThermoParams {
     dt: f32,
     time: f32,
-    count: u32,
+    _pad0: u32,
     seed: u32,
     ground_temperature: f32,
     lapse_rate: f32,
@@ -57,6 +57,7 @@ struct ThermoParams {
 @group(0) @binding(1) var<storage, read> pos: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> vel: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> thermo: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> live: Live;
 
 // Lattice value in [0, 1): the top 24 bits are exact in f32, so GPU and mirror agree.
 fn lattice_value(ix: i32, iz: i32, it: i32, seed: u32) -> f32 {
@@ -144,10 +145,10 @@ fn layer_mean(y: f32) -> f32 {
     return mix(a, b, t - f32(k0));
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if (i >= P.count) { return; }
+    if (i >= live.count) { return; }
     let p = pos[i].xyz;
     var u = vel[i];
     let th = thermo[i];

@@ -1,8 +1,9 @@
 // Shared by the adaptive split/merge stages (shaders/adaptive_*.wgsl); mirrored in f64 by
-// src/sim/reference/adaptive.rs (same names).
+// src/sim/reference/ (same names).
 //!include shared/common.wgsl
 
-// Mirror of sim::adaptive::AdaptiveParams (byte layout must match).
+// Mirror of sim::adaptive::AdaptiveParams (byte layout must match). `count` and `next_id` are
+// the f64 mirror's inputs; the GPU reads them from `live` (shared/live.wgsl).
 struct AdaptiveParams {
     count: u32,
     capacity: u32,
@@ -34,6 +35,14 @@ const C_FINAL: u32 = 5u;
 const C_NEXT_ID: u32 = 6u;
 const C_LEVELS: u32 = 8u;
 const MAX_LEVELS: u32 = 24u;
+// the next `Live` (12 words), copied over `live` after the split
+const C_LIVE: u32 = 32u;
+// merges, splits and skipped splits summed over the frame's substeps
+const C_FRAME_MERGES: u32 = 44u;
+const C_FRAME_SPLITS: u32 = 45u;
+const C_FRAME_SKIPPED: u32 = 46u;
+const N_COUNTERS: u32 = 48u;
+
 
 // Kernel radius of level l: h0 * 2^(-l/3).
 fn level_radius(h0: f32, level: u32) -> f32 {

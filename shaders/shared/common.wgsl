@@ -1,15 +1,17 @@
-// Shared by every particle stage: grid parameters, SPH kernels, minimum-image wrapping.
-// Mirrored in f64 by src/sim/reference/kernels.rs (same names).
+// Shared by every particle stage: grid parameters, SPH kernels, minimum-image wrapping, and the
+// live count (shared/live.wgsl). Mirrored in f64 by src/sim/reference/ (same names).
+//!include shared/live.wgsl
 
 const PI: f32 = 3.14159265358979;
 
-// Linear thread index of a 2D dispatch (x up to 65535 workgroups, then rows of y) with `wg`
-// threads per workgroup; `linear_id` for the 64-thread workgroups of the particle stages.
+// Linear thread index of a 2D dispatch (x up to MAX_GROUPS_X workgroups, then rows of y) with
+// `wg` threads per workgroup; `linear_id` for the WG_PARTICLES-thread workgroups of the particle
+// stages.
 fn thread_index(gid: vec3<u32>, nwg: vec3<u32>, wg: u32) -> u32 {
     return gid.x + gid.y * nwg.x * wg;
 }
 fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
-    return thread_index(gid, nwg, 64u);
+    return thread_index(gid, nwg, WG_PARTICLES);
 }
 
 // PCG-RXS-M-XS hash (Jarzynski & Olano 2020), a well-mixed u32 -> u32; u32 arithmetic wraps.
@@ -23,7 +25,8 @@ fn pcg_hash(v: u32) -> u32 {
 // Uniform grid over the domain; x and z may be periodic (minimum image), y is walled.
 struct GridParams {
     domain_min: vec3<f32>,
-    n_particles: u32,
+    // (the particle count is `live.count`, shared/live.wgsl: it changes on the GPU)
+    _pad0: u32,
     domain_size: vec3<f32>,
     n_boundary: u32,
     cell_size: vec3<f32>,

@@ -5,28 +5,21 @@
 // from it by replacing ELEM and WIDTH.
 //!include shared/common.wgsl
 
-struct CountParams {
-    n: u32,
-    _p0: u32,
-    _p1: u32,
-    _p2: u32,
-}
-
-@group(0) @binding(0) var<uniform> cp: CountParams;
+@group(0) @binding(0) var<storage, read> live: Live;
 @group(0) @binding(1) var<storage, read_write> order: array<u32>;
 @group(0) @binding(2) var<storage, read_write> src: array<ELEM>;
 @group(0) @binding(3) var<storage, read_write> dst: array<ELEM>;
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn permuteWIDTH(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if (i >= cp.n) { return; }
+    if (i >= live.count) { return; }
     dst[i] = src[order[i]];
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG_PARTICLES)
 fn copyWIDTH(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if (i >= cp.n) { return; }
+    if (i >= live.count) { return; }
     dst[i] = src[i];
 }

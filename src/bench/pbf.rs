@@ -21,6 +21,9 @@ pub fn bench_pbf(particles: usize, steps: u32, warmup: u32) -> Result<serde_json
     let cfg = bench_config(particles)?;
     let ctx = Arc::new(crate::gpu::Context::new(&GpuConfig::default())?);
     let mut sim = Simulation::new(ctx.clone(), &cfg)?;
+    if !ctx.timestamps {
+        sim.set_timing(crate::sim::Timing::HostWaits);
+    }
     for _ in 0..warmup.max(1) {
         sim.step_frame()?;
     }
@@ -29,8 +32,8 @@ pub fn bench_pbf(particles: usize, steps: u32, warmup: u32) -> Result<serde_json
     let mut last = None;
     for _ in 0..steps.max(1) {
         let r = sim.step_frame()?;
-        for (k, v) in &r.phase_ms {
-            *phases.entry(k.clone()).or_insert(0.0) += v;
+        for (k, v) in r.phases.by_key() {
+            *phases.entry(k).or_insert(0.0) += v;
         }
         last = Some(r);
     }

@@ -168,6 +168,9 @@ fn run(
     label: &str,
 ) -> Result<(Run, u32)> {
     let mut sim = Simulation::new(ctx.clone(), cfg)?;
+    if !ctx.timestamps {
+        sim.set_timing(crate::sim::Timing::HostWaits);
+    }
     let mut r = Run {
         max_particles: sim.count() as f64,
         ..Run::default()
@@ -198,8 +201,8 @@ fn run(
         // the CFL control may take more than output.substeps
         let substeps = rep.diagnostics.get("substeps").copied();
         r.substeps += substeps.unwrap_or(cfg.output.substeps as f64).max(1.0) as u64;
-        for (k, v) in &rep.phase_ms {
-            *r.phase_ms.entry(k.clone()).or_insert(0.0) += v;
+        for (k, v) in rep.phases.by_key() {
+            *r.phase_ms.entry(k).or_insert(0.0) += v;
         }
         let d = &rep.diagnostics;
         let get = |k: &str| d.get(k).copied().unwrap_or(0.0);

@@ -1,9 +1,15 @@
-//! wgpu context (headless adapter choice, features, limits), buffer helpers and shader loading.
+//! wgpu context (headless adapter choice, features, limits, the one host wait), the compute
+//! [`stage::Stage`] every GPU stage is declared with, buffer helpers, shader loading, and the
+//! generic passes (prefix scan, radix sort, timestamps).
 pub mod buffers;
-pub mod kernel;
+pub mod live;
+pub mod scan;
 pub mod shaders;
 pub mod sort;
+pub mod stage;
 pub mod timing;
+
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::config::{Backend, GpuConfig};
 use crate::error::{Error, Result};
@@ -20,6 +26,11 @@ pub struct Context {
     pub adapter_info: wgpu::AdapterInfo,
     /// Timestamp queries are available: per-phase GPU timings come from them.
     pub timestamps: bool,
+    /// The constants every stage's WGSL is compiled with (workgroup sizes, dispatch limit).
+    pub prelude: shaders::Prelude,
+    /// Times the host has waited for the GPU ([`Context::wait`]); stats.jsonl records the
+    /// waits per frame.
+    waits: AtomicU64,
 }
 
 impl Context {
@@ -76,12 +87,29 @@ impl Context {
             trace: wgpu::Trace::Off,
         }))
         .map_err(|e| Error::NoGpu(format!("adapter {} refused a device: {e}", info.name)))?;
+        let prelude = shaders::Prelude::for_device(&device.limits(), info.device_type)?;
         Ok(Self {
             device,
             queue,
             timestamps: features.contains(wgpu::Features::TIMESTAMP_QUERY),
             adapter_info: info,
+            prelude,
+            waits: AtomicU64::new(0),
         })
+    }
+
+    /// Blocks until the GPU has finished everything submitted: the one place the host waits.
+    pub fn wait(&self) -> Result<()> {
+        self.waits.fetch_add(1, Ordering::Relaxed);
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| Error::Runtime(format!("GPU poll failed: {e}")))
+    }
+
+    /// Host waits so far (see [`Context::wait`]).
+    pub fn waits(&self) -> u64 {
+        self.waits.load(Ordering::Relaxed)
     }
 
     /// Adapter name as written into manifests and checkpoints.

@@ -1,7 +1,73 @@
 //! Shader sources, embedded at build time. A stage file may pull shared code in with a line
 //! `//!include shared/NAME.wgsl` (WGSL has no includes; this is plain text substitution,
-//! each file included at most once).
+//! each file included at most once). Every stage is preceded by the [`Prelude`]: constants the
+//! Rust side owns (workgroup sizes, the dispatch limit), so that WGSL and Rust cannot disagree.
 use crate::error::{Error, Result};
+
+/// Threads per workgroup of the per-particle kernels (`WG_PARTICLES` in WGSL).
+pub const WG_PARTICLES: u32 = 64;
+/// Threads per workgroup of the block kernels: a prefix-scan block, a radix-sort tile, the
+/// adaptive stage's per-particle kernels (`WG_BLOCK` in WGSL).
+pub const WG_BLOCK: u32 = 256;
+
+/// Loop iterations an invocation may run on llvmpipe, with a margin below its 65535.
+pub const CPU_LOOP_BUDGET: u32 = 60_000;
+
+/// Constants prepended to every stage's WGSL.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Prelude {
+    pub wg_particles: u32,
+    pub wg_block: u32,
+    /// Most workgroups per dispatch dimension (the adapter's limit; a larger dispatch is folded
+    /// into rows along y).
+    pub max_groups_x: u32,
+    /// Loop iterations one invocation may run (`LOOP_BUDGET`): llvmpipe (lavapipe, the CPU
+    /// device) silently ends all loops of an invocation after 65535 iterations in total, so
+    /// 60000 there; unbounded on GPUs.
+    pub loop_budget: u32,
+}
+
+impl Default for Prelude {
+    fn default() -> Self {
+        Self {
+            wg_particles: WG_PARTICLES,
+            wg_block: WG_BLOCK,
+            max_groups_x: 65535,
+            loop_budget: CPU_LOOP_BUDGET,
+        }
+    }
+}
+
+impl Prelude {
+    /// The prelude for a device of this type with these limits.
+    pub fn for_device(limits: &wgpu::Limits, device_type: wgpu::DeviceType) -> Result<Self> {
+        let p = Self {
+            max_groups_x: limits.max_compute_workgroups_per_dimension,
+            loop_budget: if device_type == wgpu::DeviceType::Cpu {
+                CPU_LOOP_BUDGET
+            } else {
+                u32::MAX
+            },
+            ..Self::default()
+        };
+        if limits.max_compute_invocations_per_workgroup < p.wg_block
+            || limits.max_compute_workgroup_size_x < p.wg_block
+        {
+            return Err(Error::NoGpu(format!(
+                "the adapter runs at most {} threads per workgroup; nimbus needs {}",
+                limits.max_compute_invocations_per_workgroup, p.wg_block
+            )));
+        }
+        Ok(p)
+    }
+
+    fn wgsl(&self) -> String {
+        format!(
+            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\n",
+            self.wg_particles, self.wg_block, self.max_groups_x, self.loop_budget
+        )
+    }
+}
 
 include!(concat!(env!("OUT_DIR"), "/shader_files.rs"));
 
@@ -40,14 +106,19 @@ fn raw(name: &str) -> Result<&'static str> {
         .ok_or_else(|| Error::Runtime(format!("shader '{name}' is not built into this binary")))
 }
 
-/// The full WGSL text of a stage with its includes expanded.
+/// The full WGSL text of a stage with its includes expanded, after the default prelude.
 pub fn source(name: &str) -> Result<String> {
+    source_with(name, &Prelude::default())
+}
+
+/// The full WGSL text of a stage with its includes expanded, after `prelude`.
+pub fn source_with(name: &str, prelude: &Prelude) -> Result<String> {
     let (file, words): (&str, Words) = VARIANTS
         .iter()
         .find(|(n, _, _)| *n == name)
         .map_or((name, &[]), |(_, t, w)| (*t, *w));
     let mut seen = Vec::new();
-    let mut out = String::new();
+    let mut out = prelude.wgsl();
     expand(file, &mut seen, &mut out)?;
     for (word, replacement) in words {
         out = out.replace(word, replacement);
@@ -73,7 +144,12 @@ fn expand(name: &str, seen: &mut Vec<String>, out: &mut String) -> Result<()> {
 
 /// Parses and validates a stage with naga (what wgpu does at pipeline creation).
 pub fn validate(name: &str) -> Result<naga::Module> {
-    let src = source(name)?;
+    validate_with(name, &Prelude::default())
+}
+
+/// [`validate`] with a device's prelude.
+pub fn validate_with(name: &str, prelude: &Prelude) -> Result<naga::Module> {
+    let src = source_with(name, prelude)?;
     let module = naga::front::wgsl::parse_str(&src)
         .map_err(|e| Error::Runtime(format!("{name}: {}", e.emit_to_string(&src))))?;
     naga::valid::Validator::new(
@@ -85,32 +161,15 @@ pub fn validate(name: &str) -> Result<naga::Module> {
     Ok(module)
 }
 
-/// Compiles a stage into a shader module on `device`.
-pub fn module(device: &wgpu::Device, name: &str) -> Result<wgpu::ShaderModule> {
-    let src = source(name)?;
-    Ok(device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some(name),
-        source: wgpu::ShaderSource::Wgsl(src.into()),
-    }))
-}
-
-/// A compute pipeline for entry point `entry` of stage `name`, with an automatic layout.
-pub fn compute_pipeline(
-    device: &wgpu::Device,
-    name: &str,
-    entry: &str,
-) -> Result<wgpu::ComputePipeline> {
-    let module = module(device, name)?;
-    Ok(
-        device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(&format!("{name}:{entry}")),
-            layout: None,
-            module: &module,
-            entry_point: Some(entry),
-            compilation_options: Default::default(),
-            cache: None,
-        }),
-    )
+/// Compiles a stage into a shader module on the context's device, with its prelude.
+pub fn module(ctx: &crate::gpu::Context, name: &str) -> Result<wgpu::ShaderModule> {
+    let src = source_with(name, &ctx.prelude)?;
+    Ok(ctx
+        .device
+        .create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(name),
+            source: wgpu::ShaderSource::Wgsl(src.into()),
+        }))
 }
 
 #[cfg(test)]

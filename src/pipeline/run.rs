@@ -245,7 +245,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                 frame,
                 sim_time: clock.time,
                 particles: state.len() as u64,
-                phase_ms: report.phase_ms.clone(),
+                phase_ms: report.phases.by_key(),
                 diagnostics,
             });
             let skip_write = loop_state

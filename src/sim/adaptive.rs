@@ -1,24 +1,33 @@
 //! Adaptive particles (paper section 5.2): shape energy, split and merge on the GPU.
 //!
-//! A self-contained stage over the particle buffers of docs/ARCHITECTURE.md (cell-ordered, with
-//! the cell table of the last grid build). One [`AdaptiveStage::run`]:
+//! A stage over the particle buffers of docs/ARCHITECTURE.md (cell-ordered, with the cell table
+//! of the last grid build), recorded at the end of every substep without a host round trip
+//! ([`AdaptiveStage::split_and_merge`]):
 //! 1. `adaptive_mark`: E = kp (1 - exp(-kc w)) into `thermo.w`; merge marks (E < beta, l > 0);
 //!    split marks (E > alpha, l < max_level) where both children fit (min_distance);
-//! 2. `adaptive_merge`, one dispatch per grid colour: pairs of marked same-level neighbours
-//!    become one particle of level l-1 in the lower slot, the other slot dies;
+//! 2. `merge_cells` lists, per grid colour, the cells holding merge marks and `merge_dispatch`
+//!    writes one indirect dispatch per colour; `adaptive_merge`, a workgroup per listed cell:
+//!    pairs of marked same-level neighbours become one particle of level l-1 in the lower slot,
+//!    the other slot dies;
 //! 3. scan of dead flags, `compact_holes` + `compact_move`: in-place deterministic compaction;
-//! 4. scan of split marks, `adaptive_split`: children appended after the live range, up to the
-//!    capacity (excess splits skipped and counted);
-//! 5. `count_levels` and a read-back of a few counters: [`AdaptiveReport`].
+//! 4. scan of split marks, `totals_split` (the new live state), `adaptive_split`: children
+//!    appended after the live range, up to the capacity (excess splits skipped and counted);
+//!    the new live state is copied over `live` (gpu::live), so the next kernels and dispatches
+//!    see the new count;
+//! 5. `count_levels`: per-level counts in the counters, read back with the frame.
 //!
 //! Marks and the split room check read one snapshot (before any merge), so neither depends on
-//! the other's outcome. The f64 mirror is `sim::reference::adaptive`.
-use std::time::Instant;
-
+//! the other's outcome. The f64 mirrors are in `sim::reference` (one file per shader).
 use crate::config::AdaptiveConfig;
 use crate::error::{Error, Result};
-use crate::gpu::{buffers, shaders, Context};
+use crate::gpu::buffers::{self, ParamSlots};
+use crate::gpu::live::LiveBuffer;
+use crate::gpu::scan::{PrefixScan, ScanOf};
+use crate::gpu::stage::{Dispatch, Stage};
+use crate::gpu::Context;
+use crate::sim::buffers::ParticleBuffers;
 use crate::sim::grid_params::GridParams;
+use crate::sim::phase::{Phase, Recorder};
 
 /// Levels the counters buffer has room for (`MAX_LEVELS` in shaders/shared/adaptive.wgsl).
 pub const MAX_LEVELS: u32 = 24;
@@ -41,7 +50,6 @@ const C_SKIPPED: usize = 4;
 const C_FINAL: usize = 5;
 const C_NEXT_ID: usize = 6;
 const C_LEVELS: usize = 8;
-const N_COUNTERS: usize = C_LEVELS + MAX_LEVELS as usize;
 
 /// Uniform of every adaptive shader (mirror of `AdaptiveParams` in shaders/shared/adaptive.wgsl).
 #[repr(C)]
@@ -174,15 +182,6 @@ pub fn colour_passes(grid: &GridParams) -> Vec<ColourPass> {
     out
 }
 
-/// Wall time of the two halves of a run (ms; each phase ends with a GPU wait).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct AdaptivePhaseMs {
-    /// Marks with the split room check, the split scan and the split writes.
-    pub split: f64,
-    /// Coloured merge passes and the compaction.
-    pub merge: f64,
-}
-
 /// Outcome of one run of the stage (exact integers from the GPU counters).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct AdaptiveReport {
@@ -198,7 +197,6 @@ pub struct AdaptiveReport {
     pub mass_units: u64,
     /// The id the next new particle gets.
     pub next_id: u32,
-    pub phase_ms: AdaptivePhaseMs,
 }
 
 /// Mass units of a level-l particle.
@@ -214,179 +212,133 @@ pub fn mass_units(per_level: &[u32], max_level: u32) -> u64 {
         .sum()
 }
 
-/// The caller's buffers (docs/ARCHITECTURE.md): particle arrays of length `capacity`, cell
-/// ordered, and the cell table + grid uniform of their last build.
-pub struct AdaptiveBuffers<'a> {
-    pub grid: &'a wgpu::Buffer,
-    pub pos: &'a wgpu::Buffer,
-    pub vel: &'a wgpu::Buffer,
-    pub thermo: &'a wgpu::Buffer,
-    pub info: &'a wgpu::Buffer,
-    pub cell_start: &'a wgpu::Buffer,
-}
-
-/// One level of the recursive prefix scan.
-struct ScanLevel {
-    out: wgpu::Buffer,
-    /// Params per scan (dead flags, split flags).
-    params: [wgpu::Buffer; 2],
-    blocks: [wgpu::BindGroup; 2],
-    /// Adds the next level's scanned sums back (absent on the last level).
-    add: Option<[wgpu::BindGroup; 2]>,
-}
-
+/// The colour of one merge dispatch (`MergeColour` in adaptive_merge.wgsl).
 #[repr(C)]
-#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct ScanParams {
-    n: u32,
-    mask: u32,
-    pad: [u32; 2],
+#[derive(Debug, Clone, Copy, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct MergeColour {
+    pub index: u32,
+    pub pad: [u32; 3],
 }
 
-struct Pipelines {
-    mark: wgpu::ComputePipeline,
-    merge: wgpu::ComputePipeline,
-    cell_load: wgpu::ComputePipeline,
-    scan_blocks: wgpu::ComputePipeline,
-    scan_add: wgpu::ComputePipeline,
-    holes: wgpu::ComputePipeline,
-    moves: wgpu::ComputePipeline,
-    split: wgpu::ComputePipeline,
-    totals_merge: wgpu::ComputePipeline,
-    totals_split: wgpu::ComputePipeline,
-    levels: wgpu::ComputePipeline,
+/// How a cell's coordinates give its colour (`ColourMap` in adaptive_plan.wgsl): per axis,
+/// cells below `split` take class x mod 3, the others classes 3.. of their own; `classes` per
+/// axis. Colour = (class_z classes_y + class_y) classes_x + class_x, the order of
+/// [`colour_passes`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ColourMap {
+    pub split: [u32; 4],
+    pub classes: [u32; 4],
 }
 
-/// The GPU split/merge stage with its scratch buffers (about 12 bytes per particle of capacity).
+impl ColourMap {
+    pub fn of(grid: &GridParams) -> Self {
+        let axis = |a: usize, periodic: bool| {
+            let dim = grid.dims[a];
+            let split = if periodic { 3 * (dim / 3) } else { u32::MAX };
+            (split, axis_classes(dim, periodic).len() as u32)
+        };
+        let (sx, nx) = axis(0, grid.periodic_x());
+        let (sy, ny) = axis(1, false);
+        let (sz, nz) = axis(2, grid.periodic_z());
+        Self {
+            split: [sx, sy, sz, 0],
+            classes: [nx, ny, nz, 0],
+        }
+    }
+
+    /// The colour of cell `c` (mirror of adaptive_plan.wgsl).
+    pub fn colour(&self, c: [u32; 3]) -> u32 {
+        let class = |a: usize| {
+            if c[a] < self.split[a] {
+                c[a] % 3
+            } else {
+                3 + (c[a] - self.split[a])
+            }
+        };
+        (class(2) * self.classes[1] + class(1)) * self.classes[0] + class(0)
+    }
+}
+
+// Counters (shaders/shared/adaptive.wgsl).
+const C_LIVE: usize = 32;
+const C_FRAME_MERGES: usize = 44;
+const N_COUNTERS: usize = 48;
+/// Words of the merge load (adaptive_plan.wgsl): error, largest loop estimate, most listed cells.
+const N_LOAD: usize = 4;
+
+/// The frame's merge error from the load's words, if any (exit 3: the frame is not written).
+pub fn load_error(load: &[u32], loop_budget: u32) -> Result<()> {
+    if load.first().copied().unwrap_or(0) == 0 {
+        return Ok(());
+    }
+    Err(Error::Runtime(format!(
+        "adaptive: merging one crowded grid cell would take {} loop iterations, more than this \
+         device runs in one invocation ({loop_budget}); lower the particle density or max_level",
+        load[1]
+    )))
+}
+
+/// Merges, splits and skipped splits summed over a frame (the counters' frame words).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FrameTotals {
+    pub merges: u32,
+    pub splits: u32,
+    pub skipped_splits: u32,
+}
+
+/// The GPU split/merge stage, bound once to the particle buffers, with its scratch (flags,
+/// scan, holes: about 12 bytes per particle of capacity) and small counters.
 pub struct AdaptiveStage {
     params: AdaptiveParams,
     capacity: u32,
-    pipes: Pipelines,
-    params_buf: wgpu::Buffer,
+    mark: Stage,
+    merge: Stage,
+    plan: Stage,
+    compact: Stage,
+    split: Stage,
+    stats: Stage,
+    param_buf: ParamSlots<AdaptiveParams>,
+    colour_map: ParamSlots<ColourMap>,
+    colours: ParamSlots<MergeColour>,
+    n_colours: u32,
     flags: wgpu::Buffer,
     hole_index: wgpu::Buffer,
     counters: wgpu::Buffer,
-    /// Largest cell occupancy, 27-cell neighbourhood and merge-marked count (sizes the rounds).
     load: wgpu::Buffer,
+    /// The cells to merge, colour by colour; (list start, cells) per colour; listed per colour.
+    cells: wgpu::Buffer,
+    colour_list: wgpu::Buffer,
+    colour_count: wgpu::Buffer,
+    merge_args: wgpu::Buffer,
+    loop_budget: u32,
+    /// Exclusive scans of the dead flags (mode 0) and the split marks (mode 1).
+    scan: PrefixScan,
     num_cells: u32,
-    scan: Vec<ScanLevel>,
-    colours: Vec<(ColourPass, wgpu::BindGroup)>,
+    binds: Binds,
 }
 
-const SCAN_BLOCK: u32 = 256;
-
-fn bind(
-    device: &wgpu::Device,
-    pipeline: &wgpu::ComputePipeline,
-    group: u32,
-    buffers: &[&wgpu::Buffer],
-) -> wgpu::BindGroup {
-    let at: Vec<(u32, &wgpu::Buffer)> = buffers
-        .iter()
-        .enumerate()
-        .map(|(i, b)| (i as u32, *b))
-        .collect();
-    bind_at(device, pipeline, group, &at)
-}
-
-/// A bind group of `(binding, buffer)`: automatic layouts hold only what an entry point uses.
-fn bind_at(
-    device: &wgpu::Device,
-    pipeline: &wgpu::ComputePipeline,
-    group: u32,
-    buffers: &[(u32, &wgpu::Buffer)],
-) -> wgpu::BindGroup {
-    let entries: Vec<wgpu::BindGroupEntry> = buffers
-        .iter()
-        .map(|(i, b)| wgpu::BindGroupEntry {
-            binding: *i,
-            resource: b.as_entire_binding(),
-        })
-        .collect();
-    device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout: &pipeline.get_bind_group_layout(group),
-        entries: &entries,
-    })
-}
-
-/// Records a dispatch of `groups` workgroups, folded into 2D past the 65535 limit (shaders
-/// linearise with `num_workgroups` and bounds-check).
-fn dispatch(
-    pass: &mut wgpu::ComputePass,
-    pipeline: &wgpu::ComputePipeline,
-    groups: &[&wgpu::BindGroup],
-    n_groups: u32,
-) {
-    if n_groups == 0 {
-        return;
-    }
-    pass.set_pipeline(pipeline);
-    for (i, g) in groups.iter().enumerate() {
-        pass.set_bind_group(i as u32, Some(*g), &[]);
-    }
-    let x = n_groups.min(65535);
-    pass.dispatch_workgroups(x, n_groups.div_ceil(x), 1);
-}
-
-/// Loop iterations one shader invocation may run: llvmpipe (lavapipe) ends every loop of an
-/// invocation after 65535 iterations in total, silently; stay below with a margin.
-pub const LOOP_BUDGET: u64 = 60_000;
-
-/// Slot range of one merge round (`MergeRound` in adaptive_merge.wgsl).
-#[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct MergeRound {
-    pub first: u32,
-    pub len: u32,
-    pub pad: [u32; 2],
-}
-
-/// Rounds that split every cell's merge loop so one invocation stays within [`LOOP_BUDGET`]:
-/// a round walks at most the cell's `max_occupancy` slots and merges up to `len` marked ones,
-/// each at most two scans of its 27-cell neighbourhood (`max_neighbourhood` particles) plus the
-/// cell loops. Rounds count marked slots (`max_marked` in the fullest cell) and run in order, so
-/// the result is the one of a single pass over each cell (the mirror's).
-pub fn merge_rounds(
-    max_occupancy: u32,
-    max_marked: u32,
-    max_neighbourhood: u32,
-) -> Result<Vec<MergeRound>> {
-    let per_slot = 2 * max_neighbourhood as u64 + 100;
-    let len = LOOP_BUDGET.saturating_sub(max_occupancy as u64) / per_slot;
-    if len == 0 {
-        return Err(Error::Runtime(format!(
-            "adaptive: {max_neighbourhood} particles around one grid cell are more than a merge \
-             pass can scan; lower the particle density or max_level"
-        )));
-    }
-    let len = len.min(u32::MAX as u64) as u32;
-    Ok((0..max_marked.div_ceil(len))
-        .map(|r| MergeRound {
-            first: r * len,
-            len,
-            pad: [0; 2],
-        })
-        .collect())
-}
-
-fn wait(ctx: &Context) -> Result<()> {
-    ctx.device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .map(|_| ())
-        .map_err(|e| Error::Runtime(format!("GPU poll failed: {e}")))
+struct Binds {
+    mark: wgpu::BindGroup,
+    merge: wgpu::BindGroup,
+    colour: wgpu::BindGroup,
+    plan: wgpu::BindGroup,
+    compact: wgpu::BindGroup,
+    split: wgpu::BindGroup,
+    stats: wgpu::BindGroup,
 }
 
 impl AdaptiveStage {
-    /// Builds the stage for particle arrays of `capacity` on `grid` (its host copy: the merge
+    /// Builds the stage over the particle buffers `b` on `grid` (its host copy: the merge
     /// colours follow its dims), kernel radius `h0` of level 0.
     pub fn new(
         ctx: &Context,
         cfg: &AdaptiveConfig,
         grid: &GridParams,
         h0: f64,
-        capacity: u32,
+        b: &ParticleBuffers,
     ) -> Result<Self> {
+        let capacity = b.capacity;
         let params = AdaptiveParams::new(cfg, h0, capacity)?;
         if let Some(edge) = grid
             .cell_size
@@ -403,95 +355,177 @@ impl AdaptiveStage {
             ));
         }
         let d = &ctx.device;
-        let pipes = Pipelines {
-            mark: shaders::compute_pipeline(d, "adaptive_mark.wgsl", "adaptive_mark")?,
-            merge: shaders::compute_pipeline(d, "adaptive_merge.wgsl", "adaptive_merge")?,
-            cell_load: shaders::compute_pipeline(d, "adaptive_merge.wgsl", "cell_load")?,
-            scan_blocks: shaders::compute_pipeline(d, "adaptive_scan.wgsl", "scan_blocks")?,
-            scan_add: shaders::compute_pipeline(d, "adaptive_scan.wgsl", "add_block_offsets")?,
-            holes: shaders::compute_pipeline(d, "adaptive_compact.wgsl", "compact_holes")?,
-            moves: shaders::compute_pipeline(d, "adaptive_compact.wgsl", "compact_move")?,
-            split: shaders::compute_pipeline(d, "adaptive_split.wgsl", "adaptive_split")?,
-            totals_merge: shaders::compute_pipeline(d, "adaptive_stats.wgsl", "totals_merge")?,
-            totals_split: shaders::compute_pipeline(d, "adaptive_stats.wgsl", "totals_split")?,
-            levels: shaders::compute_pipeline(d, "adaptive_stats.wgsl", "count_levels")?,
-        };
+        let mark = Stage::new(ctx, "adaptive_mark.wgsl", &["adaptive_mark"])?;
+        let merge = Stage::new(ctx, "adaptive_merge.wgsl", &["adaptive_merge"])?;
+        let plan = Stage::new(
+            ctx,
+            "adaptive_plan.wgsl",
+            &["merge_cells", "merge_dispatch"],
+        )?;
+        let compact = Stage::new(
+            ctx,
+            "adaptive_compact.wgsl",
+            &["compact_holes", "compact_move"],
+        )?;
+        let split = Stage::new(ctx, "adaptive_split.wgsl", &["adaptive_split"])?;
+        let stats = Stage::new(
+            ctx,
+            "adaptive_stats.wgsl",
+            &["totals_merge", "totals_split", "count_levels"],
+        )?;
         let cap = capacity.max(1) as usize;
-        let params_buf = buffers::uniform_init(d, "adaptive params", &params);
+        let param_buf = ParamSlots::single(ctx, "adaptive params", &params);
         let flags = buffers::storage_zeroed::<u32>(d, "adaptive flags", cap);
         let hole_index = buffers::storage_zeroed::<u32>(d, "adaptive holes", cap);
         let counters = buffers::storage_zeroed::<u32>(d, "adaptive counters", N_COUNTERS);
-        let load = buffers::storage_zeroed::<u32>(d, "adaptive cell load", 4);
-
-        // Scan levels: lengths cap, cap/256, ... down to one block.
-        let mut lens = vec![cap as u32];
-        while *lens.last().unwrap() > SCAN_BLOCK {
-            lens.push(lens.last().unwrap().div_ceil(SCAN_BLOCK));
+        let load = buffers::storage_zeroed::<u32>(d, "adaptive cell load", N_LOAD);
+        let passes = colour_passes(grid);
+        let n_colours = passes.len() as u32;
+        let mut lists = Vec::with_capacity(passes.len());
+        let mut start = 0u32;
+        for c in &passes {
+            lists.push([start, c.cells(), 0, 0]);
+            start += c.cells();
         }
-        let outs: Vec<wgpu::Buffer> = lens
-            .iter()
-            .map(|&n| buffers::storage_zeroed::<u32>(d, "adaptive scan", n as usize))
-            .collect();
-        let sums: Vec<wgpu::Buffer> = lens
-            .iter()
-            .map(|&n| {
-                buffers::storage_zeroed::<u32>(
-                    d,
-                    "adaptive scan sums",
-                    n.div_ceil(SCAN_BLOCK) as usize,
-                )
-            })
-            .collect();
-        let zero = ScanParams {
-            n: 0,
-            mask: 0,
-            pad: [0; 2],
+        let cells = buffers::storage_zeroed::<u32>(d, "adaptive merge cells", start as usize);
+        let colour_list = buffers::storage_init(d, "adaptive colour lists", &lists);
+        let colour_count =
+            buffers::storage_zeroed::<u32>(d, "adaptive colour counts", passes.len());
+        let merge_args = d.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("adaptive merge dispatches"),
+            size: n_colours as u64 * 16,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDIRECT,
+            mapped_at_creation: false,
+        });
+        let colour_map = ParamSlots::single(ctx, "adaptive colour map", &ColourMap::of(grid));
+        let colours = ParamSlots::new(
+            ctx,
+            "adaptive merge colours",
+            &(0..n_colours)
+                .map(|index| MergeColour { index, pad: [0; 3] })
+                .collect::<Vec<_>>(),
+        );
+        let scan = PrefixScan::new(
+            ctx,
+            &flags,
+            capacity.max(1),
+            &b.live,
+            &[ScanOf::LiveFlags(FLAG_DEAD), ScanOf::LiveFlags(FLAG_SPLIT)],
+        )?;
+        let e = crate::gpu::buffers::whole;
+        let scan0 = scan.output();
+        let binds = Binds {
+            mark: mark.bind(
+                ctx,
+                &[
+                    ("grid", b.grid.slot(0)),
+                    ("params", param_buf.slot(0)),
+                    ("pos", e(&b.pos)),
+                    ("thermo", e(&b.thermo)),
+                    ("info", e(&b.info)),
+                    ("cell_start", e(&b.cell_start)),
+                    ("flags", e(&flags)),
+                    ("live", b.live.binding()),
+                ],
+            )?,
+            merge: merge.bind(
+                ctx,
+                &[
+                    ("grid", b.grid.slot(0)),
+                    ("params", param_buf.slot(0)),
+                    ("pos", e(&b.pos)),
+                    ("vel", e(&b.vel)),
+                    ("thermo", e(&b.thermo)),
+                    ("info", e(&b.info)),
+                    ("cell_start", e(&b.cell_start)),
+                    ("flags", e(&flags)),
+                    ("cells", e(&cells)),
+                    ("colour_list", e(&colour_list)),
+                    ("colour_count", e(&colour_count)),
+                ],
+            )?,
+            colour: merge.bind_group(ctx, 1, &[("colour", colours.slot(0))])?,
+            plan: plan.bind(
+                ctx,
+                &[
+                    ("grid", b.grid.slot(0)),
+                    ("colour_map", colour_map.slot(0)),
+                    ("cell_start", e(&b.cell_start)),
+                    ("flags", e(&flags)),
+                    ("cells", e(&cells)),
+                    ("colour_list", e(&colour_list)),
+                    ("colour_count", e(&colour_count)),
+                    ("merge_args", e(&merge_args)),
+                    ("load", e(&load)),
+                ],
+            )?,
+            compact: compact.bind(
+                ctx,
+                &[
+                    ("params", param_buf.slot(0)),
+                    ("counters", e(&counters)),
+                    ("scan", e(scan0)),
+                    ("flags", e(&flags)),
+                    ("hole_index", e(&hole_index)),
+                    ("pos", e(&b.pos)),
+                    ("vel", e(&b.vel)),
+                    ("thermo", e(&b.thermo)),
+                    ("info", e(&b.info)),
+                    ("live", b.live.binding()),
+                ],
+            )?,
+            split: split.bind(
+                ctx,
+                &[
+                    ("grid", b.grid.slot(0)),
+                    ("params", param_buf.slot(0)),
+                    ("counters", e(&counters)),
+                    ("scan", e(scan0)),
+                    ("flags", e(&flags)),
+                    ("pos", e(&b.pos)),
+                    ("vel", e(&b.vel)),
+                    ("thermo", e(&b.thermo)),
+                    ("info", e(&b.info)),
+                    ("live", b.live.binding()),
+                ],
+            )?,
+            stats: stats.bind(
+                ctx,
+                &[
+                    ("params", param_buf.slot(0)),
+                    ("counters", e(&counters)),
+                    ("scan", e(scan0)),
+                    ("flags", e(&flags)),
+                    ("info", e(&b.info)),
+                    ("live", b.live.binding()),
+                ],
+            )?,
         };
-        let mut scan = Vec::new();
-        for k in 0..lens.len() {
-            let input = if k == 0 { &flags } else { &sums[k - 1] };
-            let params: [wgpu::Buffer; 2] =
-                std::array::from_fn(|_| buffers::uniform_init(d, "adaptive scan params", &zero));
-            let blocks = std::array::from_fn(|s| {
-                bind(
-                    d,
-                    &pipes.scan_blocks,
-                    0,
-                    &[&params[s], input, &outs[k], &sums[k]],
-                )
-            });
-            let add = (k + 1 < lens.len()).then(|| {
-                std::array::from_fn(|s| {
-                    bind(d, &pipes.scan_add, 0, &[&params[s], &outs[k + 1], &outs[k]])
-                })
-            });
-            scan.push(ScanLevel {
-                out: outs[k].clone(),
-                params,
-                blocks,
-                add,
-            });
-        }
-        let colours = colour_passes(grid)
-            .into_iter()
-            .map(|c| {
-                let buf = buffers::uniform_init(d, "adaptive colour", &c);
-                let group = bind(d, &pipes.merge, 1, &[&buf]);
-                (c, group)
-            })
-            .collect();
         Ok(Self {
             params,
             capacity,
-            pipes,
-            params_buf,
+            mark,
+            merge,
+            plan,
+            compact,
+            split,
+            stats,
+            param_buf,
+            colour_map,
+            colours,
+            n_colours,
             flags,
             hole_index,
             counters,
             load,
-            num_cells: grid.num_cells,
+            cells,
+            colour_list,
+            colour_count,
+            merge_args,
+            loop_budget: ctx.prelude.loop_budget,
             scan,
-            colours,
+            num_cells: grid.num_cells,
+            binds,
         })
     }
 
@@ -503,239 +537,111 @@ impl AdaptiveStage {
         self.capacity
     }
 
-    /// Exclusive scan of `flags & mask` over the first `n` particles into `scan[0].out`.
-    fn record_scan(&self, ctx: &Context, pass: &mut wgpu::ComputePass, which: usize, n: u32) {
-        let mask = [FLAG_DEAD, FLAG_SPLIT][which];
-        let mut ns = vec![n];
-        while *ns.last().unwrap() > SCAN_BLOCK {
-            ns.push(ns.last().unwrap().div_ceil(SCAN_BLOCK));
-        }
-        for (k, &nk) in ns.iter().enumerate() {
-            let p = ScanParams {
-                n: nk,
-                mask: if k == 0 { mask } else { 0 },
-                pad: [0; 2],
-            };
-            ctx.queue
-                .write_buffer(&self.scan[k].params[which], 0, bytemuck::bytes_of(&p));
-            dispatch(
-                pass,
-                &self.pipes.scan_blocks,
-                &[&self.scan[k].blocks[which]],
-                nk.div_ceil(SCAN_BLOCK),
-            );
-        }
-        for k in (0..ns.len() - 1).rev() {
-            let add = self.scan[k]
-                .add
-                .as_ref()
-                .expect("level below the top has an add");
-            dispatch(
-                pass,
-                &self.pipes.scan_add,
-                &[&add[which]],
-                ns[k].div_ceil(SCAN_BLOCK),
-            );
-        }
-    }
-
-    /// Runs marks, merges, compaction and splits on the first `count` particles; new ids start
-    /// at `next_id`. Returns the new count and the stats (the particle arrays are updated in
-    /// place; the cell table is stale afterwards, the next grid build re-sorts).
     /// The deepest level a split may reach.
     pub fn max_level(&self) -> u32 {
         self.params.max_level
     }
 
-    pub fn run(
-        &self,
-        ctx: &Context,
-        bufs: &AdaptiveBuffers,
-        count: u32,
-        next_id: u32,
-    ) -> Result<AdaptiveReport> {
-        if count > self.capacity {
-            return Err(Error::InvalidInput(format!(
-                "adaptive: {count} particles exceed the capacity {}",
-                self.capacity
-            )));
-        }
-        if next_id.checked_add(self.capacity).is_none() {
-            return Err(Error::Runtime(format!(
-                "adaptive: particle ids exhausted (next id {next_id})"
-            )));
-        }
-        let d = &ctx.device;
-        let p = &self.pipes;
-        let params = AdaptiveParams {
-            count,
-            next_id,
-            ..self.params
-        };
+    /// The counters (`N_COUNTERS` u32: this run's totals, per-level counts, the frame's totals).
+    pub fn counters(&self) -> &wgpu::Buffer {
+        &self.counters
+    }
+
+    /// The merge load (`N_LOAD` u32: what the frame saw).
+    pub fn load(&self) -> &wgpu::Buffer {
+        &self.load
+    }
+
+    /// Zeroes the frame's totals and the merge load's frame words (write_buffer: takes effect
+    /// at the frame's first submit).
+    pub fn start_frame(&self, ctx: &Context) {
+        ctx.queue.write_buffer(
+            &self.counters,
+            (C_FRAME_MERGES * 4) as u64,
+            bytemuck::cast_slice(&[0u32; 4]),
+        );
         ctx.queue
-            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&params));
-        let scan0 = &self.scan[0].out;
-        let mark = bind(
-            d,
-            &p.mark,
-            0,
-            &[
-                bufs.grid,
-                &self.params_buf,
-                bufs.pos,
-                bufs.thermo,
-                bufs.info,
-                bufs.cell_start,
-                &self.flags,
-            ],
-        );
-        let merge = bind(
-            d,
-            &p.merge,
-            0,
-            &[
-                bufs.grid,
-                &self.params_buf,
-                bufs.pos,
-                bufs.vel,
-                bufs.thermo,
-                bufs.info,
-                bufs.cell_start,
-                &self.flags,
-            ],
-        );
-        let holes = bind(
-            d,
-            &p.holes,
-            0,
-            &[
-                &self.params_buf,
-                &self.counters,
-                scan0,
-                &self.flags,
-                &self.hole_index,
-            ],
-        );
-        let moves = bind(
-            d,
-            &p.moves,
-            0,
-            &[
-                &self.params_buf,
-                &self.counters,
-                scan0,
-                &self.flags,
-                &self.hole_index,
-                bufs.pos,
-                bufs.vel,
-                bufs.thermo,
-                bufs.info,
-            ],
-        );
-        let split = bind(
-            d,
-            &p.split,
-            0,
-            &[
-                bufs.grid,
-                &self.params_buf,
-                &self.counters,
-                scan0,
-                &self.flags,
-                bufs.pos,
-                bufs.vel,
-                bufs.thermo,
-                bufs.info,
-            ],
-        );
-        let totals = [&self.params_buf, &self.counters, scan0, &self.flags];
-        let totals_merge = bind(d, &p.totals_merge, 0, &totals);
-        let totals_split = bind(d, &p.totals_split, 0, &totals);
-        let levels = bind_at(d, &p.levels, 0, &[(1, &self.counters), (4, bufs.info)]);
-        let groups = count.div_ceil(256);
+            .write_buffer(&self.load, 0, bytemuck::cast_slice(&[0u32; N_LOAD]));
+    }
 
-        // Phase 1 (split): marks and the split room check; the cell load for the merge rounds.
-        let cell_load = bind_at(
-            d,
-            &p.cell_load,
-            0,
-            &[
-                (0, bufs.grid),
-                (6, bufs.cell_start),
-                (7, &self.flags),
-                (8, &self.load),
-            ],
-        );
-        ctx.queue.write_buffer(&self.load, 0, &[0u8; 16]);
-        let t0 = Instant::now();
-        let mut enc = d.create_command_encoder(&Default::default());
+    /// Records one run: marks, merges, compaction and splits of the live particles, the new
+    /// live state written over `live` on the GPU. The particle arrays are updated in place; the
+    /// cell table is stale afterwards (the next grid build re-sorts).
+    pub fn split_and_merge(&self, rec: &mut Recorder, live: &LiveBuffer) -> Result<()> {
+        let b = &self.binds;
+        let one = |stage: &Stage, pass: &mut wgpu::ComputePass, entry, bind| {
+            stage.dispatch(pass, entry, &[(bind, 0)], Dispatch::Live(live))
+        };
+        // Split phase 1: shape energy and marks.
         {
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            dispatch(&mut pass, &p.mark, &[&mark], groups);
-            dispatch(
+            let mut pass = rec.pass(Phase::Split);
+            one(&self.mark, &mut pass, "adaptive_mark", &b.mark);
+        }
+        rec.end_phase(Phase::Split)?;
+        // Merge: the cells to visit per colour, one cooperative dispatch per colour, then the
+        // compaction of the dead slots.
+        rec.encoder().clear_buffer(&self.colour_count, 0, None);
+        {
+            let mut pass = rec.pass(Phase::Merge);
+            let cells = Dispatch::Threads(self.num_cells);
+            self.plan
+                .dispatch(&mut pass, "merge_cells", &[(&b.plan, 0)], cells);
+            self.plan.dispatch(
                 &mut pass,
-                &p.cell_load,
-                &[&cell_load],
-                self.num_cells.div_ceil(64),
+                "merge_dispatch",
+                &[(&b.plan, 0)],
+                Dispatch::Groups(1),
             );
-        }
-        ctx.queue.submit([enc.finish()]);
-        wait(ctx)?;
-        let t1 = Instant::now();
-
-        // Phase 2 (merge): coloured passes in rounds, then the compaction of the dead slots.
-        let load: Vec<u32> = buffers::read_back(d, &ctx.queue, &self.load, 3)?;
-        let rounds = merge_rounds(load[0], load[2], load[1])?;
-        let round_groups: Vec<wgpu::BindGroup> = rounds
-            .iter()
-            .map(|r| {
-                let buf = buffers::uniform_init(d, "adaptive merge round", r);
-                bind(d, &p.merge, 2, &[&buf])
-            })
-            .collect();
-        let mut enc = d.create_command_encoder(&Default::default());
-        {
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            if count > 0 {
-                for (c, cg) in &self.colours {
-                    for rg in &round_groups {
-                        dispatch(
-                            &mut pass,
-                            &p.merge,
-                            &[&merge, cg, rg],
-                            c.cells().div_ceil(64),
-                        );
-                    }
-                }
+            for c in 0..self.n_colours {
+                self.merge.dispatch(
+                    &mut pass,
+                    "adaptive_merge",
+                    &[(&b.merge, 0), (&b.colour, self.colours.offset(c))],
+                    Dispatch::Indirect(&self.merge_args, c as u64 * 16),
+                );
             }
-            self.record_scan(ctx, &mut pass, 0, count);
-            dispatch(&mut pass, &p.totals_merge, &[&totals_merge], 1);
-            dispatch(&mut pass, &p.holes, &[&holes], groups);
-            dispatch(&mut pass, &p.moves, &[&moves], groups);
+            self.scan.encode(&mut pass, 0);
+            self.stats.dispatch(
+                &mut pass,
+                "totals_merge",
+                &[(&b.stats, 0)],
+                Dispatch::Groups(1),
+            );
+            one(&self.compact, &mut pass, "compact_holes", &b.compact);
+            one(&self.compact, &mut pass, "compact_move", &b.compact);
         }
-        ctx.queue.submit([enc.finish()]);
-        wait(ctx)?;
-        let t2 = Instant::now();
-
-        // Phase 3 (split): scan of the split marks, children, per-level counts.
-        let mut enc = d.create_command_encoder(&Default::default());
+        rec.end_phase(Phase::Merge)?;
+        // Split phase 2: scan of the split marks, children, the new live state, level counts.
         {
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            self.record_scan(ctx, &mut pass, 1, count);
-            dispatch(&mut pass, &p.totals_split, &[&totals_split], 1);
-            dispatch(&mut pass, &p.split, &[&split], groups);
-            let upper = (count as u64 * 2).min(self.capacity as u64) as u32;
-            dispatch(&mut pass, &p.levels, &[&levels], upper.div_ceil(256));
+            let mut pass = rec.pass(Phase::Split);
+            self.scan.encode(&mut pass, 1);
+            self.stats.dispatch(
+                &mut pass,
+                "totals_split",
+                &[(&b.stats, 0)],
+                Dispatch::Groups(1),
+            );
+            one(&self.split, &mut pass, "adaptive_split", &b.split);
         }
-        ctx.queue.submit([enc.finish()]);
-        wait(ctx)?;
-        let t3 = Instant::now();
+        rec.encoder().copy_buffer_to_buffer(
+            &self.counters,
+            (C_LIVE * 4) as u64,
+            live.buffer(),
+            0,
+            std::mem::size_of::<crate::gpu::live::Live>() as u64,
+        );
+        {
+            let mut pass = rec.pass(Phase::Split);
+            one(&self.stats, &mut pass, "count_levels", &b.stats);
+        }
+        rec.end_phase(Phase::Split)
+    }
 
-        let c: Vec<u32> = buffers::read_back(d, &ctx.queue, &self.counters, N_COUNTERS)?;
+    /// The run's report from the read-back counters (`N_COUNTERS` u32).
+    pub fn report(&self, c: &[u32]) -> AdaptiveReport {
         let n_levels = self.params.max_level as usize + 1;
         let per_level = c[C_LEVELS..C_LEVELS + n_levels].to_vec();
-        let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
-        Ok(AdaptiveReport {
+        AdaptiveReport {
             mass_units: mass_units(&per_level, self.params.max_level),
             per_level,
             splits: c[C_SPLITS],
@@ -743,11 +649,56 @@ impl AdaptiveStage {
             skipped_splits: c[C_SKIPPED],
             count: c[C_FINAL],
             next_id: c[C_NEXT_ID],
-            phase_ms: AdaptivePhaseMs {
-                split: ms(t0, t1) + ms(t2, t3),
-                merge: ms(t1, t2),
-            },
-        })
+        }
+    }
+
+    /// The frame's totals from the read-back counters.
+    pub fn frame_totals(c: &[u32]) -> FrameTotals {
+        FrameTotals {
+            merges: c[C_FRAME_MERGES],
+            splits: c[C_FRAME_MERGES + 1],
+            skipped_splits: c[C_FRAME_MERGES + 2],
+        }
+    }
+
+    /// The largest loop count per invocation this device runs (`Prelude::loop_budget`).
+    pub fn loop_budget(&self) -> u32 {
+        self.loop_budget
+    }
+
+    /// Records and runs one split/merge on its own and reads the counters back (tests and
+    /// benchmarks; the simulation records the stage into its substeps instead).
+    pub fn run(&self, ctx: &Context, live: &LiveBuffer) -> Result<AdaptiveReport> {
+        self.start_frame(ctx);
+        let mut rec = Recorder::new(ctx, None, None);
+        self.split_and_merge(&mut rec, live)?;
+        rec.submit();
+        let mut rb = buffers::Readback::default();
+        let counters = rb.add_array::<u32>(&self.counters, N_COUNTERS);
+        let load = rb.add_array::<u32>(&self.load, N_LOAD);
+        let data = rb.finish(ctx, ctx.device.create_command_encoder(&Default::default()))?;
+        load_error(&data.get::<u32>(load), self.loop_budget)?;
+        Ok(self.report(&data.get::<u32>(counters)))
+    }
+
+    pub fn device_bytes(&self) -> u64 {
+        [
+            &self.flags,
+            &self.hole_index,
+            &self.counters,
+            &self.load,
+            &self.cells,
+            &self.colour_list,
+            &self.colour_count,
+            &self.merge_args,
+        ]
+        .iter()
+        .map(|x| x.size())
+        .sum::<u64>()
+            + self.scan.device_bytes()
+            + self.param_buf.size()
+            + self.colour_map.size()
+            + self.colours.size()
     }
 }
 
@@ -828,28 +779,24 @@ mod tests {
         }
     }
 
+    /// The shader's colour of every cell is the colour pass that holds it.
     #[test]
-    fn merge_rounds_cover_the_fullest_cell_within_budget() {
-        assert!(merge_rounds(0, 0, 0).unwrap().is_empty());
-        assert!(merge_rounds(90, 0, 1000).unwrap().is_empty());
-        for (occ, marked, nb) in [(1, 1, 1), (300, 300, 300), (64, 5, 1728), (100, 90, 29_000)] {
-            let r = merge_rounds(occ, marked, nb).unwrap();
-            let len = r[0].len as u64;
-            assert!(occ as u64 + len * (2 * nb as u64 + 100) <= LOOP_BUDGET);
-            assert_eq!(
-                r.iter().map(|x| x.first).collect::<Vec<_>>(),
-                (0..r.len() as u32)
-                    .map(|k| k * r[0].len)
-                    .collect::<Vec<_>>()
-            );
-            assert!(r.last().unwrap().first + r[0].len >= marked);
+    fn colour_map_matches_the_colour_passes() {
+        for dims in [[3, 3, 3], [4, 5, 7], [10, 4, 11], [5, 2, 8], [1, 1, 1]] {
+            for (px, pz) in [(true, true), (false, false), (true, false)] {
+                if (px && dims[0] < 3) || (pz && dims[2] < 3) {
+                    continue;
+                }
+                let g = grid(dims, px, pz);
+                let map = ColourMap::of(&g);
+                for (k, pass) in colour_passes(&g).iter().enumerate() {
+                    for t in 0..pass.cells() {
+                        let c = pass.cell(t).map(|v| v as u32);
+                        assert_eq!(map.colour(c), k as u32, "{dims:?} {c:?}");
+                    }
+                }
+            }
         }
-        // a few marked particles in a crowded neighbourhood: one round, not one per slot range
-        assert_eq!(merge_rounds(90, 5, 1000).unwrap().len(), 1);
-        assert!(matches!(
-            merge_rounds(10, 10, 40_000),
-            Err(Error::Runtime(_))
-        ));
     }
 
     #[test]

@@ -228,7 +228,7 @@ pub fn atmosphere_diagnostics(
         cfg.domain.periodic.contains(&crate::config::Axis::X),
         cfg.domain.periodic.contains(&crate::config::Axis::Z),
     ];
-    let heat = crate::sim::thermo::ThermoParams::new(cfg, state.len() as u32, 1.0, time);
+    let heat = crate::sim::thermo::ThermoParams::new(cfg, 1.0, time);
     let max_speed = cfg.solver.max_speed;
     let (mut cloud, mut ceiling, mut top10, mut face) = (0.0, 0.0, 0.0, 0.0);
     let (mut mass, mut energy, mut heating) = (0.0, 0.0, 0.0);

@@ -1,4 +1,8 @@
-//! Particle state and the simulation step, one module per physical step, each driving its shaders.
+//! Particle state and the simulation step. Each GPU stage is a module (`pbf`, `grid`,
+//! `smoothing`, `thermo`, `adaptive`) declared with `gpu::stage::Stage` and bound once to the
+//! particle buffers (`buffers`); `step` holds the order of a substep, `simulation` the frame loop
+//! and its one read-back, `phase` the phases and their timings; `reference` the f64 mirror of
+//! every shader, file for file.
 //!
 //! Contract between the GPU stages (see docs/ARCHITECTURE.md):
 //! - particle arrays are SoA storage buffers of length `capacity`, the first `count` live;
@@ -8,18 +12,28 @@
 //! - level l gives h = h0 * 2^(-l/3) and m = m0 * 2^(-l);
 //! - boundary particles (floor and ceiling walls) live in their own static arrays.
 pub mod adaptive;
+pub mod buffers;
 pub mod diagnostics;
+pub mod grid;
 pub mod grid_params;
+#[cfg(feature = "test-hooks")]
+pub mod hooks;
 pub mod init;
 pub mod noise;
 pub mod pbf;
+pub mod phase;
 pub mod reference;
 pub mod rest;
 mod simulation;
 pub mod smoothing;
+mod step;
 pub mod thermo;
 
-pub use simulation::{density_error, Buf, FrameReport, SimClock, Simulation, Stage};
+pub use phase::{Phase, PhaseTimes, Timing};
+pub use simulation::{
+    compression_error, density_error, iterations_per_substep, speed_ratio, FrameReport, SimClock,
+    Simulation,
+};
 
 /// Host copy of all per-particle state: what checkpoints store and what the splat reads.
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -1,5 +1,13 @@
-//! Parameters of the PBF step (shaders/pbf.wgsl `PbfParams`, byte-identical).
+//! Position Based Fluids (paper section 3): the parameters (shaders/pbf.wgsl `PbfParams`,
+//! byte-identical) and the stage that records prediction, density iterations and velocity update.
 use crate::config::ShotConfig;
+use crate::error::Result;
+use crate::gpu::buffers::ParamSlots;
+use crate::gpu::live::LiveBuffer;
+use crate::gpu::stage::{Dispatch, Stage};
+use crate::gpu::Context;
+use crate::sim::buffers::ParticleBuffers;
+use crate::sim::phase::{Phase, Recorder};
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
@@ -18,8 +26,8 @@ pub struct PbfParams {
     pub vorticity: f32,
     pub gravity: f32,
     pub max_speed: f32,
-    /// 1 when every particle is on level 0: the shader skips the per-pair level look-up.
-    pub single_level: u32,
+    /// (unused: whether every particle is on level 0 is `live.single_level`, on the GPU)
+    pub _pad0: u32,
     /// Under-density up to this fraction of rho0 is not corrected (`solver.expansion_tolerance`).
     pub expansion_tolerance: f32,
     /// The share of that correction split particles get (`solver.split_expansion_weight`).
@@ -49,7 +57,7 @@ impl PbfParams {
             vorticity: s.vorticity as f32,
             gravity: s.gravity as f32,
             max_speed: s.max_speed as f32,
-            single_level: 0,
+            _pad0: 0,
             expansion_tolerance: s.expansion_tolerance as f32,
             split_expansion_weight: s.split_expansion_weight as f32,
             levels: std::array::from_fn(|l| {
@@ -80,5 +88,148 @@ impl PbfParams {
         // "Substeps"); so k is per reference_step too
         // (never above k itself: a substep longer than reference_step does not push harder)
         self.scorr_k = (cfg.solver.scorr_k * share.min(1.0)) as f32;
+    }
+}
+
+/// The PBF passes of a substep (shaders/pbf.wgsl; f64 mirror `sim::reference::pbf`):
+/// prediction, the density iterations and the velocity update, bound once to the particle
+/// buffers. The neighbour grid between prediction and solve is [`crate::sim::grid`].
+pub struct PbfStage {
+    stage: Stage,
+    /// `copy4` of permute4.wgsl: the closing copies v = scratch, x = p*.
+    copy: Stage,
+    params: ParamSlots<PbfParams>,
+    bind: wgpu::BindGroup,
+    scratch_to_vel: wgpu::BindGroup,
+    pred_to_pos: wgpu::BindGroup,
+}
+
+/// The entry points of shaders/pbf.wgsl in the order of a substep.
+pub const ENTRIES: [&str; 6] = [
+    "predict",
+    "compute_lambda",
+    "compute_delta",
+    "update_velocity",
+    "vorticity",
+    "viscosity_confine",
+];
+
+impl PbfStage {
+    pub fn new(ctx: &Context, params: &PbfParams, b: &ParticleBuffers) -> Result<Self> {
+        let stage = Stage::new(ctx, "pbf.wgsl", &ENTRIES)?;
+        let copy = Stage::new(ctx, "permute4.wgsl", &["copy4"])?;
+        let params = ParamSlots::single(ctx, "pbf params", params);
+        let e = crate::gpu::buffers::whole;
+        let bind = stage.bind(
+            ctx,
+            &[
+                ("grid", b.grid.slot(0)),
+                ("prm", params.slot(0)),
+                ("pos", e(&b.pos)),
+                ("vel", e(&b.vel)),
+                ("pred", e(&b.pred)),
+                ("scratch", e(&b.pairs)),
+                ("density", e(&b.density)),
+                ("info", e(&b.info)),
+                ("cell_start", e(&b.cell_start)),
+                ("bpos", e(&b.bpos)),
+                ("bcell_start", e(&b.bcell_start)),
+                ("live", b.live.binding()),
+            ],
+        )?;
+        // copies do not read `order`; bind an unrelated buffer there so nothing aliases
+        let copy_bind = |src: &wgpu::Buffer, dst: &wgpu::Buffer| {
+            copy.bind(
+                ctx,
+                &[
+                    ("live", b.live.binding()),
+                    ("order", e(&b.density)),
+                    ("src", e(src)),
+                    ("dst", e(dst)),
+                ],
+            )
+        };
+        Ok(Self {
+            scratch_to_vel: copy_bind(&b.pairs, &b.vel)?,
+            pred_to_pos: copy_bind(&b.pred, &b.pos)?,
+            stage,
+            copy,
+            params,
+            bind,
+        })
+    }
+
+    /// New parameters (a new substep length), from the next submit on.
+    pub fn set_params(&self, ctx: &Context, params: &PbfParams) {
+        self.params.write(ctx, 0, params);
+    }
+
+    fn run(&self, pass: &mut wgpu::ComputePass, entry: &str, live: &LiveBuffer) {
+        self.stage
+            .dispatch(pass, entry, &[(&self.bind, 0)], Dispatch::Live(live));
+    }
+
+    /// Prediction: v += -g dt, speed clamp, p* = x + v dt, wrap x/z, clamp y.
+    pub fn predict(&self, rec: &mut Recorder, live: &LiveBuffer) -> Result<()> {
+        self.run(&mut rec.pass(Phase::Predict), "predict", live);
+        rec.end_phase(Phase::Predict)
+    }
+
+    /// `iterations` Jacobi iterations of the density constraint (eqs. 1-4); with `measure`, one
+    /// more density pass so the frame reports the density of the corrected positions.
+    pub fn solve(
+        &self,
+        rec: &mut Recorder,
+        live: &LiveBuffer,
+        iterations: u32,
+        measure: bool,
+    ) -> Result<()> {
+        {
+            let mut pass = rec.pass(Phase::Solve);
+            for _ in 0..iterations {
+                self.run(&mut pass, "compute_lambda", live);
+                self.run(&mut pass, "compute_delta", live);
+            }
+            if measure {
+                self.run(&mut pass, "compute_lambda", live);
+            }
+        }
+        rec.end_phase(Phase::Solve)
+    }
+
+    /// v = (p* - x) / dt (w = the height gained), vorticity confinement (if on), XSPH, x = p*.
+    pub fn update_velocity(
+        &self,
+        rec: &mut Recorder,
+        live: &LiveBuffer,
+        vorticity: bool,
+    ) -> Result<()> {
+        {
+            let mut pass = rec.pass(Phase::Velocity);
+            self.run(&mut pass, "update_velocity", live);
+            if vorticity {
+                self.run(&mut pass, "vorticity", live);
+            }
+            self.run(&mut pass, "viscosity_confine", live);
+            self.finish(&mut pass, live);
+        }
+        rec.end_phase(Phase::Velocity)
+    }
+
+    /// The closing copies of a substep: v = the new velocity (scratch), x = p*.
+    pub fn finish(&self, pass: &mut wgpu::ComputePass, live: &LiveBuffer) {
+        for bind in [&self.scratch_to_vel, &self.pred_to_pos] {
+            self.copy
+                .dispatch(pass, "copy4", &[(bind, 0)], Dispatch::Live(live));
+        }
+    }
+
+    /// Runs one entry point alone (test hooks compare it with the f64 mirror).
+    pub fn dispatch_entry(&self, pass: &mut wgpu::ComputePass, entry: &str, live: &LiveBuffer) {
+        self.run(pass, entry, live);
+    }
+
+    pub fn device_bytes(&self) -> u64 {
+        self.params.size()
     }
 }

@@ -10,13 +10,16 @@
 //! the cell table (27 cells, minimum-image displacement); with `physics.smoothing.walls: fixed` the boundary particles take
 //! part with their fixed temperature, by default (insulated) they are left out.
 //!
-//! Usage: `let mut stage = SmoothingStage::new(&ctx, &cfg)?;` once, then per substep
-//! `stage.encode(&mut encoder, &SmoothingBuffers { .. }, count)`. The scratch buffer grows to
-//! the largest `count` seen (hence `&mut self`).
+//! Usage: `let stage = SmoothingStage::new(&ctx, &cfg, &buffers)?;` once, then per substep
+//! `stage.smooth(&mut recorder, &live, dt)`.
 use crate::config::ShotConfig;
-use crate::error::Result;
+use crate::error::{Error, Result};
+use crate::gpu::buffers::ParamSlots;
+use crate::gpu::live::LiveBuffer;
+use crate::gpu::stage::{Dispatch, Stage};
 use crate::gpu::{self, Context};
-use crate::sim::thermo::{dispatch_size, entry};
+use crate::sim::buffers::ParticleBuffers;
+use crate::sim::phase::{Phase, Recorder};
 
 const SHADER: &str = "smoothing.wgsl";
 const ENTRY: &str = "smooth_temperature";
@@ -26,7 +29,8 @@ const LIMIT_ENTRY: &str = "vapor_limit";
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct SmoothParams {
-    pub count: u32,
+    /// (the particle count is `live.count`, on the GPU)
+    pub _pad0: u32,
     /// Level-0 kernel radius h0 (m); level l has h0 2^(-l/3).
     pub h0: f32,
     /// kappa of eq. 17b for one iteration: the share of the configured rate (see `new`).
@@ -48,12 +52,12 @@ impl SmoothParams {
     /// the fraction applied per `solver.reference_step` seconds, so an iteration applies
     /// `1 - (1 - kappa)^(dt / (reference_step iterations))` and a frame smooths as much at 2
     /// substeps as at 8 (docs/PHYSICS.md "Substeps").
-    pub fn new(cfg: &ShotConfig, count: u32, dt: f64) -> Self {
+    pub fn new(cfg: &ShotConfig, dt: f64) -> Self {
         let s = &cfg.physics.smoothing;
         let iterations = s.iterations.max(1) as f64;
         let share = dt / (cfg.solver.reference_step * iterations);
         Self {
-            count,
+            _pad0: 0,
             h0: (cfg.domain.spacing * cfg.domain.kernel_ratio) as f32,
             // Temperature smoothing off while vapor mixing is on: the pass runs for the vapor.
             kappa: if s.enabled {
@@ -70,52 +74,68 @@ impl SmoothParams {
     }
 }
 
-/// The arrays one smoothing iteration reads (particles in cell order, see docs/ARCHITECTURE.md).
-pub struct SmoothingBuffers<'a> {
-    /// `GridParams` uniform (src/sim/grid_params.rs).
-    pub grid: &'a wgpu::Buffer,
-    /// `array<vec4<f32>>` positions.
-    pub pos: &'a wgpu::Buffer,
-    /// `array<vec2<u32>>` (id, level).
-    pub info: &'a wgpu::Buffer,
-    /// `array<vec4<f32>>` (T, v, w, E); T is smoothed in place (through the scratch buffer).
-    pub thermo: &'a wgpu::Buffer,
-    /// `array<u32>`, `GridParams::table_len` entries.
-    pub cell_start: &'a wgpu::Buffer,
-    /// `array<vec4<f32>>` boundary particles (xyz, w = temperature), in cell order.
-    pub boundary: &'a wgpu::Buffer,
-    /// `array<u32>`, `GridParams::table_len` entries.
-    pub boundary_cell_start: &'a wgpu::Buffer,
-}
-
+/// The smoothing pass, bound once to the particle buffers, with its scratch (the smoothed
+/// thermo, 16 B per particle of capacity, while smoothing or mixing is on) and the vapor-mixing
+/// limiter (4 B per particle while mixing is on; one element otherwise, bound and never read).
 pub struct SmoothingStage {
-    device: wgpu::Device,
-    pipeline: wgpu::ComputePipeline,
-    layout: wgpu::BindGroupLayout,
-    limit_pipeline: wgpu::ComputePipeline,
-    limit_layout: wgpu::BindGroupLayout,
+    stage: Stage,
+    params: ParamSlots<SmoothParams>,
+    bind: wgpu::BindGroup,
     cfg: ShotConfig,
-    scratch: Option<(wgpu::Buffer, u32)>,
-    /// The vapor-mixing limiter per particle (f32), `count` long while mixing is on; one
-    /// element otherwise (bound, never read: no cost when mixing is off).
-    limit: Option<(wgpu::Buffer, u32)>,
+    scratch: wgpu::Buffer,
+    /// The particles' thermo array the scratch is copied back into.
+    thermo: wgpu::Buffer,
+    limit: wgpu::Buffer,
+    /// Particles the limiter has room for (0 when mixing is off).
+    limit_len: u32,
+    thermo_bytes: u64,
 }
 
 impl SmoothingStage {
-    pub fn new(ctx: &Context, cfg: &ShotConfig) -> Result<Self> {
-        let pipeline = gpu::shaders::compute_pipeline(&ctx.device, SHADER, ENTRY)?;
-        let layout = pipeline.get_bind_group_layout(0);
-        let limit_pipeline = gpu::shaders::compute_pipeline(&ctx.device, SHADER, LIMIT_ENTRY)?;
-        let limit_layout = limit_pipeline.get_bind_group_layout(0);
+    pub fn new(ctx: &Context, cfg: &ShotConfig, b: &ParticleBuffers) -> Result<Self> {
+        let stage = Stage::new(ctx, SHADER, &[LIMIT_ENTRY, ENTRY])?;
+        let s = &cfg.physics.smoothing;
+        let on = s.enabled || s.vapor_diffusivity > 0.0;
+        let cap = b.capacity as usize;
+        let scratch = gpu::buffers::storage_zeroed::<[f32; 4]>(
+            &ctx.device,
+            "smoothing scratch",
+            if on { cap } else { 1 },
+        );
+        let limit_len = if s.vapor_diffusivity > 0.0 { cap } else { 0 };
+        let limit = gpu::buffers::storage_zeroed::<f32>(
+            &ctx.device,
+            "vapor mixing limiter",
+            limit_len.max(1),
+        );
+        let params = ParamSlots::single(ctx, "smoothing params", &SmoothParams::new(cfg, 1.0));
+        let e = crate::gpu::buffers::whole;
+        let bind = stage.bind(
+            ctx,
+            &[
+                ("grid", b.grid.slot(0)),
+                ("S", params.slot(0)),
+                ("pos", e(&b.pos)),
+                ("info", e(&b.info)),
+                ("thermo_in", e(&b.thermo)),
+                ("thermo_out", e(&scratch)),
+                ("cell_start", e(&b.cell_start)),
+                ("boundary", e(&b.bpos)),
+                ("boundary_cell_start", e(&b.bcell_start)),
+                ("vapor_limit_of", e(&limit)),
+                ("live", b.live.binding()),
+            ],
+        )?;
         Ok(Self {
-            device: ctx.device.clone(),
-            pipeline,
-            layout,
-            limit_pipeline,
-            limit_layout,
+            stage,
+            params,
+            bind,
             cfg: cfg.clone(),
-            scratch: None,
-            limit: None,
+            thermo_bytes: if on { b.capacity as u64 * 16 } else { 0 },
+            scratch,
+            thermo: b.thermo.clone(),
+            limit,
+            limit_len: limit_len as u32,
         })
     }
 
@@ -130,117 +150,58 @@ impl SmoothingStage {
         }
     }
 
-    /// Records the configured number of iterations for the first `count` particles, for a
-    /// substep of `dt` seconds.
-    pub fn encode(
-        &mut self,
-        encoder: &mut wgpu::CommandEncoder,
-        bufs: &SmoothingBuffers,
-        count: u32,
-        dt: f64,
-    ) {
-        let params = SmoothParams::new(&self.cfg, count, dt);
-        let iterations = self.iterations();
-        self.encode_params(encoder, bufs, &params, iterations);
+    /// Records the configured iterations for a substep of `dt` seconds.
+    pub fn smooth(&self, rec: &mut Recorder, live: &LiveBuffer, dt: f64) -> Result<()> {
+        let params = SmoothParams::new(&self.cfg, dt);
+        self.smooth_with(rec, live, &params, self.iterations())
     }
 
-    /// As [`Self::encode`] with explicit parameters and iteration count (used by tests).
-    pub fn encode_params(
-        &mut self,
-        encoder: &mut wgpu::CommandEncoder,
-        bufs: &SmoothingBuffers,
+    /// As [`Self::smooth`] with explicit parameters and iteration count (tests share them with
+    /// the mirror).
+    pub fn smooth_with(
+        &self,
+        rec: &mut Recorder,
+        live: &LiveBuffer,
         params: &SmoothParams,
         iterations: u32,
-    ) {
-        let count = params.count;
-        if count == 0 || iterations == 0 {
-            return;
-        }
-        if self.scratch.as_ref().is_none_or(|(_, cap)| *cap < count) {
-            let buf = gpu::buffers::storage_zeroed::<[f32; 4]>(
-                &self.device,
-                "smoothing scratch",
-                count as usize,
-            );
-            self.scratch = Some((buf, count));
+    ) -> Result<()> {
+        if iterations == 0 {
+            return Ok(());
         }
         let mixing = params.vapor_rate > 0.0;
-        let limit_len = if mixing { count } else { 1 };
-        if self.limit.as_ref().is_none_or(|(_, cap)| *cap < limit_len) {
-            let buf = gpu::buffers::storage_zeroed::<f32>(
-                &self.device,
-                "vapor mixing limiter",
-                limit_len as usize,
-            );
-            self.limit = Some((buf, limit_len));
+        if self.thermo_bytes == 0 || (mixing && self.limit_len == 0) {
+            return Err(Error::Runtime(
+                "smoothing: the stage was built for a shot without smoothing or vapor mixing"
+                    .into(),
+            ));
         }
-        let (Some((scratch, _)), Some((limit, _))) = (&self.scratch, &self.limit) else {
-            return;
-        };
-        let uniform = gpu::buffers::uniform_init(&self.device, "smoothing params", params);
-        let entries = [
-            entry(0, bufs.grid),
-            entry(1, &uniform),
-            entry(2, bufs.pos),
-            entry(3, bufs.info),
-            entry(4, bufs.thermo),
-            entry(5, scratch),
-            entry(6, bufs.cell_start),
-            entry(7, bufs.boundary),
-            entry(8, bufs.boundary_cell_start),
-            entry(9, limit),
-        ];
-        let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("smoothing"),
-            layout: &self.layout,
-            entries: &entries,
-        });
-        // vapor_limit writes no temperatures and reads no boundary particles: its auto layout
-        // leaves bindings 5, 7 and 8 out.
-        let limit_bind = mixing.then(|| {
-            let used: Vec<_> = entries
-                .iter()
-                .filter(|e| ![5, 7, 8].contains(&e.binding))
-                .cloned()
-                .collect();
-            self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("vapor limit"),
-                layout: &self.limit_layout,
-                entries: &used,
-            })
-        });
-        let bytes = count as u64 * 16;
-        let (x, y) = dispatch_size(count);
+        self.params.write(rec.ctx(), 0, params);
         for _ in 0..iterations {
-            if let Some(limit_bind) = &limit_bind {
-                dispatch(
-                    encoder,
-                    LIMIT_ENTRY,
-                    &self.limit_pipeline,
-                    limit_bind,
-                    (x, y),
-                );
+            {
+                let mut pass = rec.pass(Phase::Smoothing);
+                let group = [(&self.bind, 0)];
+                if mixing {
+                    self.stage
+                        .dispatch(&mut pass, LIMIT_ENTRY, &group, Dispatch::Live(live));
+                }
+                self.stage
+                    .dispatch(&mut pass, ENTRY, &group, Dispatch::Live(live));
             }
-            dispatch(encoder, ENTRY, &self.pipeline, &bind, (x, y));
-            encoder.copy_buffer_to_buffer(scratch, 0, bufs.thermo, 0, bytes);
+            // the whole array: the live count is on the GPU; slots past it are dead
+            rec.encoder().copy_buffer_to_buffer(
+                &self.scratch,
+                0,
+                &self.thermo,
+                0,
+                self.thermo_bytes,
+            );
         }
+        rec.end_phase(Phase::Smoothing)
     }
-}
 
-fn dispatch(
-    encoder: &mut wgpu::CommandEncoder,
-    label: &str,
-    pipeline: &wgpu::ComputePipeline,
-    bind: &wgpu::BindGroup,
-    (x, y): (u32, u32),
-) {
-    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-        label: Some(label),
-        timestamp_writes: None,
-    });
-    pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, bind, &[]);
-    pass.dispatch_workgroups(x, y, 1);
+    pub fn device_bytes(&self) -> u64 {
+        self.scratch.size() + self.limit.size() + self.params.size()
+    }
 }
 
 /// The fraction a relaxation applies over `share` reference intervals when it applies `c` over

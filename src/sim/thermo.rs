@@ -17,19 +17,20 @@
 //!    rounding and neither goes negative;
 //! 5. latent heat, eq. 11: `T += Q (w* - w)` (eq. 11 integrated the same way as eq. 9).
 //!
-//! Usage: `let stage = ThermoStage::new(&ctx, &cfg)?;` once, then per substep
-//! `stage.encode(&mut encoder, &ThermoBuffers { pos, vel, thermo }, count, dt, time)`.
-//! Each call records its own small uniform (dt, time), so several substeps can be recorded
-//! into one encoder. Initial state (section 5): [`initial_thermo`].
+//! Usage: `let stage = ThermoStage::new(&ctx, &cfg, &buffers)?;` once, then per substep
+//! `stage.step(&mut recorder, &live, dt, time)`. Initial state (section 5): [`initial_thermo`].
 use crate::config::{PhysicsConfig, ShotConfig};
 use crate::error::Result;
-use crate::gpu::{self, Context};
+use crate::gpu::buffers::ParamSlots;
+use crate::gpu::live::LiveBuffer;
+use crate::gpu::stage::{Dispatch, Stage};
+use crate::gpu::Context;
+use crate::sim::buffers::ParticleBuffers;
 use crate::sim::noise;
+use crate::sim::phase::{Phase, Recorder};
 
 const SHADER: &str = "thermo.wgsl";
 const ENTRY: &str = "thermo_step";
-/// Threads per workgroup of the particle stages in this module and `smoothing`.
-pub const WORKGROUP: u32 = 64;
 
 /// Uniform of shaders/thermo.wgsl (same layout). Build it with [`ThermoParams::new`].
 #[repr(C)]
@@ -37,7 +38,8 @@ pub const WORKGROUP: u32 = 64;
 pub struct ThermoParams {
     pub dt: f32,
     pub time: f32,
-    pub count: u32,
+    /// (the particle count is `live.count`, on the GPU)
+    pub _pad0: u32,
     pub seed: u32,
     pub ground_temperature: f32,
     /// Environment lapse rate below the inversion (K/m).
@@ -96,14 +98,14 @@ pub const MAX_LAYERS: usize = 32;
 
 impl ThermoParams {
     /// Parameters of one substep of length `dt` (s) starting at simulated time `time` (s).
-    pub fn new(cfg: &ShotConfig, count: u32, dt: f64, time: f64) -> Self {
+    pub fn new(cfg: &ShotConfig, dt: f64, time: f64) -> Self {
         let p = &cfg.physics;
         let (cell_x, period_x) = noise::lattice_for_extent(cfg.domain.size[0], p.heat_noise_scale);
         let (cell_z, period_z) = noise::lattice_for_extent(cfg.domain.size[2], p.heat_noise_scale);
         Self {
             dt: dt as f32,
             time: time as f32,
-            count,
+            _pad0: 0,
             seed: noise::fold_seed(cfg.seed),
             ground_temperature: p.ground_temperature as f32,
             lapse_rate: p.environment.lapse_rate as f32,
@@ -239,34 +241,35 @@ pub fn initial_thermo(p: &PhysicsConfig, y: f64) -> [f32; 4] {
     ]
 }
 
-/// The particle arrays the stage reads and writes (first `count` elements are live).
-pub struct ThermoBuffers<'a> {
-    /// `array<vec4<f32>>`, read.
-    pub pos: &'a wgpu::Buffer,
-    /// `array<vec4<f32>>`, y component updated (eq. 6).
-    pub vel: &'a wgpu::Buffer,
-    /// `array<vec4<f32>>` (T, v, w, E), T, v, w updated.
-    pub thermo: &'a wgpu::Buffer,
-}
-
-/// The thermodynamics pass (eqs. 5-11).
+/// The thermodynamics pass (eqs. 5-11), bound once to the particle buffers; its parameters
+/// are rewritten before every substep (time, each source's schedule).
 pub struct ThermoStage {
-    device: wgpu::Device,
-    pipeline: wgpu::ComputePipeline,
-    layout: wgpu::BindGroupLayout,
+    stage: Stage,
+    params: ParamSlots<ThermoParams>,
+    bind: wgpu::BindGroup,
     cfg: ShotConfig,
     /// Subtracted in eq. 6 (empty unless `physics.buoyancy_reference` is `layer_mean`).
     layers: LayerBuoyancy,
 }
 
 impl ThermoStage {
-    pub fn new(ctx: &Context, cfg: &ShotConfig) -> Result<Self> {
-        let pipeline = gpu::shaders::compute_pipeline(&ctx.device, SHADER, ENTRY)?;
-        let layout = pipeline.get_bind_group_layout(0);
+    pub fn new(ctx: &Context, cfg: &ShotConfig, b: &ParticleBuffers) -> Result<Self> {
+        let stage = Stage::new(ctx, SHADER, &[ENTRY])?;
+        let params = ParamSlots::single(ctx, "thermo params", &ThermoParams::new(cfg, 0.0, 0.0));
+        let bind = stage.bind(
+            ctx,
+            &[
+                ("P", params.slot(0)),
+                ("pos", b.pos.as_entire_binding()),
+                ("vel", b.vel.as_entire_binding()),
+                ("thermo", b.thermo.as_entire_binding()),
+                ("live", b.live.binding()),
+            ],
+        )?;
         Ok(Self {
-            device: ctx.device.clone(),
-            pipeline,
-            layout,
+            stage,
+            params,
+            bind,
             cfg: cfg.clone(),
             layers: LayerBuoyancy::default(),
         })
@@ -277,69 +280,33 @@ impl ThermoStage {
         self.layers = layers;
     }
 
-    /// Records one substep of length `dt` (s) at simulated time `time` (s) for the first
-    /// `count` particles.
-    pub fn encode(
-        &self,
-        encoder: &mut wgpu::CommandEncoder,
-        bufs: &ThermoBuffers,
-        count: u32,
-        dt: f64,
-        time: f64,
-    ) {
-        if count == 0 {
-            return;
-        }
-        let params = ThermoParams::new(&self.cfg, count, dt, time).with_layers(&self.layers);
-        self.encode_params(encoder, bufs, &params);
+    /// Records one substep of length `dt` (s) at simulated time `time` (s).
+    pub fn step(&self, rec: &mut Recorder, live: &LiveBuffer, dt: f64, time: f64) -> Result<()> {
+        let params = ThermoParams::new(&self.cfg, dt, time).with_layers(&self.layers);
+        self.step_with(rec, live, &params)
     }
 
-    /// As [`Self::encode`] with explicit parameters (tests use it to share them with the mirror).
-    pub fn encode_params(
+    /// As [`Self::step`] with explicit parameters (tests share them with the mirror).
+    pub fn step_with(
         &self,
-        encoder: &mut wgpu::CommandEncoder,
-        bufs: &ThermoBuffers,
+        rec: &mut Recorder,
+        live: &LiveBuffer,
         params: &ThermoParams,
-    ) {
-        if params.count == 0 {
-            return;
-        }
-        // A fresh uniform per call keeps several substeps in one encoder correct.
-        let uniform = gpu::buffers::uniform_init(&self.device, "thermo params", params);
-        let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("thermo"),
-            layout: &self.layout,
-            entries: &[
-                entry(0, &uniform),
-                entry(1, bufs.pos),
-                entry(2, bufs.vel),
-                entry(3, bufs.thermo),
-            ],
-        });
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("thermo_step"),
-            timestamp_writes: None,
-        });
-        pass.set_pipeline(&self.pipeline);
-        pass.set_bind_group(0, &bind, &[]);
-        let (x, y) = dispatch_size(params.count);
-        pass.dispatch_workgroups(x, y, 1);
+    ) -> Result<()> {
+        // written before the submit that carries this substep, after the previous one's
+        self.params.write(rec.ctx(), 0, params);
+        self.stage.dispatch(
+            &mut rec.pass(Phase::Cloud),
+            ENTRY,
+            &[(&self.bind, 0)],
+            Dispatch::Live(live),
+        );
+        rec.end_phase(Phase::Cloud)
     }
-}
 
-pub(crate) fn entry(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
-    wgpu::BindGroupEntry {
-        binding,
-        resource: buffer.as_entire_binding(),
+    pub fn device_bytes(&self) -> u64 {
+        self.params.size()
     }
-}
-
-/// Workgroup grid for `count` particles: x up to 65535 groups, the rest along y (the shaders
-/// compute `i = gid.x + gid.y * num_workgroups.x * 64`).
-pub(crate) fn dispatch_size(count: u32) -> (u32, u32) {
-    let groups = count.div_ceil(WORKGROUP);
-    let x = groups.min(65535);
-    (x, groups.div_ceil(x.max(1)))
 }
 
 #[cfg(test)]
@@ -376,7 +343,7 @@ mod tests {
         }
         let prof = LayerBuoyancy::of_state(&cfg, &s);
         assert_eq!(prof.values.len(), 10, "1000 m of 100 m kernel radii");
-        let p = ThermoParams::new(&cfg, s.len() as u32, 1.0, 0.0).with_layers(&prof);
+        let p = ThermoParams::new(&cfg, 1.0, 0.0).with_layers(&prof);
         for i in 0..s.len() {
             let y = s.pos[i][1] as f64;
             let t0 = environment_temperature(&cfg.physics, y);
@@ -387,13 +354,5 @@ mod tests {
         // off: no profile
         cfg.physics.buoyancy_reference = crate::config::BuoyancyReference::Environment;
         assert!(LayerBuoyancy::of_state(&cfg, &s).values.is_empty());
-    }
-
-    #[test]
-    fn dispatch_covers_every_particle() {
-        for n in [1u32, 63, 64, 65, 65535 * 64, 65535 * 64 + 1, 10_000_000] {
-            let (x, y) = dispatch_size(n);
-            assert!(x <= 65535 && (x * y) as u64 * 64 >= n as u64, "{n}");
-        }
     }
 }

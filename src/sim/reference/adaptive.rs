@@ -3,8 +3,8 @@
 //! (`capacity`) so slot assignment (compaction, appended children) mirrors the GPU exactly.
 use super::kernels::min_image;
 use crate::sim::adaptive::{
-    colour_passes, mass_units, AdaptiveParams, AdaptivePhaseMs, AdaptiveReport, ColourPass,
-    FLAG_DEAD, FLAG_MERGE, FLAG_MERGED, FLAG_SPLIT, MAX_LEVELS,
+    colour_passes, mass_units, AdaptiveParams, AdaptiveReport, ColourPass, FLAG_DEAD, FLAG_MERGE,
+    FLAG_MERGED, FLAG_SPLIT, MAX_LEVELS,
 };
 use crate::sim::grid_params::GridParams;
 
@@ -412,7 +412,6 @@ pub fn run(
         skipped_splits: c.skipped,
         count: c.final_count,
         next_id: c.next_id,
-        phase_ms: AdaptivePhaseMs::default(),
     }
 }
 

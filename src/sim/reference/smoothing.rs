@@ -73,7 +73,7 @@ pub fn constraint_terms(input: &SmoothInput, i: usize) -> (f64, f64, f64) {
 
 /// The SPH Laplacian of the temperature of every particle (eq. 13, with the volumes V_j).
 pub fn temperature_laplacian(input: &SmoothInput) -> Vec<f64> {
-    (0..input.params.count as usize)
+    (0..input.pos.len())
         .map(|i| constraint_terms(input, i).2)
         .collect()
 }
@@ -81,7 +81,7 @@ pub fn temperature_laplacian(input: &SmoothInput) -> Vec<f64> {
 /// Mirror of the `smooth_temperature` entry: the smoothed temperatures T* (eq. 17).
 pub fn smooth_temperature(input: &SmoothInput) -> Vec<f64> {
     let kappa = input.params.kappa as f64;
-    (0..input.params.count as usize)
+    (0..input.pos.len())
         .map(|i| {
             let (s, s2, c) = constraint_terms(input, i);
             let g = s * s + s2;
@@ -117,7 +117,7 @@ fn mixing_pairs(input: &SmoothInput, cloud: &[f64], i: usize, mut f: impl FnMut(
 /// Mirror of the `vapor_limit` entry: l_i = min(1, 0.5 / (vapor_rate sum_j |a_ij|)).
 pub fn vapor_limits(input: &SmoothInput, cloud: &[f64]) -> Vec<f64> {
     let rate = input.params.vapor_rate as f64;
-    (0..input.params.count as usize)
+    (0..input.pos.len())
         .map(|i| {
             let mut sum = 0.0;
             mixing_pairs(input, cloud, i, |_, a| sum += a.abs());
@@ -140,7 +140,7 @@ pub fn mix_vapor(input: &SmoothInput, vapor: &[f64], cloud: &[f64]) -> Vec<f64> 
         return vapor.to_vec();
     }
     let limit = vapor_limits(input, cloud);
-    (0..input.params.count as usize)
+    (0..input.pos.len())
         .map(|i| {
             let mut c = 0.0;
             mixing_pairs(input, cloud, i, |j, a| {

@@ -114,14 +114,14 @@ pub fn thermo_step_particle(
     *th = [temp, v_new, w_new, th[3]];
 }
 
-/// Mirror of the `thermo_step` entry: the first `p.count` particles.
+/// Mirror of the `thermo_step` entry: every particle of `pos` (the live ones).
 pub fn thermo_step(
     p: &ThermoParams,
     pos: &[[f64; 3]],
     vel: &mut [[f64; 4]],
     thermo: &mut [[f64; 4]],
 ) {
-    let n = p.count as usize;
+    let n = pos.len();
     for ((q, u), th) in pos
         .iter()
         .zip(vel.iter_mut())

@@ -1,0 +1,83 @@
+// Adaptive stage 2a: which cells the merge visits. `merge_cells` (a thread per cell) appends
+// every cell holding a merge-marked particle to its colour's list (the order within a list does
+// not matter: cells of one colour are independent) and checks that the cooperative merge of
+// adaptive_merge.wgsl stays within the device's loop budget for it; `merge_dispatch` (one thread)
+// writes each colour's indirect dispatch arguments: one workgroup per listed cell. The host
+// never reads any of it back inside a frame. (Its own file: the merge dispatches read
+// `merge_args` as indirect arguments, which must not be bound writable in the same dispatch.)
+// Mirror: src/sim/reference/adaptive_plan.rs.
+//!include shared/common.wgsl
+//!include shared/adaptive.wgsl
+
+// Per axis: cells below `split` take class x mod 3, the ones at or past it (the last one or two
+// slabs of a periodic axis whose cell count is not a multiple of 3) classes of their own; and
+// the number of classes. Colour = (class_z * classes_y + class_y) * classes_x + class_x, the
+// order of sim::adaptive::colour_passes.
+struct ColourMap {
+    split: vec4<u32>,
+    classes: vec4<u32>,
+}
+
+@group(0) @binding(0) var<uniform> grid: GridParams;
+@group(0) @binding(1) var<uniform> colour_map: ColourMap;
+@group(0) @binding(2) var<storage, read> cell_start: array<u32>;
+@group(0) @binding(3) var<storage, read> flags: array<u32>;
+@group(0) @binding(4) var<storage, read_write> cells: array<u32>;
+// (list start, cells of the colour, 0, 0) per colour
+@group(0) @binding(5) var<storage, read> colour_list: array<vec4<u32>>;
+// listed cells per colour (zeroed before merge_cells)
+@group(0) @binding(6) var<storage, read_write> colour_count: array<atomic<u32>>;
+@group(0) @binding(7) var<storage, read_write> merge_args: array<vec4<u32>>;
+// words 0..4 what the frame saw (the host zeroes them when a frame starts): an error (1: a cell
+// whose merge would run past the loop budget), the largest loop estimate, the most listed cells
+@group(0) @binding(8) var<storage, read_write> load: array<atomic<u32>>;
+
+fn axis_class(x: u32, split: u32) -> u32 {
+    if (x < split) { return x % 3u; }
+    return 3u + (x - split);
+}
+
+@compute @workgroup_size(WG_PARTICLES)
+fn merge_cells(@builtin(global_invocation_id) gid: vec3<u32>,
+               @builtin(num_workgroups) nwg: vec3<u32>) {
+    let cell = thread_index(gid, nwg, WG_PARTICLES);
+    if (cell >= grid.num_cells) { return; }
+    let begin = cell_start[cell_entry(cell, grid)];
+    let end = cell_start[cell_entry(cell + 1u, grid)];
+    var marked = 0u;
+    for (var k = begin; k < end; k++) { marked += u32(flags[k] == FLAG_MERGE); }
+    if (marked == 0u) { return; }
+    let d = grid.dims;
+    let cc = vec3<u32>(cell % d.x, (cell / d.x) % d.y, cell / (d.x * d.y));
+    var nb = 0u;
+    for (var dz = -1; dz <= 1; dz++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            for (var dx = -1; dx <= 1; dx++) {
+                let n = neighbor_cell(vec3<i32>(cc), vec3<i32>(dx, dy, dz), grid);
+                if (n >= 0) { nb += cell_start[cell_entry(u32(n) + 1u, grid)] - cell_start[cell_entry(u32(n), grid)]; }
+            }
+        }
+    }
+    // loop iterations of one merge invocation: the slot walk, and per marked slot the 27 cells,
+    // its share of two neighbourhood scans and the two reductions
+    let share = nb / WG_PARTICLES + 1u;
+    let estimate = (end - begin) + marked * (2u * (27u + share) + 16u);
+    atomicMax(&load[1], estimate);
+    if (estimate > LOOP_BUDGET) { atomicMax(&load[0], 1u); }
+    let m = colour_map;
+    let colour = (axis_class(cc.z, m.split.z) * m.classes.y + axis_class(cc.y, m.split.y))
+        * m.classes.x + axis_class(cc.x, m.split.x);
+    let slot = atomicAdd(&colour_count[colour], 1u);
+    cells[colour_list[colour].x + slot] = cell;
+}
+
+@compute @workgroup_size(1)
+fn merge_dispatch() {
+    var listed = 0u;
+    for (var c = 0u; c < arrayLength(&colour_list); c++) {
+        let n = atomicLoad(&colour_count[c]);
+        listed += n;
+        merge_args[c] = groups_for(n, 1u);
+    }
+    atomicMax(&load[2], listed);
+}

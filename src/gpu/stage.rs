@@ -1,0 +1,409 @@
+//! The one way to declare and run a compute stage.
+//!
+//! A stage is one WGSL file (`shaders/<name>.wgsl`) and the entry points the Rust side uses. Its
+//! bindings are not written down twice: naga reflects them from the WGSL when the stage is built
+//! (name, group, uniform / read-only storage / read-write storage), the bind-group layouts come
+//! from that, and bind groups are made by binding *name*, so a buffer bound under a name the
+//! shader does not declare, or a binding left out, fails when the bind group is made (in a test),
+//! never at dispatch. Workgroup sizes are reflected too (the WGSL writes them with the prelude's
+//! constants, `gpu::shaders::Prelude`), so a dispatch is sized in threads.
+//!
+//! Conventions:
+//! - group 0 holds the stage's buffers; one bind group per buffer set, made once;
+//! - groups 1.. hold per-dispatch parameters: one uniform each, bound with a dynamic offset into
+//!   a [`crate::gpu::buffers::ParamSlots`] buffer (a merge colour, a radix pass, a scan level);
+//! - every entry point of a file shares the file's layouts, so one bind group serves them all.
+//!
+//! Declaring a stage: `Stage::new(ctx, "thermo.wgsl", &["thermo_step"])?`; binding:
+//! `stage.bind(ctx, &[("params", params.binding()), ("pos", pos.as_entire_binding()), ..])?`;
+//! dispatching: `stage.dispatch(pass, "thermo_step", &[&group], Dispatch::Live(&live))`.
+use crate::error::{Error, Result};
+use crate::gpu::Context;
+
+/// What a binding holds, as the WGSL declares it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BindingKind {
+    Uniform,
+    /// `var<storage, read>`
+    StorageRead,
+    /// `var<storage, read_write>`
+    Storage,
+}
+
+/// One reflected binding of a stage.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Binding {
+    pub name: String,
+    pub group: u32,
+    pub binding: u32,
+    pub kind: BindingKind,
+}
+
+/// How many workgroups a dispatch runs.
+#[derive(Clone, Copy)]
+pub enum Dispatch<'a> {
+    /// One thread per item, `n` items (0 dispatches nothing).
+    Threads(u32),
+    /// Exactly these workgroups.
+    Groups(u32),
+    /// Indirect: `(x, y, z)` u32 arguments the GPU wrote at this offset of the buffer.
+    Indirect(&'a wgpu::Buffer, u64),
+    /// One thread per live particle: the indirect arguments the GPU keeps next to the count
+    /// (`gpu::live`), for this entry point's workgroup size.
+    Live(&'a crate::gpu::live::LiveBuffer),
+}
+
+struct Entry {
+    name: &'static str,
+    workgroup: [u32; 3],
+    pipeline: wgpu::ComputePipeline,
+}
+
+/// A compute stage: pipelines of its entry points and the layouts reflected from its WGSL.
+pub struct Stage {
+    shader: &'static str,
+    bindings: Vec<Binding>,
+    layouts: Vec<wgpu::BindGroupLayout>,
+    entries: Vec<Entry>,
+    max_groups_x: u32,
+}
+
+/// The bindings of a stage and the workgroup size of each entry point, read from its WGSL.
+pub fn reflect(
+    shader: &str,
+    module: &naga::Module,
+    entries: &[&str],
+) -> Result<(Vec<Binding>, Vec<[u32; 3]>)> {
+    let mut bindings = Vec::new();
+    for (_, var) in module.global_variables.iter() {
+        let Some(rb) = &var.binding else { continue };
+        let kind = match var.space {
+            naga::AddressSpace::Uniform => BindingKind::Uniform,
+            naga::AddressSpace::Storage { access } => {
+                if access.contains(naga::StorageAccess::STORE) {
+                    BindingKind::Storage
+                } else {
+                    BindingKind::StorageRead
+                }
+            }
+            other => {
+                return Err(Error::Runtime(format!(
+                    "{shader}: binding @group({}) @binding({}) is in address space {other:?}; \
+                     stages bind buffers only",
+                    rb.group, rb.binding
+                )))
+            }
+        };
+        if rb.group > 0 && kind != BindingKind::Uniform {
+            return Err(Error::Runtime(format!(
+                "{shader}: group {} holds per-dispatch parameters (a uniform with a dynamic \
+                 offset), not storage",
+                rb.group
+            )));
+        }
+        bindings.push(Binding {
+            name: var.name.clone().unwrap_or_default(),
+            group: rb.group,
+            binding: rb.binding,
+            kind,
+        });
+    }
+    bindings.sort_by_key(|b| (b.group, b.binding));
+    let groups = bindings.last().map_or(0, |b| b.group + 1);
+    for g in 0..groups {
+        if !bindings.iter().any(|b| b.group == g) {
+            return Err(Error::Runtime(format!("{shader}: bind group {g} is empty")));
+        }
+    }
+    let sizes = entries
+        .iter()
+        .map(|name| {
+            module
+                .entry_points
+                .iter()
+                .find(|e| e.name == *name && e.stage == naga::ShaderStage::Compute)
+                .map(|e| e.workgroup_size)
+                .ok_or_else(|| Error::Runtime(format!("{shader}: no compute entry point '{name}'")))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok((bindings, sizes))
+}
+
+impl Stage {
+    /// Builds the pipelines of `entries` of `shader` with layouts reflected from its WGSL.
+    pub fn new(ctx: &Context, shader: &'static str, entries: &[&'static str]) -> Result<Self> {
+        let prelude = ctx.prelude;
+        let module = crate::gpu::shaders::validate_with(shader, &prelude)?;
+        let (bindings, sizes) = reflect(shader, &module, entries)?;
+        let device = &ctx.device;
+        let groups = bindings.last().map_or(0, |b| b.group + 1);
+        let layouts: Vec<wgpu::BindGroupLayout> = (0..groups)
+            .map(|g| {
+                let layout_entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
+                    .iter()
+                    .filter(|b| b.group == g)
+                    .map(|b| wgpu::BindGroupLayoutEntry {
+                        binding: b.binding,
+                        visibility: wgpu::ShaderStages::COMPUTE,
+                        ty: wgpu::BindingType::Buffer {
+                            ty: match b.kind {
+                                BindingKind::Uniform => wgpu::BufferBindingType::Uniform,
+                                BindingKind::StorageRead => {
+                                    wgpu::BufferBindingType::Storage { read_only: true }
+                                }
+                                BindingKind::Storage => {
+                                    wgpu::BufferBindingType::Storage { read_only: false }
+                                }
+                            },
+                            has_dynamic_offset: g > 0,
+                            min_binding_size: None,
+                        },
+                        count: None,
+                    })
+                    .collect();
+                device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                    label: Some(shader),
+                    entries: &layout_entries,
+                })
+            })
+            .collect();
+        let layout_refs: Vec<Option<&wgpu::BindGroupLayout>> = layouts.iter().map(Some).collect();
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(shader),
+            bind_group_layouts: &layout_refs,
+            immediate_size: 0,
+        });
+        let shader_module = crate::gpu::shaders::module(ctx, shader)?;
+        let entries = entries
+            .iter()
+            .zip(sizes)
+            .map(|(name, workgroup)| Entry {
+                name,
+                workgroup,
+                pipeline: device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(&format!("{shader}:{name}")),
+                    layout: Some(&pipeline_layout),
+                    module: &shader_module,
+                    entry_point: Some(name),
+                    compilation_options: Default::default(),
+                    cache: None,
+                }),
+            })
+            .collect();
+        Ok(Self {
+            shader,
+            bindings,
+            layouts,
+            entries,
+            max_groups_x: prelude.max_groups_x,
+        })
+    }
+
+    /// The reflected bindings (group, binding, name, kind), in order.
+    pub fn bindings(&self) -> &[Binding] {
+        &self.bindings
+    }
+
+    /// A group-0 bind group: every binding the WGSL declares in group 0, by name.
+    pub fn bind(
+        &self,
+        ctx: &Context,
+        resources: &[(&str, wgpu::BindingResource)],
+    ) -> Result<wgpu::BindGroup> {
+        self.bind_group(ctx, 0, resources)
+    }
+
+    /// A bind group of `group` (group 0: the buffers; 1..: a per-dispatch uniform, bound with
+    /// its slot size so dynamic offsets select the slot).
+    pub fn bind_group(
+        &self,
+        ctx: &Context,
+        group: u32,
+        resources: &[(&str, wgpu::BindingResource)],
+    ) -> Result<wgpu::BindGroup> {
+        let declared: Vec<&Binding> = self.bindings.iter().filter(|b| b.group == group).collect();
+        let mut entries = Vec::with_capacity(declared.len());
+        for b in &declared {
+            let matching: Vec<_> = resources.iter().filter(|(n, _)| *n == b.name).collect();
+            match matching.as_slice() {
+                [(_, r)] => entries.push(wgpu::BindGroupEntry {
+                    binding: b.binding,
+                    resource: r.clone(),
+                }),
+                [] => {
+                    return Err(Error::Runtime(format!(
+                        "{}: binding '{}' (group {group}) was not given a buffer",
+                        self.shader, b.name
+                    )))
+                }
+                _ => {
+                    return Err(Error::Runtime(format!(
+                        "{}: binding '{}' was given twice",
+                        self.shader, b.name
+                    )))
+                }
+            }
+        }
+        if let Some((unknown, _)) = resources
+            .iter()
+            .find(|(n, _)| !declared.iter().any(|b| b.name == *n))
+        {
+            return Err(Error::Runtime(format!(
+                "{}: group {group} declares no binding '{unknown}'",
+                self.shader
+            )));
+        }
+        let layout = self
+            .layouts
+            .get(group as usize)
+            .ok_or_else(|| Error::Runtime(format!("{}: no bind group {group}", self.shader)))?;
+        Ok(ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(self.shader),
+            layout,
+            entries: &entries,
+        }))
+    }
+
+    fn entry(&self, name: &str) -> &Entry {
+        // Entry names are fixed in the code and checked against the WGSL in `new`: a miss is a
+        // programming error that every test building the stage would hit.
+        self.entries
+            .iter()
+            .find(|e| e.name == name)
+            .unwrap_or_else(|| panic!("{}: entry '{name}' was not declared", self.shader))
+    }
+
+    /// Threads per workgroup of an entry point (x; the stages use 1-D workgroups).
+    pub fn workgroup_size(&self, entry: &str) -> u32 {
+        self.entry(entry).workgroup[0]
+    }
+
+    /// Records `entry` with `groups` (group 0 first; groups 1.. with their dynamic offset).
+    pub fn dispatch(
+        &self,
+        pass: &mut wgpu::ComputePass,
+        entry: &str,
+        groups: &[(&wgpu::BindGroup, u32)],
+        size: Dispatch,
+    ) {
+        let e = self.entry(entry);
+        assert_eq!(
+            groups.len(),
+            self.layouts.len(),
+            "{}:{entry} takes {} bind groups",
+            self.shader,
+            self.layouts.len()
+        );
+        let set = |pass: &mut wgpu::ComputePass| {
+            pass.set_pipeline(&e.pipeline);
+            for (i, (g, offset)) in groups.iter().enumerate() {
+                let offsets: &[u32] = if i == 0 {
+                    &[]
+                } else {
+                    std::slice::from_ref(offset)
+                };
+                pass.set_bind_group(i as u32, Some(*g), offsets);
+            }
+        };
+        match size {
+            Dispatch::Threads(n) => {
+                let [x, y, z] = groups_for(n, e.workgroup[0], self.max_groups_x);
+                if x > 0 {
+                    set(pass);
+                    pass.dispatch_workgroups(x, y, z);
+                }
+            }
+            Dispatch::Groups(n) => {
+                let [x, y, z] = groups_for(n, 1, self.max_groups_x);
+                if x > 0 {
+                    set(pass);
+                    pass.dispatch_workgroups(x, y, z);
+                }
+            }
+            Dispatch::Indirect(buffer, offset) => {
+                set(pass);
+                pass.dispatch_workgroups_indirect(buffer, offset);
+            }
+            Dispatch::Live(live) => {
+                set(pass);
+                pass.dispatch_workgroups_indirect(live.buffer(), live.args_offset(e.workgroup[0]));
+            }
+        }
+    }
+}
+
+/// Workgroups for `threads` threads in groups of `wg`: up to `max_x` along x, then rows along y
+/// (the shaders rebuild the linear index from `num_workgroups`). The GPU computes its indirect
+/// arguments with the same rule (`groups_for` in shaders/shared/live.wgsl).
+pub fn groups_for(threads: u32, wg: u32, max_x: u32) -> [u32; 3] {
+    let groups = threads.div_ceil(wg);
+    if groups == 0 {
+        return [0, 1, 1];
+    }
+    let x = groups.min(max_x);
+    [x, groups.div_ceil(x), 1]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn groups_cover_every_thread_within_the_limit() {
+        for wg in [1u32, 64, 256] {
+            for n in [0u32, 1, 63, 64, 65, 65535 * 64, 65535 * 64 + 1, 10_000_000] {
+                let [x, y, z] = groups_for(n, wg, 65535);
+                assert!(x <= 65535 && y <= 65535 && z == 1, "{n}");
+                assert!(x as u64 * y as u64 * wg as u64 >= n as u64, "{n}");
+                if n > 0 {
+                    // no whole row of groups is wasted
+                    assert!((x as u64 * (y as u64 - 1)) * (wg as u64) < n as u64, "{n}");
+                }
+            }
+        }
+    }
+
+    /// Every stage file reflects: buffers only, groups 1.. uniforms, no empty group.
+    #[test]
+    fn every_stage_reflects() {
+        let prelude = crate::gpu::shaders::Prelude::default();
+        for name in crate::gpu::shaders::stage_names() {
+            let module = crate::gpu::shaders::validate_with(name, &prelude).unwrap();
+            let (bindings, _) = reflect(name, &module, &[]).unwrap_or_else(|e| panic!("{e}"));
+            assert!(!bindings.is_empty(), "{name} binds nothing");
+            for b in &bindings {
+                assert!(!b.name.is_empty(), "{name}: an unnamed binding");
+            }
+        }
+    }
+
+    #[test]
+    fn reflection_reads_kinds_groups_and_workgroup_sizes() {
+        let src = "@group(0) @binding(0) var<uniform> u: vec4<f32>;\n\
+                   @group(0) @binding(2) var<storage, read> r: array<u32>;\n\
+                   @group(0) @binding(1) var<storage, read_write> w: array<u32>;\n\
+                   @group(1) @binding(0) var<uniform> d: vec4<u32>;\n\
+                   @compute @workgroup_size(32) fn a() { w[0] = r[0] + u32(u.x) + d.x; }\n";
+        let module = naga::front::wgsl::parse_str(src).unwrap();
+        let (b, sizes) = reflect("t.wgsl", &module, &["a"]).unwrap();
+        let got: Vec<(&str, u32, u32, BindingKind)> = b
+            .iter()
+            .map(|b| (b.name.as_str(), b.group, b.binding, b.kind))
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                ("u", 0, 0, BindingKind::Uniform),
+                ("w", 0, 1, BindingKind::Storage),
+                ("r", 0, 2, BindingKind::StorageRead),
+                ("d", 1, 0, BindingKind::Uniform),
+            ]
+        );
+        assert_eq!(sizes, vec![[32, 1, 1]]);
+        assert!(reflect("t.wgsl", &module, &["missing"]).is_err());
+        let storage_in_group_1 = "@group(1) @binding(0) var<storage, read> s: array<u32>;\n\
+                   @compute @workgroup_size(1) fn a() { _ = s[0]; }\n";
+        let module = naga::front::wgsl::parse_str(storage_in_group_1).unwrap();
+        assert!(reflect("t.wgsl", &module, &["a"]).is_err());
+    }
+}

@@ -1,0 +1,102 @@
+//! The particle set on the device: the SoA arrays every stage binds, the cell tables, the static
+//! wall particles, the grid uniform and the live count (docs/ARCHITECTURE.md "Contracts").
+//!
+//! Every array is `capacity` long and the first `live.count` entries are live. Between
+//! `predict` and `update_velocity` the velocity array is dead (PBF recomputes v from the
+//! positions), so the neighbour grid's permutation gathers into it; the radix sort's (key,
+//! value) arrays and the PBF solve's vec4 scratch share `pairs`. That keeps the core at 92 bytes
+//! per particle; the stages own their scratch ([`crate::sim::Simulation::device_bytes`] adds
+//! them up).
+use crate::error::{Error, Result};
+use crate::gpu::buffers::{storage_init, storage_zeroed, ParamSlots};
+use crate::gpu::live::{Live, LiveBuffer};
+use crate::gpu::Context;
+use crate::sim::grid_params::GridParams;
+use crate::sim::ParticleState;
+
+pub struct ParticleBuffers {
+    pub capacity: u32,
+    /// `vec4<f32>`: xyz position (w unused)
+    pub pos: wgpu::Buffer,
+    /// `vec4<f32>`: xyz velocity (w: the height gained in the substep, for eq. 7)
+    pub vel: wgpu::Buffer,
+    /// `vec4<f32>`: (temperature K, vapor, cloud, shape energy)
+    pub thermo: wgpu::Buffer,
+    /// `vec2<u32>`: (id, level)
+    pub info: wgpu::Buffer,
+    /// `vec4<f32>`: the predicted position p*
+    pub pred: wgpu::Buffer,
+    /// Four u32 arrays of `capacity` for the radix sort, or one `vec4<f32>` array of scratch.
+    pub pairs: wgpu::Buffer,
+    /// `f32`: SPH density of the last solve
+    pub density: wgpu::Buffer,
+    /// `u32`: the cell table of the last grid build (`GridParams::table_len` entries)
+    pub cell_start: wgpu::Buffer,
+    /// Wall particles (`vec4`: xyz, w = temperature), sorted by cell, and their cell table.
+    pub bpos: wgpu::Buffer,
+    pub bcell_start: wgpu::Buffer,
+    pub grid: ParamSlots<GridParams>,
+    pub live: LiveBuffer,
+}
+
+impl ParticleBuffers {
+    /// Uploads `state` into arrays of `capacity` (a multiple of 64, at least the state's length).
+    pub fn new(
+        ctx: &Context,
+        state: &ParticleState,
+        capacity: u32,
+        grid: &GridParams,
+        boundary: &(Vec<[f32; 4]>, Vec<u32>),
+        next_id: u32,
+    ) -> Result<Self> {
+        let n = state.len();
+        if n > capacity as usize || !capacity.is_multiple_of(64) {
+            return Err(Error::Runtime(format!(
+                "{n} particles do not fit a capacity of {capacity}"
+            )));
+        }
+        let dev = &ctx.device;
+        let cap = capacity as usize;
+        let upload = |label: &str, bytes: &[u8], elem: usize| {
+            let buf = storage_zeroed::<u8>(dev, label, cap * elem);
+            ctx.queue.write_buffer(&buf, 0, bytes);
+            buf
+        };
+        let single_level = state.info.iter().all(|i| i[1] == 0);
+        Ok(Self {
+            capacity,
+            pos: upload("pos", bytemuck::cast_slice(&state.pos), 16),
+            vel: upload("vel", bytemuck::cast_slice(&state.vel), 16),
+            thermo: upload("thermo", bytemuck::cast_slice(&state.thermo), 16),
+            info: upload("info", bytemuck::cast_slice(&state.info), 8),
+            pred: storage_zeroed::<[f32; 4]>(dev, "pred", cap),
+            pairs: storage_zeroed::<[u32; 4]>(dev, "sort pairs / scratch", cap),
+            density: upload("density", bytemuck::cast_slice(&state.density), 4),
+            cell_start: storage_zeroed::<u32>(dev, "cell_start", grid.table_len()),
+            bpos: storage_init(dev, "boundary pos", &boundary.0),
+            bcell_start: storage_init(dev, "boundary cell_start", &boundary.1),
+            grid: ParamSlots::single(ctx, "grid", grid),
+            live: LiveBuffer::new(ctx, &Live::new(ctx, n as u32, next_id, single_level)),
+        })
+    }
+
+    pub fn device_bytes(&self) -> u64 {
+        [
+            &self.pos,
+            &self.vel,
+            &self.thermo,
+            &self.info,
+            &self.pred,
+            &self.pairs,
+            &self.density,
+            &self.cell_start,
+            &self.bpos,
+            &self.bcell_start,
+        ]
+        .iter()
+        .map(|b| b.size())
+        .sum::<u64>()
+            + self.grid.size()
+            + self.live.size()
+    }
+}

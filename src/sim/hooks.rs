@@ -1,0 +1,105 @@
+//! Test hooks (cargo feature `test-hooks`, which the crate's own tests turn on; not part of
+//! the public API): run one PBF entry point or the grid build alone, and read or overwrite device
+//! arrays, so that tests can compare a stage with its f64 mirror on fresh random inputs.
+use crate::error::Result;
+use crate::gpu::buffers::read_back;
+use crate::gpu::Context;
+use crate::sim::buffers::ParticleBuffers;
+use crate::sim::phase::{Phase, Recorder};
+use crate::sim::Simulation;
+use std::sync::Arc;
+
+/// Parts of a substep a test may run one at a time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Step {
+    Predict,
+    Grid,
+    Lambda,
+    Delta,
+    UpdateVelocity,
+    Vorticity,
+    ViscosityConfine,
+    /// the rest of the substep after `ViscosityConfine`: v = scratch, x = p*
+    Finish,
+}
+
+/// Device arrays a test may read or overwrite.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Buf {
+    Pos,
+    Vel,
+    Pred,
+    /// (p*, lambda) after `Step::Lambda`, the new v after `Step::ViscosityConfine`
+    Scratch,
+    Density,
+    CellStart,
+    Info,
+}
+
+impl Simulation {
+    /// Runs one part of the substep alone (and waits for it).
+    pub fn run_step(&mut self, step: Step) -> Result<()> {
+        let ctx = self.ctx.clone();
+        let mut rec = Recorder::new(&ctx, None, None);
+        let (pbf, live) = (&self.s.pbf, &self.b.live);
+        let entry = match step {
+            Step::Predict => "predict",
+            Step::Lambda => "compute_lambda",
+            Step::Delta => "compute_delta",
+            Step::UpdateVelocity => "update_velocity",
+            Step::Vorticity => "vorticity",
+            Step::ViscosityConfine => "viscosity_confine",
+            Step::Grid => {
+                self.s.grid.build(&mut rec, live)?;
+                rec.submit();
+                return ctx.wait();
+            }
+            Step::Finish => {
+                pbf.finish(&mut rec.pass(Phase::Velocity), live);
+                rec.submit();
+                return ctx.wait();
+            }
+        };
+        pbf.dispatch_entry(&mut rec.pass(Phase::Solve), entry, live);
+        rec.submit();
+        ctx.wait()
+    }
+
+    fn buffer(&self, which: Buf) -> &wgpu::Buffer {
+        let b = &self.b;
+        match which {
+            Buf::Pos => &b.pos,
+            Buf::Vel => &b.vel,
+            Buf::Pred => &b.pred,
+            Buf::Scratch => &b.pairs,
+            Buf::Density => &b.density,
+            Buf::CellStart => &b.cell_start,
+            Buf::Info => &b.info,
+        }
+    }
+
+    pub fn read_vec4(&self, which: Buf) -> Result<Vec<[f32; 4]>> {
+        read_back(&self.ctx, self.buffer(which), self.count())
+    }
+    pub fn read_f32(&self, which: Buf) -> Result<Vec<f32>> {
+        read_back(&self.ctx, self.buffer(which), self.count())
+    }
+    pub fn read_u32(&self, which: Buf, len: usize) -> Result<Vec<u32>> {
+        read_back(&self.ctx, self.buffer(which), len)
+    }
+    /// Overwrites the first entries of an array (tests seed fresh random inputs this way).
+    pub fn write<T: bytemuck::Pod>(&self, which: Buf, data: &[T]) {
+        self.ctx
+            .queue
+            .write_buffer(self.buffer(which), 0, bytemuck::cast_slice(data));
+    }
+
+    /// The device arrays (a test runs another stage over them).
+    pub fn buffers(&self) -> &ParticleBuffers {
+        &self.b
+    }
+
+    pub fn context(&self) -> &Arc<Context> {
+        &self.ctx
+    }
+}
