@@ -369,40 +369,8 @@ fn refuse_changed_simulation(cfg: &nimbus::config::ShotConfig, out_dir: &Path) -
 }
 
 fn inspect(file: &Path) -> Result<()> {
-    // A directory, FIFO or device is a path error (exit 2), and is never read.
-    match std::fs::metadata(file) {
-        Ok(m) if m.is_file() => {}
-        Ok(m) => {
-            return Err(Error::InvalidInput(format!(
-                "{}: {}, not a .vdb, .exr or checkpoint file",
-                file.display(),
-                if m.is_dir() {
-                    "is a directory"
-                } else {
-                    "is not a regular file"
-                }
-            )))
-        }
-        Err(e) => return Err(Error::InvalidInput(format!("{}: {e}", file.display()))),
-    }
-    let head = read_prefix(file, 16)?;
-    let text = if nimbus::io::checkpoint::is_checkpoint(&head) {
-        nimbus::io::checkpoint::describe(file)?
-    } else {
-        nimbus::io::inspect::describe(file)?
-    };
-    println!("{text}");
+    println!("{}", nimbus::io::inspect::describe(file)?);
     Ok(())
-}
-
-fn read_prefix(file: &Path, n: usize) -> Result<Vec<u8>> {
-    use std::io::Read;
-    let mut f = std::fs::File::open(file)
-        .map_err(|e| Error::InvalidInput(format!("{}: {e}", file.display())))?;
-    let mut buf = vec![0u8; n];
-    let got = f.read(&mut buf).map_err(|e| Error::io(file, e))?;
-    buf.truncate(got);
-    Ok(buf)
 }
 
 fn preview(out_dir: &Path, set: &[String]) -> Result<()> {

@@ -47,7 +47,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
         Start::Fresh { force } => super::run_dir::prepare_fresh(run_dir, force)?,
         // Under the lock every temporary file is a leftover of a process that died.
         Start::Resume => {
-            checkpoint::remove_temp_files(run_dir)?;
+            crate::io::atomic::remove_temp_files(run_dir)?;
         }
     }
     for d in naming::DIRS {
