@@ -480,15 +480,15 @@ fn remove_temp_files_cleans_the_whole_run_dir() {
     for p in tmps.iter().chain(&keep) {
         fs::write(p, b"data").unwrap();
     }
-    let mut removed = ckpt::remove_temp_files(d).unwrap();
+    let mut removed = nimbus::io::atomic::remove_temp_files(d).unwrap();
     removed.sort();
     let mut want = tmps.to_vec();
     want.sort();
     assert_eq!(removed, want);
     assert!(tmps.iter().all(|p| !p.exists()));
     assert!(keep.iter().all(|p| p.exists()));
-    assert!(ckpt::remove_temp_files(d).unwrap().is_empty());
-    assert!(ckpt::remove_temp_files(&d.join("missing"))
+    assert!(nimbus::io::atomic::remove_temp_files(d).unwrap().is_empty());
+    assert!(nimbus::io::atomic::remove_temp_files(&d.join("missing"))
         .unwrap()
         .is_empty());
 }
@@ -497,7 +497,7 @@ fn remove_temp_files_cleans_the_whole_run_dir() {
 fn describe_prints_the_header() {
     let dir = tempfile::tempdir().unwrap();
     let (p, mut b) = written(dir.path(), &checkpoint(42, 7, 3));
-    let text = ckpt::describe(&p).unwrap();
+    let text = nimbus::io::inspect::describe(&p).unwrap();
     for want in [
         "frame            42",
         "step             171",
@@ -518,7 +518,10 @@ fn describe_prints_the_header() {
     let n = b.len();
     b[n - 40] ^= 1;
     fs::write(&p, &b).unwrap();
-    assert!(matches!(ckpt::describe(&p), Err(Error::InvalidInput(_))));
+    assert!(matches!(
+        nimbus::io::inspect::describe(&p),
+        Err(Error::InvalidInput(_))
+    ));
 }
 
 #[test]

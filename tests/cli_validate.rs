@@ -291,3 +291,31 @@ fn configs_must_be_bounded_regular_files() {
     let _ = feeder.kill();
     let _ = feeder.wait();
 }
+
+/// A flag value outside its choices is one line naming the flag, the value and the choices,
+/// exit 2, before anything runs.
+#[test]
+fn a_flag_value_outside_its_choices_exits_2_with_one_line() {
+    for (args, want) in [
+        (
+            "run samples/tiny.yaml --log-format xml",
+            r#"--log-format "xml": expected human or json"#,
+        ),
+        (
+            "bench vdb --compression lz4",
+            r#"--compression "lz4": expected none, zip or blosc"#,
+        ),
+        (
+            "farm status nowhere --log-format=",
+            "--log-format: a value is required: human or json",
+        ),
+        (
+            "resume nowhere --log-format JSON",
+            r#"--log-format "JSON": expected human or json"#,
+        ),
+    ] {
+        let o = nimbus(&args.split(' ').collect::<Vec<_>>());
+        assert_eq!(o.status.code(), Some(2), "{args}: {:?}", stderr_lines(&o));
+        assert_eq!(stderr_lines(&o), [format!("error: {want}")], "{args}");
+    }
+}

@@ -18,8 +18,14 @@ pub enum FarmCommand {
         config: PathBuf,
         /// `slurm` (batch scripts submitted with sbatch) or `openjd` (an Open Job Description
         /// template, `FARM/template.json`, for AWS Deadline Cloud or `openjd run`).
-        #[arg(long, value_name = "slurm|openjd", default_value = "slurm")]
-        backend: String,
+        #[arg(
+            long,
+            value_enum,
+            value_name = "slurm|openjd",
+            default_value = "slurm",
+            hide_possible_values = true
+        )]
+        backend: Backend,
         /// With `--backend openjd`: run the template here with `openjd run` (every step, in
         /// order; `openjd` on PATH or NIMBUS_OPENJD), output in FARM/logs/openjd_run.log.
         #[arg(long)]
@@ -113,7 +119,6 @@ pub fn run(cmd: FarmCommand) -> Result<()> {
             export_name,
             dry_run,
         } => {
-            let backend = parse_backend(&backend)?;
             let done = submit::submit(&SubmitOptions {
                 config,
                 backend,
@@ -181,17 +186,6 @@ pub fn run(cmd: FarmCommand) -> Result<()> {
                 )))
             }
         }
-    }
-}
-
-/// `--backend`'s value; anything else is exit 2.
-pub fn parse_backend(value: &str) -> Result<Backend> {
-    match value {
-        "slurm" => Ok(Backend::Slurm),
-        "openjd" => Ok(Backend::OpenJd),
-        other => Err(Error::InvalidInput(format!(
-            "--backend {other:?}: expected slurm or openjd"
-        ))),
     }
 }
 

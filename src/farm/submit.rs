@@ -17,11 +17,12 @@ use std::path::{Path, PathBuf};
 pub const DEFAULT_SIGNAL_MARGIN_S: u32 = 120;
 
 /// Where a farm runs: `--backend`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Backend {
     /// Batch scripts handed to `sbatch`.
     Slurm,
     /// One Open Job Description template (AWS Deadline Cloud; `openjd run` here).
+    #[value(name = "openjd")]
     OpenJd,
 }
 

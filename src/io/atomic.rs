@@ -1,5 +1,6 @@
 //! Atomic file writes: write a temporary file beside the target, fsync, rename. A reader never
-//! sees half a file, and a failed write leaves the previous file in place.
+//! sees half a file, and a failed write leaves the previous file in place. Temporary files left
+//! by a process that died are swept with [`remove_temp_files`].
 use crate::error::{Error, Result};
 use std::fs::{self, File};
 use std::io::Write;
@@ -60,6 +61,37 @@ pub fn write_atomic_with(
         let _ = fs::remove_file(&tmp);
         Error::io(path, e)
     })
+}
+
+/// Deletes leftover `*.nimbus-tmp` files anywhere under `run_dir` (symlinks are not followed)
+/// and returns their paths. A missing `run_dir` has none.
+pub fn remove_temp_files(run_dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut removed = Vec::new();
+    let mut stack = vec![run_dir.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        let rd = match fs::read_dir(&dir) {
+            Ok(rd) => rd,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+            Err(e) => return Err(Error::io(&dir, e)),
+        };
+        let mut entries = Vec::new();
+        for entry in rd {
+            entries.push(entry.map_err(|e| Error::io(&dir, e))?);
+        }
+        entries.sort_by_key(|e| e.file_name());
+        for entry in entries {
+            let ft = entry.file_type().map_err(|e| Error::io(entry.path(), e))?;
+            let path = entry.path();
+            if ft.is_dir() {
+                stack.push(path);
+            } else if ft.is_file() && entry.file_name().to_string_lossy().ends_with(TMP_SUFFIX) {
+                fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
+                removed.push(path);
+            }
+        }
+    }
+    removed.sort();
+    Ok(removed)
 }
 
 #[cfg(test)]

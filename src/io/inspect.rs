@@ -1,6 +1,7 @@
 //! `nimbus inspect FILE`: a human-readable description of a file nimbus writes, chosen by its
-//! magic bytes (VDB, EXR; other formats register here as they are added).
+//! magic bytes (checkpoint, VDB, EXR; other formats register here as they are added).
 use crate::error::{Error, Result};
+use crate::io::checkpoint::{self, format};
 use crate::io::vdb::{self, GridData};
 use crate::splat::SparseGrid;
 use std::fmt::Write as _;
@@ -154,15 +155,35 @@ fn describe_exr(path: &Path) -> Result<String> {
     Ok(out)
 }
 
-/// Describes a VDB or EXR file (dispatch on the first bytes).
+/// Describes a checkpoint, VDB or EXR file, the describer chosen by the file's first bytes (for
+/// `nimbus inspect FILE`). A directory, FIFO or device is invalid input, and is never read.
 pub fn describe(path: &Path) -> Result<String> {
-    let mut head = [0u8; 8];
-    let n = std::fs::File::open(path)
-        .and_then(|mut f| f.read(&mut head))
+    match std::fs::metadata(path) {
+        Ok(m) if m.is_file() => {}
+        Ok(m) => {
+            return Err(Error::InvalidInput(format!(
+                "{}: {}, not a .vdb, .exr or checkpoint file",
+                path.display(),
+                if m.is_dir() {
+                    "is a directory"
+                } else {
+                    "is not a regular file"
+                }
+            )))
+        }
+        Err(e) => return Err(Error::InvalidInput(format!("{}: {e}", path.display()))),
+    }
+    let f = std::fs::File::open(path)
+        .map_err(|e| Error::InvalidInput(format!("{}: {e}", path.display())))?;
+    let mut head = Vec::with_capacity(8);
+    f.take(8)
+        .read_to_end(&mut head)
         .map_err(|e| Error::io(path, e))?;
-    if n >= 8 && i64::from_le_bytes(head) == vdb::MAGIC {
+    if checkpoint::is_checkpoint(&head) {
+        describe_checkpoint(path)
+    } else if head == vdb::MAGIC.to_le_bytes() {
         describe_vdb(path)
-    } else if n >= 4 && head[..4] == EXR_MAGIC {
+    } else if head.starts_with(&EXR_MAGIC) {
         describe_exr(path)
     } else {
         Err(Error::InvalidInput(format!(
@@ -170,4 +191,41 @@ pub fn describe(path: &Path) -> Result<String> {
             path.display()
         )))
     }
+}
+
+/// Validates the checkpoint at `path` and describes it.
+fn describe_checkpoint(path: &Path) -> Result<String> {
+    let (bytes, ck) = format::read_with_bytes(path)?;
+    let h = &ck.header;
+    let mut s = String::new();
+    let _ = writeln!(s, "nimbus checkpoint {}", path.display());
+    let _ = writeln!(s, "  format version   {}", format::FORMAT_VERSION);
+    let _ = writeln!(s, "  tool version     {}", h.tool_version);
+    let _ = writeln!(s, "  sim config hash  {}", h.sim_hash);
+    let _ = writeln!(s, "  frame            {}", h.frame);
+    let _ = writeln!(s, "  step             {}", h.step);
+    let _ = writeln!(s, "  sim time         {} s", h.time);
+    let _ = writeln!(s, "  seed             {}", h.seed);
+    let _ = writeln!(s, "  particles        {}", h.particle_count);
+    let _ = writeln!(s, "  capacity         {}", h.capacity);
+    let _ = writeln!(s, "  adapter          {}", h.adapter);
+    let _ = writeln!(s, "  next id          {}", h.next_id);
+    let _ = writeln!(
+        s,
+        "  size             {} bytes ({:.1} bytes/particle)",
+        bytes.len(),
+        bytes.len() as f64 / (h.particle_count.max(1)) as f64
+    );
+    let array_bytes = |k: usize| h.particle_count * format::STATE_STRIDES[k] as u64;
+    let mut names: Vec<String> = format::STATE_SECTIONS
+        .iter()
+        .enumerate()
+        .map(|(k, n)| format!("{n} ({} B)", array_bytes(k)))
+        .collect();
+    names.extend(ck.extra.iter().map(|(n, d)| format!("{n} ({} B)", d.len())));
+    let _ = writeln!(s, "  sections         {}", names.join(", "));
+    let digest = &bytes[bytes.len() - format::TRAILER..];
+    let hex: String = digest.iter().map(|b| format!("{b:02x}")).collect();
+    let _ = write!(s, "  checksums        ok (sha256 {hex})");
+    Ok(s)
 }

@@ -1,4 +1,4 @@
-//! Files: atomic writes, frame naming, VDB and EXR writers, PLY particle caches, checkpoint format.
+//! Files: atomic writes, VDB and EXR writers, PLY particle caches, checkpoints, and `inspect`.
 pub mod atomic;
 pub mod checkpoint;
 pub mod exr;

@@ -5,10 +5,11 @@ pub mod progress;
 pub mod records;
 pub mod reexport;
 pub mod rerender;
+pub mod resume;
 pub mod run;
 pub mod run_dir;
 pub mod watchdog;
 pub mod writer;
 
 pub use progress::LogFormat;
-pub use run::{run, RunOptions, Start};
+pub use run::{run, run_fresh, RunOptions, Start};

@@ -1,11 +1,20 @@
 //! `nimbus preview OUT_DIR`: (re)render the previews of a run from the VDB files it wrote, with
 //! the camera and light of the given config (the run's own, possibly with `--set` overrides).
+use super::lock::{Create, RunLock};
 use super::naming::frame_file;
 use super::records::{sha256_hex, FrameRecord, Manifest};
 use crate::config::ShotConfig;
 use crate::error::{Error, Result};
 use crate::io::vdb::{read::read_file, GridData};
 use std::path::{Path, PathBuf};
+
+/// `nimbus preview RUN_DIR`: [`rerender_previews`] under the run directory's lock, with the
+/// config the run recorded and the overrides `set`; returns the number of frames rendered.
+pub fn rerender_run(run_dir: &Path, set: &[String]) -> Result<usize> {
+    let _lock = RunLock::acquire(run_dir, Create::No, "preview")?;
+    let cfg = super::resume::config_of_run(run_dir, set)?;
+    rerender_previews(run_dir, &cfg)
+}
 
 /// Renders a preview for every frame of the manifest from its VDB file, after checking that
 /// file against the manifest's size and SHA-256, then the contact sheet; returns the number of

@@ -1,7 +1,7 @@
 //! The frame loop: the GPU simulates frame N+1 while a writer thread splats and writes frame N
 //! (a bounded queue of one frame keeps memory bounded). Checkpoints are written after the writer
 //! has caught up, so every frame up to a checkpoint is on disk before the checkpoint exists.
-use super::lock::RunLock;
+use super::lock::{Create, RunLock};
 use super::naming::{self, resume_command};
 use super::progress::{LogFormat, Progress};
 use super::records::{FrameStats, Manifest, StatsLog};
@@ -33,6 +33,18 @@ pub struct RunOptions {
     pub start: Start,
 }
 
+/// `nimbus run CONFIG`: a new run of `cfg` into `out_dir` (created if missing; refused when it
+/// holds an earlier run, unless `force`: see `run_dir`). Resuming is `super::resume`.
+pub fn run_fresh(cfg: &ShotConfig, out_dir: &Path, log: LogFormat, force: bool) -> Result<()> {
+    let lock = RunLock::acquire(out_dir, Create::IfMissing, "run")?;
+    let opts = RunOptions {
+        out_dir: out_dir.to_path_buf(),
+        log,
+        start: Start::Fresh { force },
+    };
+    run(cfg, &opts, &lock)
+}
+
 /// Runs (or resumes) a shot into `opts.out_dir`, which `lock` must hold.
 pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     let run_dir = opts.out_dir.as_path();
@@ -47,7 +59,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
         Start::Fresh { force } => super::run_dir::prepare_fresh(run_dir, force)?,
         // Under the lock every temporary file is a leftover of a process that died.
         Start::Resume => {
-            checkpoint::remove_temp_files(run_dir)?;
+            crate::io::atomic::remove_temp_files(run_dir)?;
         }
     }
     for d in naming::DIRS {
@@ -58,40 +70,11 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     let ckpt_dir = run_dir.join("checkpoints");
 
     // What to resume from, decided before the GPU is opened (bad input fails fast).
-    let resumed: Option<checkpoint::Checkpoint> = match opts.start {
+    let resumed = match opts.start {
         Start::Fresh { .. } => None,
-        Start::Resume => {
-            let scan = checkpoint::scan_resumable(&ckpt_dir, &sim_hash)?;
-            let skipped: Vec<String> = scan.skipped.iter().map(|s| s.to_string()).collect();
-            for s in &skipped {
-                eprintln!("warning: skipped checkpoint: {s}");
-            }
-            if scan.found.is_none() && scan.config_changed() {
-                return Err(changed_keys_error(cfg, &scan));
-            }
-            match scan.found {
-                Some((path, ck)) => {
-                    check_resume_frame(cfg, &path, ck.header.frame)?;
-                    eprintln!(
-                        "resuming from {} (frame {})",
-                        path.display(),
-                        ck.header.frame
-                    );
-                    Some(ck)
-                }
-                None => {
-                    return Err(Error::InvalidInput(format!(
-                        "{}: no usable checkpoint to resume from{}",
-                        ckpt_dir.display(),
-                        if skipped.is_empty() {
-                            ""
-                        } else {
-                            " (see the warnings above)"
-                        }
-                    )))
-                }
-            }
-        }
+        Start::Resume => Some(super::resume::checkpoint_to_resume(
+            cfg, &ckpt_dir, &sim_hash,
+        )?),
     };
 
     let ctx = Arc::new(gpu::Context::new(&cfg.gpu)?);
@@ -356,56 +339,6 @@ impl LoopState {
         }
         Ok(())
     }
-}
-
-/// No checkpoint matches the config's simulation keys: name every key that differs from the
-/// newest checkpoint that records its config.
-fn changed_keys_error(cfg: &ShotConfig, scan: &checkpoint::ResumeScan) -> Error {
-    for s in &scan.skipped {
-        if !matches!(s.reason, checkpoint::SkipReason::ConfigMismatch { .. }) {
-            continue;
-        }
-        if let Some(recorded) = checkpoint::read_checkpoint(&s.path)
-            .ok()
-            .and_then(|ck| checkpoint::config_of(&ck))
-        {
-            let diff = config::sim_key_diff(&recorded, cfg);
-            if !diff.is_empty() {
-                return Error::InvalidInput(format!(
-                    "{}: cannot resume: simulation keys differ from the checkpoint's: {}",
-                    s.path.display(),
-                    diff.join(", ")
-                ));
-            }
-        }
-    }
-    Error::InvalidInput(
-        "cannot resume: the simulation config differs from every checkpoint's (see the warnings above)"
-            .into(),
-    )
-}
-
-/// A checkpoint resumes only inside the frame range: one past `frames.end` (the range was
-/// lowered after it was written) or before `frames.start` is refused before anything is written.
-fn check_resume_frame(cfg: &ShotConfig, path: &Path, frame: u32) -> Result<()> {
-    let (start, end) = (cfg.output.frames.start, cfg.output.frames.end);
-    if frame > end {
-        return Err(Error::InvalidInput(format!(
-            "{}: cannot resume: the newest usable checkpoint holds frame {frame}, past \
-             output.frames.end = {end}; the run already went beyond that end: raise \
-             output.frames.end to {frame} or more (nimbus run CONFIG --out DIR --resume --set \
-             output.frames.end=N)",
-            path.display()
-        )));
-    }
-    if frame < start {
-        return Err(Error::InvalidInput(format!(
-            "{}: cannot resume: the checkpoint holds frame {frame}, before output.frames.start = \
-             {start}",
-            path.display()
-        )));
-    }
-    Ok(())
 }
 
 fn send(tx: &SyncSender<FrameJob>, job: FrameJob) -> Result<()> {

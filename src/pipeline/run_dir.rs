@@ -55,15 +55,7 @@ pub fn survey(dir: &Path) -> Result<Contents> {
     // newest checkpoint records.
     let shot = match &c.manifest {
         Some(m) => Some(m.shot.clone()),
-        None => checkpoint::list_checkpoints(&dir.join("checkpoints"))?
-            .iter()
-            .rev()
-            .find_map(|(_, p)| {
-                checkpoint::read_checkpoint(p)
-                    .ok()
-                    .and_then(|ck| checkpoint::config_of(&ck))
-            })
-            .map(|cfg| cfg.shot),
+        None => checkpoint::newest_config(&dir.join("checkpoints"))?.map(|(_, cfg)| cfg.shot),
     };
     let listed: BTreeSet<&str> = c
         .manifest

@@ -1,12 +1,4 @@
-//! Checkpoint files: the whole simulation state of one frame, versioned and checksummed, so a run
-//! killed at any point resumes bit for bit.
-//!
-//! # File name
-//! `ckpt_<frame>.nck` with the frame zero-padded to 6 digits (`ckpt_000120.nck`), one per
-//! checkpointed frame, in the run's checkpoint directory. Files are written through
-//! [`crate::io::atomic`] (temporary `*.nimbus-tmp` beside it, fsync, rename, directory fsync),
-//! so a checkpoint file is either complete or absent; the checksums catch everything else
-//! (a disk that lies, a copy cut short, a file edited by hand).
+//! The checkpoint byte format: header, sections and checksums, encoded and decoded in memory.
 //!
 //! # Layout (format version 1; all integers little-endian)
 //! ```text
@@ -54,22 +46,18 @@
 //! file size, so a corrupt file can neither panic the reader nor make it allocate more than the
 //! file holds.
 use crate::error::{Error, Result};
-use crate::io::atomic::{self, TMP_SUFFIX};
 use crate::sim::ParticleState;
 use sha2::{Digest, Sha256};
 use std::borrow::Cow;
 use std::collections::BTreeMap;
-use std::fmt::Write as _;
 use std::fs;
 use std::io::{BufWriter, Read, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// First 8 bytes of every checkpoint.
 pub const MAGIC: &[u8; 8] = b"NIMBUSCK";
 /// Layout version this build writes and reads.
 pub const FORMAT_VERSION: u32 = 1;
-/// File name extension.
-pub const EXTENSION: &str = "nck";
 /// Extra section holding the run's resolved config as JSON (written by the frame loop).
 pub const CONFIG_SECTION: &str = "config";
 
@@ -81,10 +69,13 @@ pub fn config_of(ck: &Checkpoint) -> Option<crate::config::ShotConfig> {
 
 /// Names of the particle-array sections, in file order; extra sections may not use them.
 pub const STATE_SECTIONS: [&str; 5] = ["pos", "vel", "thermo", "info", "density"];
+/// Bytes per particle of each particle-array section, in [`STATE_SECTIONS`] order.
+pub const STATE_STRIDES: [usize; 5] = [16, 16, 16, 8, 4];
+/// Length of the trailer: the SHA-256 of every byte before it.
+pub const TRAILER: usize = 32;
 
 const PRELUDE: usize = 16;
 const MAX_HEADER_LEN: usize = 64 * 1024;
-const TRAILER: usize = 32;
 const MAX_NAME_LEN: usize = 255;
 
 /// Everything but the particle arrays and the extra sections.
@@ -119,23 +110,6 @@ pub struct Checkpoint {
     pub extra: BTreeMap<String, Vec<u8>>,
 }
 
-/// `ckpt_<frame zero-padded to 6>.nck`.
-pub fn file_name(frame: u32) -> String {
-    format!("ckpt_{frame:06}.{EXTENSION}")
-}
-
-/// The frame a checkpoint file name stands for, `None` for any other name.
-pub fn frame_of_name(name: &str) -> Option<u32> {
-    let digits = name
-        .strip_prefix("ckpt_")?
-        .strip_suffix(EXTENSION)?
-        .strip_suffix('.')?;
-    if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
-        return None;
-    }
-    digits.parse().ok()
-}
-
 /// Whether a file starting with these bytes is a checkpoint (for `nimbus inspect` dispatch).
 pub fn is_checkpoint(bytes_prefix: &[u8]) -> bool {
     bytes_prefix.starts_with(MAGIC)
@@ -144,82 +118,25 @@ pub fn is_checkpoint(bytes_prefix: &[u8]) -> bool {
 // ---------------------------------------------------------------------------------------------
 // Writing
 
-/// Writes `ck` as `dir/ckpt_<frame>.nck` atomically (temporary file, fsync, rename, directory
-/// fsync) and returns its path. `dir` is created if missing. A write error (disk full, ...) is
-/// `Error::Io` naming the checkpoint path and the reason; the previous checkpoints are untouched
-/// and no temporary file is left. An inconsistent `ck` (array lengths, reserved or invalid extra
-/// section names) is `Error::Runtime`: it is a bug of the caller, not of the disk.
-pub fn write_checkpoint(dir: &Path, ck: &Checkpoint) -> Result<PathBuf> {
-    write_impl(dir, ck, None)
+/// A checkpoint checked and laid out for writing: its header bytes and its sections.
+pub struct Encoded<'a> {
+    header: Vec<u8>,
+    sections: Vec<Section<'a>>,
 }
 
-/// [`write_checkpoint`], then removes the checkpoints of later frames (left by an abandoned
-/// timeline: the run resumed from before them, so they no longer match what it computes) and
-/// prunes to the newest `keep` (at least 1). The one just written is the newest, so it is kept.
-pub fn write_and_prune(dir: &Path, ck: &Checkpoint, keep: usize) -> Result<PathBuf> {
-    let path = write_checkpoint(dir, ck)?;
-    for (frame, p) in list_checkpoints(dir)? {
-        if frame > ck.header.frame {
-            fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
-        }
+impl<'a> Encoded<'a> {
+    /// Checks `ck` and lays it out. An inconsistent `ck` (array lengths, reserved or invalid
+    /// extra section names) is `Error::Runtime`: it is a bug of the caller, not of the disk.
+    pub fn new(ck: &'a Checkpoint) -> Result<Self> {
+        let sections = sections_of(ck)?;
+        let header = encode_header(&ck.header, &sections)?;
+        Ok(Encoded { header, sections })
     }
-    prune(dir, keep)?;
-    Ok(path)
-}
 
-/// Test hook: like [`write_checkpoint`], but the temporary file fails with "no space left on
-/// device" once `fail_after` bytes have gone into it (a disk filling up at any point).
-#[doc(hidden)]
-pub fn write_checkpoint_failing_after(
-    dir: &Path,
-    ck: &Checkpoint,
-    fail_after: u64,
-) -> Result<PathBuf> {
-    write_impl(dir, ck, Some(fail_after))
-}
-
-/// Keeps the newest `keep` checkpoints of `dir` by frame (at least one) and deletes the others;
-/// returns the deleted paths. Other files are not touched.
-pub fn prune(dir: &Path, keep: usize) -> Result<Vec<PathBuf>> {
-    let list = list_checkpoints(dir)?;
-    let n_del = list.len().saturating_sub(keep.max(1));
-    let mut deleted = Vec::with_capacity(n_del);
-    for (_, p) in list.into_iter().take(n_del) {
-        fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
-        deleted.push(p);
-    }
-    Ok(deleted)
-}
-
-/// Checkpoint files of `dir` (by name), oldest frame first; a missing `dir` has none.
-pub fn list_checkpoints(dir: &Path) -> Result<Vec<(u32, PathBuf)>> {
-    let rd = match fs::read_dir(dir) {
-        Ok(rd) => rd,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-        Err(e) => return Err(Error::io(dir, e)),
-    };
-    let mut out = Vec::new();
-    for entry in rd {
-        let entry = entry.map_err(|e| Error::io(dir, e))?;
-        let name = entry.file_name();
-        let Some(frame) = name.to_str().and_then(frame_of_name) else {
-            continue;
-        };
-        if entry.file_type().map(|t| t.is_file()).unwrap_or(false) {
-            out.push((frame, entry.path()));
-        }
-    }
-    out.sort();
-    Ok(out)
-}
-
-fn write_impl(dir: &Path, ck: &Checkpoint, fail_after: Option<u64>) -> Result<PathBuf> {
-    let sections = sections_of(ck)?;
-    let header = encode_header(&ck.header, &sections)?;
-    fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let path = dir.join(file_name(ck.header.frame));
-    atomic::write_atomic_with(&path, |f| {
-        let buf = BufWriter::with_capacity(1 << 20, f);
+    /// Writes the whole file to `out`. With `fail_after`, the write fails like a full disk once
+    /// that many bytes have gone out (the fault test hook).
+    pub fn write_to(&self, out: impl Write, fail_after: Option<u64>) -> std::io::Result<()> {
+        let buf = BufWriter::with_capacity(1 << 20, out);
         let mut w = HashingWriter {
             inner: FaultWriter {
                 inner: buf,
@@ -227,8 +144,8 @@ fn write_impl(dir: &Path, ck: &Checkpoint, fail_after: Option<u64>) -> Result<Pa
             },
             sha: Sha256::new(),
         };
-        w.write_all(&header)?;
-        for (name, data) in &sections {
+        w.write_all(&self.header)?;
+        for (name, data) in &self.sections {
             let name_len = (name.len() as u16).to_le_bytes();
             let data_len = (data.len() as u64).to_le_bytes();
             let mut crc = crc32fast::Hasher::new();
@@ -245,14 +162,13 @@ fn write_impl(dir: &Path, ck: &Checkpoint, fail_after: Option<u64>) -> Result<Pa
         let digest = w.sha.finalize();
         w.inner.write_all(digest.as_slice())?;
         w.inner.inner.flush()
-    })?;
-    Ok(path)
+    }
 }
 
-/// The sections of `ck` in file order, after checking that they are consistent.
 /// A section to write: name and little-endian bytes.
 type Section<'a> = (&'a str, Cow<'a, [u8]>);
 
+/// The sections of `ck` in file order, after checking that they are consistent.
 fn sections_of(ck: &Checkpoint) -> Result<Vec<Section<'_>>> {
     let s = &ck.state;
     let n = s.pos.len();
@@ -409,8 +325,14 @@ impl<W: Write> Write for FaultWriter<W> {
 /// Reads and fully validates a checkpoint. Any defect is `Error::InvalidInput` with
 /// `"<path>: <one reason>"`; an unreadable file is `Error::Io`.
 pub fn read_checkpoint(path: &Path) -> Result<Checkpoint> {
+    read_with_bytes(path).map(|(_, ck)| ck)
+}
+
+/// [`read_checkpoint`], also returning the file's bytes (for describing it).
+pub fn read_with_bytes(path: &Path) -> Result<(Vec<u8>, Checkpoint)> {
     let bytes = fs::read(path).map_err(|e| Error::io(path, e))?;
-    decode(&bytes).map_err(|reason| invalid(path, &reason))
+    let ck = decode(&bytes).map_err(|reason| invalid(path, &reason))?;
+    Ok((bytes, ck))
 }
 
 /// Reads and checks only the header (magic, version, header crc), not the sections.
@@ -518,7 +440,7 @@ pub fn decode(bytes: &[u8]) -> std::result::Result<Checkpoint, String> {
             return Err(format!("duplicate section '{name}'"));
         }
     }
-    let strides = [16usize, 16, 16, 8, 4];
+    let strides = STATE_STRIDES;
     let mut arrays: [&[u8]; 5] = [&[]; 5];
     for k in 0..5 {
         let data =
@@ -688,178 +610,4 @@ impl<'a> Cursor<'a> {
                 .map_err(|_| "corrupt header: a text field is not UTF-8".to_string()),
         )
     }
-}
-
-// ---------------------------------------------------------------------------------------------
-// Resume
-
-/// Why a checkpoint file was passed over by [`scan_resumable`].
-#[derive(Debug, Clone, PartialEq)]
-pub enum SkipReason {
-    /// Unreadable, corrupt, truncated, foreign, or misnamed: the reason in one line.
-    Invalid(String),
-    /// A valid checkpoint of a different simulation config (the caller lists the differing keys).
-    ConfigMismatch { found: String, expected: String },
-}
-
-/// A checkpoint file passed over, and why.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Skipped {
-    pub path: PathBuf,
-    pub reason: SkipReason,
-}
-
-impl std::fmt::Display for Skipped {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match &self.reason {
-            SkipReason::Invalid(r) => write!(f, "skipping {}: {r}", self.path.display()),
-            SkipReason::ConfigMismatch { found, expected } => write!(
-                f,
-                "skipping {}: simulation config changed (checkpoint sim hash {found}, \
-                 config sim hash {expected})",
-                self.path.display()
-            ),
-        }
-    }
-}
-
-/// A checkpoint chosen for resuming, with its path.
-pub type Found = (PathBuf, Checkpoint);
-
-/// Result of looking for a checkpoint to resume from.
-#[derive(Debug)]
-pub struct ResumeScan {
-    /// The newest checkpoint that validates and matches the config, if any.
-    pub found: Option<Found>,
-    /// Newer checkpoint files passed over, newest first.
-    pub skipped: Vec<Skipped>,
-}
-
-impl ResumeScan {
-    /// Whether some checkpoint was passed over only because the simulation config changed.
-    pub fn config_changed(&self) -> bool {
-        self.skipped
-            .iter()
-            .any(|s| matches!(s.reason, SkipReason::ConfigMismatch { .. }))
-    }
-}
-
-/// Tries the checkpoints of `dir` newest frame first and stops at the first one that validates,
-/// whose header frame matches its file name and whose sim hash is `expected_sim_hash`. Files that
-/// fail are listed with their reason; a config mismatch is a `SkipReason::ConfigMismatch` and the
-/// search goes on to older files. Temporary files and other names are ignored. Only a directory
-/// that exists but cannot be listed is an error.
-pub fn scan_resumable(dir: &Path, expected_sim_hash: &str) -> Result<ResumeScan> {
-    let mut list = list_checkpoints(dir)?;
-    list.reverse();
-    let mut skipped = Vec::new();
-    for (frame, path) in list {
-        let reason = match read_checkpoint(&path) {
-            Err(Error::InvalidInput(msg)) => {
-                // `msg` is "<path>: <reason>"; keep the reason only.
-                let prefix = format!("{}: ", path.display());
-                SkipReason::Invalid(msg.strip_prefix(&prefix).unwrap_or(&msg).to_string())
-            }
-            Err(Error::Io { source, .. }) => SkipReason::Invalid(format!("cannot read: {source}")),
-            Err(e) => SkipReason::Invalid(e.to_string()),
-            Ok(ck) if ck.header.frame != frame => SkipReason::Invalid(format!(
-                "file name says frame {frame} but the checkpoint holds frame {}",
-                ck.header.frame
-            )),
-            Ok(ck) if ck.header.sim_hash != expected_sim_hash => SkipReason::ConfigMismatch {
-                found: ck.header.sim_hash.clone(),
-                expected: expected_sim_hash.to_string(),
-            },
-            Ok(ck) => {
-                return Ok(ResumeScan {
-                    found: Some((path, ck)),
-                    skipped,
-                })
-            }
-        };
-        skipped.push(Skipped { path, reason });
-    }
-    Ok(ResumeScan {
-        found: None,
-        skipped,
-    })
-}
-
-/// [`scan_resumable`] with the skipped files as printable lines.
-pub fn find_resumable(dir: &Path, expected_sim_hash: &str) -> Result<(Option<Found>, Vec<String>)> {
-    let scan = scan_resumable(dir, expected_sim_hash)?;
-    let lines = scan.skipped.iter().map(|s| s.to_string()).collect();
-    Ok((scan.found, lines))
-}
-
-/// Deletes leftover `*.nimbus-tmp` files anywhere under `run_dir` (symlinks are not followed)
-/// and returns their paths. A missing `run_dir` has none.
-pub fn remove_temp_files(run_dir: &Path) -> Result<Vec<PathBuf>> {
-    let mut removed = Vec::new();
-    let mut stack = vec![run_dir.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        let rd = match fs::read_dir(&dir) {
-            Ok(rd) => rd,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
-            Err(e) => return Err(Error::io(&dir, e)),
-        };
-        let mut entries = Vec::new();
-        for entry in rd {
-            entries.push(entry.map_err(|e| Error::io(&dir, e))?);
-        }
-        entries.sort_by_key(|e| e.file_name());
-        for entry in entries {
-            let ft = entry.file_type().map_err(|e| Error::io(entry.path(), e))?;
-            let path = entry.path();
-            if ft.is_dir() {
-                stack.push(path);
-            } else if ft.is_file() && entry.file_name().to_string_lossy().ends_with(TMP_SUFFIX) {
-                fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
-                removed.push(path);
-            }
-        }
-    }
-    removed.sort();
-    Ok(removed)
-}
-
-// ---------------------------------------------------------------------------------------------
-// Inspect
-
-/// Validates the checkpoint at `path` and describes it (for `nimbus inspect CHECKPOINT`).
-pub fn describe(path: &Path) -> Result<String> {
-    let bytes = fs::read(path).map_err(|e| Error::io(path, e))?;
-    let ck = decode(&bytes).map_err(|reason| invalid(path, &reason))?;
-    let h = &ck.header;
-    let mut s = String::new();
-    let _ = writeln!(s, "nimbus checkpoint {}", path.display());
-    let _ = writeln!(s, "  format version   {FORMAT_VERSION}");
-    let _ = writeln!(s, "  tool version     {}", h.tool_version);
-    let _ = writeln!(s, "  sim config hash  {}", h.sim_hash);
-    let _ = writeln!(s, "  frame            {}", h.frame);
-    let _ = writeln!(s, "  step             {}", h.step);
-    let _ = writeln!(s, "  sim time         {} s", h.time);
-    let _ = writeln!(s, "  seed             {}", h.seed);
-    let _ = writeln!(s, "  particles        {}", h.particle_count);
-    let _ = writeln!(s, "  capacity         {}", h.capacity);
-    let _ = writeln!(s, "  adapter          {}", h.adapter);
-    let _ = writeln!(s, "  next id          {}", h.next_id);
-    let _ = writeln!(
-        s,
-        "  size             {} bytes ({:.1} bytes/particle)",
-        bytes.len(),
-        bytes.len() as f64 / (h.particle_count.max(1)) as f64
-    );
-    let array_bytes = |k: usize| h.particle_count * [16u64, 16, 16, 8, 4][k];
-    let mut names: Vec<String> = STATE_SECTIONS
-        .iter()
-        .enumerate()
-        .map(|(k, n)| format!("{n} ({} B)", array_bytes(k)))
-        .collect();
-    names.extend(ck.extra.iter().map(|(n, d)| format!("{n} ({} B)", d.len())));
-    let _ = writeln!(s, "  sections         {}", names.join(", "));
-    let digest = &bytes[bytes.len() - TRAILER..];
-    let hex: String = digest.iter().map(|b| format!("{b:02x}")).collect();
-    let _ = write!(s, "  checksums        ok (sha256 {hex})");
-    Ok(s)
 }

@@ -1,0 +1,216 @@
+//! The `nimbus` command line: every command, flag and help text (clap derive; the farm
+//! subcommands are `nimbus::farm::cli`'s), and its usage errors.
+use clap::error::{ContextKind, ContextValue, ErrorKind};
+use clap::{Parser, Subcommand};
+use nimbus::config::Compression;
+use nimbus::pipeline::LogFormat;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "nimbus",
+    version,
+    about = "Particle clouds on the GPU, written as OpenVDB/OpenEXR sequences",
+    after_help = "Exit codes: 0 ok, 2 invalid input, 3 runtime/I-O failure, 4 no GPU adapter, 130 interrupted."
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Simulate a shot and write its VDB/EXR/preview frames, manifest and stats.
+    Run {
+        /// Shot config (YAML).
+        config: PathBuf,
+        /// Run directory (default: the config's output.dir).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Override a key, e.g. `--set output.frames.end=10` (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Go on from the newest valid checkpoint in the run directory (output-only keys may
+        /// change; simulation keys may not).
+        #[arg(long)]
+        resume: bool,
+        /// Start over in a run directory that holds an earlier run: removes only the files
+        /// that run's manifest and checkpoints list as nimbus's own (a directory holding any
+        /// other file is refused).
+        #[arg(long, conflicts_with = "resume")]
+        force: bool,
+        /// Progress output: a bar/plain lines, or JSON lines for farm logs.
+        #[arg(long, value_enum, default_value = "human")]
+        log_format: LogFormat,
+    },
+    /// Check shot configs without running them; prints one line per file.
+    Validate {
+        /// Config files (YAML).
+        #[arg(required = true)]
+        configs: Vec<PathBuf>,
+        /// Override a key before validation, e.g. `--set output.frames.end=10` (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+    },
+    /// Go on with an interrupted run from its newest valid checkpoint.
+    Resume {
+        /// The run directory (holds manifest.json and checkpoints/).
+        out_dir: PathBuf,
+        /// Progress output: a bar/plain lines, or JSON lines for farm logs.
+        #[arg(long, value_enum, default_value = "human")]
+        log_format: LogFormat,
+    },
+    /// Describe a .vdb, .exr or checkpoint file.
+    Inspect { file: PathBuf },
+    /// (Re)render the preview images of a run from its VDB files.
+    Preview {
+        /// The run directory.
+        out_dir: PathBuf,
+        /// Camera/light overrides, e.g. `--set output.preview.sun_direction=[1,1,0]`.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+    },
+    /// Re-make a run's VDB/EXR/preview files from its particle caches (export.particles),
+    /// without simulating. With the run's own settings: in the run directory, byte-identical
+    /// to what the run wrote; with other `--set export.*` values: in RUN_DIR/exports/NAME/.
+    Export {
+        /// The run directory.
+        run_dir: PathBuf,
+        /// Inclusive frame range A-B (default: every frame of the run).
+        #[arg(long, value_name = "A-B")]
+        frames: Option<String>,
+        /// An export setting, e.g. `--set export.voxel_size=6.25` (repeatable; export.* only).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Name of the export directory under RUN_DIR/exports/ (default: a hash of the
+        /// export settings).
+        #[arg(long)]
+        name: Option<String>,
+    },
+    /// Wedges and long simulations on a Slurm cluster (see docs/FARM.md).
+    Farm {
+        #[command(subcommand)]
+        action: nimbus::farm::cli::FarmCommand,
+    },
+    /// Benchmarks behind docs/PERFORMANCE.md (prints JSON).
+    Bench {
+        #[command(subcommand)]
+        topic: BenchTopic,
+    },
+}
+
+#[derive(Subcommand)]
+pub enum BenchTopic {
+    /// PBF step timings (GPU).
+    Pbf {
+        #[arg(long, default_value_t = 100_000)]
+        particles: usize,
+        #[arg(long, default_value_t = 5)]
+        steps: u32,
+        /// Substeps run before timing (the box starts as a lattice; a few dozen substeps of
+        /// gravity and random initial velocities disorder it as a running shot is).
+        #[arg(long, default_value_t = 1)]
+        warmup: u32,
+    },
+    /// VDB write speed and size, nimbus against OpenVDB (pyopenvdb) on the same grid.
+    Vdb {
+        #[arg(long, default_value_t = 4_020_000)]
+        active_voxels: usize,
+        /// none, zip or blosc (OpenVDB's writer is compared for blosc).
+        #[arg(long, value_enum, default_value = "blosc", hide_possible_values = true)]
+        compression: Compression,
+        #[arg(long, default_value_t = 5)]
+        reps: usize,
+    },
+    /// Splat throughput.
+    Splat {
+        #[arg(long, default_value_t = 100_000)]
+        particles: usize,
+        #[arg(long, default_value_t = 0.5)]
+        voxel: f64,
+    },
+    /// Preview render time on a synthetic cloud grid of DIM^3 voxels.
+    Preview {
+        #[arg(long, default_value_t = 640)]
+        width: u32,
+        #[arg(long, default_value_t = 360)]
+        height: u32,
+        #[arg(long, default_value_t = 256)]
+        dim: u32,
+        /// Worker threads (0 = all cores).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+    },
+    /// The `export.detail` figures (mass, energy below the spacing, frame-to-frame correlation,
+    /// time) on a run's particle caches (docs/RENDERING.md "Sub-particle detail").
+    Detail {
+        run_dir: PathBuf,
+        /// Frames A-B (default: all the run has).
+        #[arg(long)]
+        frames: Option<String>,
+        /// Voxel size (m); default: spacing / 4.
+        #[arg(long)]
+        voxel: Option<f64>,
+        /// `export.detail.*` overrides of the run's settings.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+    },
+    /// Checkpoint size and write time.
+    Checkpoint {
+        #[arg(long, default_value_t = 100_000)]
+        particles: usize,
+    },
+    /// The paper's Table 1: both paper scenarios, adaptive and not, ms per step and phase.
+    /// Prints the markdown table, then the JSON.
+    Table1 {
+        /// Fraction of the shots' x and z extent (the height is kept).
+        #[arg(long, default_value_t = 0.25)]
+        scale: f64,
+        /// Measured frames per run.
+        #[arg(long, default_value_t = 3)]
+        frames: u32,
+        /// Frames simulated before measuring (extended until the adaptive run has split).
+        #[arg(long, default_value_t = 40)]
+        warmup: u32,
+    },
+}
+
+/// Parses the command line. A usage error exits 2 (clap's code); a value outside a flag's
+/// choices is one line, `error: --flag "value": expected a or b`, like every input error.
+pub fn parse() -> Cli {
+    Cli::try_parse().unwrap_or_else(|e| {
+        if let Some(line) = invalid_choice(&e) {
+            eprintln!("error: {line}");
+            std::process::exit(nimbus::error::exit::INVALID_INPUT);
+        }
+        e.exit()
+    })
+}
+
+/// The one-line message of an invalid value of a flag with fixed choices.
+fn invalid_choice(e: &clap::Error) -> Option<String> {
+    if e.kind() != ErrorKind::InvalidValue {
+        return None;
+    }
+    let text = |kind| match e.get(kind) {
+        Some(ContextValue::String(s)) => Some(s.as_str()),
+        _ => None,
+    };
+    // The argument reads `--flag <VALUE>`; the message names the flag only.
+    let flag = text(ContextKind::InvalidArg)?.split(' ').next()?;
+    let value = text(ContextKind::InvalidValue)?;
+    let Some(ContextValue::Strings(choices)) = e.get(ContextKind::ValidValue) else {
+        return None;
+    };
+    let (last, rest) = choices.split_last()?;
+    let expected = if rest.is_empty() {
+        last.clone()
+    } else {
+        format!("{} or {last}", rest.join(", "))
+    };
+    Some(if value.is_empty() {
+        format!("{flag}: a value is required: {expected}")
+    } else {
+        format!("{flag} {value:?}: expected {expected}")
+    })
+}

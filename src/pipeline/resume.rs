@@ -1,0 +1,231 @@
+//! The resume policy: the config a run resumes with (its manifest's, or its newest checkpoint's
+//! when the manifest is lost), the refusal of changed simulation keys, and the checkpoint it
+//! resumes from. `nimbus resume` and `nimbus run --resume` are [`resume`] and [`resume_with`], so
+//! a library caller gets the same refusals as the command line.
+use super::lock::{Create, RunLock};
+use super::progress::LogFormat;
+use super::records::{Manifest, MANIFEST};
+use super::run::{run, RunOptions, Start};
+use crate::config::{self, ShotConfig};
+use crate::error::{Error, Result};
+use crate::io::checkpoint::{self, Checkpoint, ResumeScan, SkipReason};
+use std::path::Path;
+
+/// `nimbus resume OUT_DIR`: goes on with the run in `out_dir`, with the config it recorded.
+pub fn resume(out_dir: &Path, log: LogFormat) -> Result<()> {
+    let lock = RunLock::acquire(out_dir, Create::No, "resume")?;
+    let cfg = recorded_config(out_dir)?;
+    run(&cfg, &resume_options(out_dir, log), &lock)
+}
+
+/// `nimbus run CONFIG --resume`: goes on with the run in `out_dir` with `cfg`, refused when one
+/// of its simulation keys differs from the run's (output-only keys may change).
+pub fn resume_with(cfg: &ShotConfig, out_dir: &Path, log: LogFormat) -> Result<()> {
+    let lock = RunLock::acquire(out_dir, Create::No, "run")?;
+    refuse_changed_simulation(cfg, out_dir)?;
+    run(cfg, &resume_options(out_dir, log), &lock)
+}
+
+fn resume_options(out_dir: &Path, log: LogFormat) -> RunOptions {
+    RunOptions {
+        out_dir: out_dir.to_path_buf(),
+        log,
+        start: Start::Resume,
+    }
+}
+
+/// The resolved config a run recorded in its manifest, with overrides applied (JSON is YAML).
+pub fn config_of_run(out_dir: &Path, set: &[String]) -> Result<ShotConfig> {
+    let manifest = Manifest::load(out_dir)?;
+    let text = serde_json::to_string_pretty(&manifest.config)
+        .map_err(|e| Error::Runtime(e.to_string()))?;
+    let origin = out_dir.join(MANIFEST);
+    config::load_str(&text, &origin.to_string_lossy(), set)
+}
+
+/// The run's config: from its manifest, or from its newest checkpoint when the manifest is lost.
+pub fn recorded_config(out_dir: &Path) -> Result<ShotConfig> {
+    if out_dir.join(MANIFEST).exists() {
+        config_of_run(out_dir, &[])
+    } else {
+        config_of_checkpoints(out_dir)
+    }
+}
+
+/// The config recorded in the newest valid checkpoint (a run whose manifest.json was lost).
+fn config_of_checkpoints(out_dir: &Path) -> Result<ShotConfig> {
+    let Some((path, cfg)) = checkpoint::newest_config(&out_dir.join("checkpoints"))? else {
+        return Err(Error::InvalidInput(format!(
+            "{}: not a nimbus run directory: no manifest.json, and no checkpoint that records its config",
+            out_dir.display()
+        )));
+    };
+    // Loaded through validation like any config; the checkpoint names it in errors.
+    let text = serde_json::to_string_pretty(&cfg).map_err(|e| Error::Runtime(e.to_string()))?;
+    let cfg = config::load_str(&text, &path.to_string_lossy(), &[])?;
+    eprintln!(
+        "note: {} is missing; resuming with the config recorded in {}",
+        out_dir.join(MANIFEST).display(),
+        path.display()
+    );
+    Ok(cfg)
+}
+
+/// Refuses `cfg` for resuming the run in `out_dir` when its simulation keys differ from the
+/// run's recorded config, naming every key that differs.
+pub fn refuse_changed_simulation(cfg: &ShotConfig, out_dir: &Path) -> Result<()> {
+    let recorded = recorded_config(out_dir)?;
+    let diff = config::sim_key_diff(&recorded, cfg);
+    if diff.is_empty() {
+        Ok(())
+    } else {
+        Err(Error::InvalidInput(format!(
+            "{}: cannot resume: simulation keys differ from the run's: {}",
+            out_dir.display(),
+            diff.join(", ")
+        )))
+    }
+}
+
+/// The checkpoint of `ckpt_dir` a run of `cfg` (sim hash `sim_hash`) resumes from: the newest
+/// valid one of the same simulation config whose frame lies in the config's frame range. The
+/// files passed over are warned about on stderr.
+pub fn checkpoint_to_resume(
+    cfg: &ShotConfig,
+    ckpt_dir: &Path,
+    sim_hash: &str,
+) -> Result<Checkpoint> {
+    let scan = checkpoint::scan_resumable(ckpt_dir, sim_hash)?;
+    let skipped: Vec<String> = scan.skipped.iter().map(|s| s.to_string()).collect();
+    for s in &skipped {
+        eprintln!("warning: skipped checkpoint: {s}");
+    }
+    if scan.found.is_none() && scan.config_changed() {
+        return Err(changed_keys_error(cfg, &scan));
+    }
+    match scan.found {
+        Some((path, ck)) => {
+            check_resume_frame(cfg, &path, ck.header.frame)?;
+            eprintln!(
+                "resuming from {} (frame {})",
+                path.display(),
+                ck.header.frame
+            );
+            Ok(ck)
+        }
+        None => Err(Error::InvalidInput(format!(
+            "{}: no usable checkpoint to resume from{}",
+            ckpt_dir.display(),
+            if skipped.is_empty() {
+                ""
+            } else {
+                " (see the warnings above)"
+            }
+        ))),
+    }
+}
+
+/// No checkpoint matches the config's simulation keys: name every key that differs from the
+/// newest checkpoint that records its config.
+fn changed_keys_error(cfg: &ShotConfig, scan: &ResumeScan) -> Error {
+    for s in &scan.skipped {
+        if !matches!(s.reason, SkipReason::ConfigMismatch { .. }) {
+            continue;
+        }
+        if let Some(recorded) = checkpoint::read_checkpoint(&s.path)
+            .ok()
+            .and_then(|ck| checkpoint::config_of(&ck))
+        {
+            let diff = config::sim_key_diff(&recorded, cfg);
+            if !diff.is_empty() {
+                return Error::InvalidInput(format!(
+                    "{}: cannot resume: simulation keys differ from the checkpoint's: {}",
+                    s.path.display(),
+                    diff.join(", ")
+                ));
+            }
+        }
+    }
+    Error::InvalidInput(
+        "cannot resume: the simulation config differs from every checkpoint's (see the warnings above)"
+            .into(),
+    )
+}
+
+/// A checkpoint resumes only inside the frame range: one past `frames.end` (the range was
+/// lowered after it was written) or before `frames.start` is refused before anything is written.
+fn check_resume_frame(cfg: &ShotConfig, path: &Path, frame: u32) -> Result<()> {
+    let (start, end) = (cfg.output.frames.start, cfg.output.frames.end);
+    if frame > end {
+        return Err(Error::InvalidInput(format!(
+            "{}: cannot resume: the newest usable checkpoint holds frame {frame}, past \
+             output.frames.end = {end}; the run already went beyond that end: raise \
+             output.frames.end to {frame} or more (nimbus run CONFIG --out DIR --resume --set \
+             output.frames.end=N)",
+            path.display()
+        )));
+    }
+    if frame < start {
+        return Err(Error::InvalidInput(format!(
+            "{}: cannot resume: the checkpoint holds frame {frame}, before output.frames.start = \
+             {start}",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::checkpoint::{write_checkpoint, CheckpointHeader, CONFIG_SECTION};
+
+    fn tiny(set: &[&str]) -> ShotConfig {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny.yaml");
+        let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
+        config::load(&path, &set).unwrap()
+    }
+
+    /// A run directory whose manifest was lost: one checkpoint that records `cfg`.
+    fn checkpoint_only_run(cfg: &ShotConfig) -> tempfile::TempDir {
+        let dir = tempfile::tempdir().unwrap();
+        let ck = Checkpoint {
+            header: CheckpointHeader {
+                tool_version: crate::VERSION.into(),
+                sim_hash: config::sim_hash(cfg),
+                frame: 4,
+                step: 40,
+                time: 1.0,
+                seed: cfg.seed,
+                particle_count: 0,
+                capacity: 0,
+                adapter: "none".into(),
+                next_id: 0,
+            },
+            state: Default::default(),
+            extra: [(CONFIG_SECTION.into(), serde_json::to_vec(cfg).unwrap())].into(),
+        };
+        write_checkpoint(&dir.path().join("checkpoints"), &ck).unwrap();
+        dir
+    }
+
+    #[test]
+    fn a_library_resume_is_refused_like_the_command_line() {
+        let cfg = tiny(&[]);
+        let run = checkpoint_only_run(&cfg);
+        let recorded = recorded_config(run.path()).unwrap();
+        assert!(config::sim_key_diff(&recorded, &cfg).is_empty());
+        // Every changed simulation key is named, before the GPU is opened.
+        let changed = tiny(&["seed=9", "physics.heat_source=0.31", "output.frames.end=5"]);
+        let e = resume_with(&changed, run.path(), LogFormat::Json).unwrap_err();
+        assert!(matches!(e, Error::InvalidInput(_)), "{e:?}");
+        assert!(
+            e.to_string()
+                .ends_with("simulation keys differ from the run's: physics.heat_source, seed"),
+            "{e}"
+        );
+        let empty = tempfile::tempdir().unwrap();
+        let e = resume(empty.path(), LogFormat::Json).unwrap_err();
+        assert!(e.to_string().contains("not a nimbus run directory"), "{e}");
+    }
+}
