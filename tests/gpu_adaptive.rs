@@ -2,12 +2,14 @@
 //! water, disjoint merges, determinism, split-then-merge round trip, full capacity.
 //! Runs on any wgpu adapter (lavapipe here): `XDG_RUNTIME_DIR=/tmp/xdg cargo test --test gpu_adaptive`.
 #![allow(clippy::needless_range_loop)] // component loops over xyz read clearer indexed
-use nimbus::config::{AdaptiveConfig, GpuConfig};
-use nimbus::gpu::{buffers, Context};
-use nimbus::sim::adaptive::{
-    level_mass_units, AdaptiveBuffers, AdaptiveParams, AdaptiveReport, AdaptiveStage,
-};
+mod mirror;
+
+use nimbus::config::AdaptiveConfig;
+use nimbus::gpu::Context;
+use nimbus::sim::adaptive::{level_mass_units, AdaptiveParams, AdaptiveReport, AdaptiveStage};
+use nimbus::sim::buffers::ParticleBuffers;
 use nimbus::sim::grid_params::GridParams;
+use nimbus::sim::ParticleState;
 use nimbus::sim::reference::adaptive::{self as mirror, RefParticles};
 use nimbus::sim::reference::grid::build_cell_table;
 use rand::{Rng, SeedableRng};
@@ -18,10 +20,14 @@ const H0: f64 = 0.1;
 /// ~6e-8, a few ops, plus f32 cos/sin of the split direction); fields 1e-5 relative.
 const TOL: f64 = 1e-5;
 
-fn ctx() -> Context {
-    std::env::set_var("XDG_RUNTIME_DIR", "/tmp/xdg");
-    Context::new(&GpuConfig::default())
-        .expect("these tests need a wgpu adapter (lavapipe is enough)")
+fn ctx() -> std::sync::Arc<Context> {
+    mirror::context()
+}
+
+/// The device side of a setup: particle buffers of its capacity and the stage bound to them.
+struct Gpu {
+    b: ParticleBuffers,
+    stage: AdaptiveStage,
 }
 
 /// Host copy of the first `count` particles.
@@ -97,41 +103,37 @@ impl Setup {
         p
     }
 
-    /// Sorts `host`, runs the GPU stage, returns the live particles and the report.
-    fn gpu(
-        &self,
-        ctx: &Context,
-        stage: &AdaptiveStage,
-        host: &mut Host,
-        next_id: u32,
-    ) -> (Host, AdaptiveReport) {
+    /// The scene of `host` (sorted into cell order) in the stage's input contract.
+    fn scene(&self, host: &mut Host, next_id: u32) -> mirror::Scene {
         let cell_start = host.sort(&self.grid);
-        let cap = self.capacity as usize;
-        let d = &ctx.device;
-        let mut g = self.grid;
-        g.n_particles = host.len() as u32;
-        let grid = buffers::uniform_init(d, "grid", &g);
-        let pos = buffers::storage_init(d, "pos", &pad(&host.pos, cap));
-        let vel = buffers::storage_init(d, "vel", &pad(&host.vel, cap));
-        let thermo = buffers::storage_init(d, "thermo", &pad(&host.thermo, cap));
-        let info = buffers::storage_init(d, "info", &pad(&host.info, cap));
-        let cs = buffers::storage_init(d, "cell_start", &cell_start);
-        let bufs = AdaptiveBuffers {
-            grid: &grid,
-            pos: &pos,
-            vel: &vel,
-            thermo: &thermo,
-            info: &info,
-            cell_start: &cs,
-        };
-        let rep = stage.run(ctx, &bufs, host.len() as u32, next_id).unwrap();
-        let n = rep.count as usize;
-        let q = &ctx.queue;
+        let n = host.len();
+        mirror::Scene {
+            grid: self.grid,
+            state: ParticleState {
+                pos: host.pos.clone(),
+                vel: host.vel.clone(),
+                thermo: host.thermo.clone(),
+                info: host.info.clone(),
+                density: vec![0.0; n],
+            },
+            cell_start,
+            boundary: (Vec::new(), vec![0; self.grid.table_len()]),
+            capacity: self.capacity,
+            next_id,
+        }
+    }
+
+    /// Sorts `host`, runs the GPU stage, returns the live particles and the report.
+    fn gpu(&self, ctx: &Context, gpu: &Gpu, host: &mut Host, next_id: u32) -> (Host, AdaptiveReport) {
+        self.scene(host, next_id).write_into(ctx, &gpu.b);
+        let rep = gpu.stage.run(ctx, &gpu.b.live).unwrap();
+        let (out, live) = mirror::read_particles(ctx, &gpu.b);
+        assert_eq!((live.count, live.next_id), (rep.count, rep.next_id));
         let out = Host {
-            pos: buffers::read_back(d, q, &pos, n).unwrap(),
-            vel: buffers::read_back(d, q, &vel, n).unwrap(),
-            thermo: buffers::read_back(d, q, &thermo, n).unwrap(),
-            info: buffers::read_back(d, q, &info, n).unwrap(),
+            pos: out.pos,
+            vel: out.vel,
+            thermo: out.thermo,
+            info: out.info,
         };
         (out, rep)
     }
@@ -152,8 +154,17 @@ impl Setup {
         (p, rep)
     }
 
-    fn stage(&self, ctx: &Context) -> AdaptiveStage {
-        AdaptiveStage::new(ctx, &self.cfg, &self.grid, H0, self.capacity).unwrap()
+    /// Buffers of the setup's capacity and the stage over them.
+    fn stage(&self, ctx: &Context) -> Gpu {
+        let empty = Host {
+            pos: vec![],
+            vel: vec![],
+            thermo: vec![],
+            info: vec![],
+        };
+        let b = self.scene(&mut empty.clone(), 0).upload(ctx);
+        let stage = AdaptiveStage::new(ctx, &self.cfg, &self.grid, H0, &b).unwrap();
+        Gpu { b, stage }
     }
 }
 
@@ -214,11 +225,7 @@ fn assert_matches_mirror(
     m: &RefParticles,
     mrep: &AdaptiveReport,
 ) {
-    let strip = |r: &AdaptiveReport| AdaptiveReport {
-        phase_ms: Default::default(),
-        ..r.clone()
-    };
-    assert_eq!(strip(grep), strip(mrep));
+    assert_eq!(grep, mrep);
     let size = s.grid.domain_size;
     for i in 0..gpu.len() {
         assert_eq!(gpu.info[i], m.info[i], "info of slot {i}");
@@ -520,40 +527,9 @@ fn full_capacity_skips_and_counts_splits() {
     }
 }
 
-/// Phase timings of one run on 100k random particles (a measurement, not a test):
-/// `XDG_RUNTIME_DIR=/tmp/xdg cargo test --test gpu_adaptive measure_phase_ms -- --ignored --nocapture`
-#[test]
-#[ignore]
-fn measure_phase_ms() {
-    let ctx = ctx();
-    let s = Setup {
-        grid: GridParams::new([4.0, 2.0, 4.0], H0, true, true),
-        cfg: AdaptiveConfig {
-            kc: 1000.0,
-            ..AdaptiveConfig::default()
-        },
-        capacity: 200_000,
-    };
-    let stage = s.stage(&ctx);
-    let mut rng = ChaCha8Rng::seed_from_u64(3);
-    let mut host = random_host(&mut rng, 100_000, &s.grid);
-    for _ in 0..3 {
-        let (out, rep) = s.gpu(&ctx, &stage, &mut host.clone(), 100_000);
-        println!(
-            "adaptive 100k: split {:.2} ms, merge {:.2} ms ({} splits, {} merges, count {})",
-            rep.phase_ms.split,
-            rep.phase_ms.merge,
-            rep.splits,
-            rep.merges,
-            out.len()
-        );
-    }
-    host.sort(&s.grid);
-}
-
 /// 300 particles in one cell, all marked: a single merge thread would run past lavapipe's
-/// 65535 loop iterations per invocation; the rounds keep it whole, so every particle pairs
-/// (as in the mirror) instead of the thread stopping part-way through its cell.
+/// 65535 loop iterations per invocation; the workgroup shares the neighbourhood scans, so every
+/// particle pairs (as in the mirror) instead of the invocation stopping part-way through.
 #[test]
 fn crowded_cell_merges_completely() {
     let ctx = ctx();
@@ -613,17 +589,16 @@ fn empty_input_and_bad_count() {
         (0, 0, 0, 0, 3)
     );
     assert_eq!(rep.per_level, vec![0; 4]);
-    let b = buffers::storage_zeroed::<[f32; 4]>(&ctx.device, "b", 16);
-    let bufs = AdaptiveBuffers {
-        grid: &buffers::uniform_init(&ctx.device, "g", &s.grid),
-        pos: &b,
-        vel: &b,
-        thermo: &b,
-        info: &b,
-        cell_start: &b,
-    };
-    assert!(matches!(
-        stage.run(&ctx, &bufs, 17, 0),
-        Err(nimbus::Error::InvalidInput(_))
-    ));
+    // more particles than the capacity: refused before anything runs
+    let mut crowded = random_host(&mut ChaCha8Rng::seed_from_u64(1), 17, &s.grid);
+    let scene = s.scene(&mut crowded, 0);
+    assert!(ParticleBuffers::new(
+        &ctx,
+        &scene.state,
+        16,
+        &scene.grid,
+        &scene.boundary,
+        0
+    )
+    .is_err());
 }

@@ -4,7 +4,8 @@ use nimbus::config::{GpuConfig, ShotConfig};
 use nimbus::gpu::Context;
 use nimbus::sim::reference::grid::{build_cell_table, for_each_neighbor};
 use nimbus::sim::reference::pbf as mirror;
-use nimbus::sim::{Buf, ParticleState, SimClock, Simulation, Stage};
+use nimbus::sim::hooks::{Buf, Step};
+use nimbus::sim::{ParticleState, SimClock, Simulation};
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
 
@@ -113,7 +114,7 @@ fn kernels_match_the_mirror(levels: u32) {
     assert_eq!(prm.single_level, (levels == 0) as u32);
     let n = sim.count();
 
-    sim.run_stage(Stage::Predict).unwrap();
+    sim.run_step(Step::Predict).unwrap();
     let pred0: Vec<[f64; 3]> = sim.read_vec4(Buf::Pred).unwrap().iter().map(v3).collect();
     let pos0: Vec<[f64; 3]> = state.pos.iter().map(v3).collect();
     let vel0: Vec<[f64; 3]> = state.vel.iter().map(v3).collect();
@@ -121,7 +122,7 @@ fn kernels_match_the_mirror(levels: u32) {
     assert!(e < 1e-6, "predict: {e}");
 
     // grid: the order (ids were the indices) and the cell table are exact
-    sim.run_stage(Stage::Grid).unwrap();
+    sim.run_step(Step::Grid).unwrap();
     let (order, cell_start) = build_cell_table(&grid, &pred0);
     let info = sim.state().unwrap().info;
     let gpu_order: Vec<u32> = info.iter().map(|i| i[0]).collect();
@@ -143,7 +144,7 @@ fn kernels_match_the_mirror(levels: u32) {
         bcell_start: &bcs,
     };
 
-    sim.run_stage(Stage::Lambda).unwrap();
+    sim.run_step(Step::Lambda).unwrap();
     let (lam, den) = mirror::compute_lambda(&sc, &pred);
     // compute_lambda writes (p*, lambda) into the scratch
     let scratch = sim.read_vec4(Buf::Scratch).unwrap();
@@ -167,7 +168,7 @@ fn kernels_match_the_mirror(levels: u32) {
 
     // compute_delta writes the corrected p* back into pred
     let pred_sorted = sim.read_vec4(Buf::Pred).unwrap();
-    sim.run_stage(Stage::Delta).unwrap();
+    sim.run_step(Step::Delta).unwrap();
     let gnew: Vec<[f64; 3]> = sim.read_vec4(Buf::Pred).unwrap().iter().map(v3).collect();
     let cnew = mirror::compute_delta(&sc, &pred, &glam);
     // compare the displacements, not the positions (which are much larger)
@@ -183,13 +184,13 @@ fn kernels_match_the_mirror(levels: u32) {
     // The later stages run on the sorted p* again: with moved particles the GPU's row-clipped
     // search (clipped by the cells as sorted) and the mirror's 27 cells find different pairs.
     sim.write(Buf::Pred, &pred_sorted);
-    sim.run_stage(Stage::UpdateVelocity).unwrap();
+    sim.run_step(Step::UpdateVelocity).unwrap();
     let x: Vec<[f64; 3]> = nimbus::sim::reference::grid::permute(&order, &pos0);
     let gvel: Vec<[f64; 3]> = sim.read_vec4(Buf::Vel).unwrap().iter().map(v3).collect();
     let e = rel_err(&gvel, &mirror::update_velocity(&grid, &prm, &x, &pred));
     assert!(e < 1e-4, "update_velocity: {e}");
 
-    sim.run_stage(Stage::Vorticity).unwrap();
+    sim.run_step(Step::Vorticity).unwrap();
     let gw: Vec<[f64; 4]> = sim
         .read_vec4(Buf::Pos)
         .unwrap()
@@ -203,7 +204,7 @@ fn kernels_match_the_mirror(levels: u32) {
     );
     assert!(e < TOL, "vorticity: {e}");
 
-    sim.run_stage(Stage::ViscosityConfine).unwrap();
+    sim.run_step(Step::ViscosityConfine).unwrap();
     let gv: Vec<[f64; 3]> = sim
         .read_vec4(Buf::Scratch)
         .unwrap()
@@ -330,9 +331,9 @@ fn periodic_faces_have_the_interior_neighbourhood() {
     let cfg = config([8.0, 8.0, 8.0], "physics: {initial_speed: 0.0}\n");
     let mut sim = Simulation::new(ctx(), &cfg).unwrap();
     let grid = *sim.grid();
-    sim.run_stage(Stage::Predict).unwrap();
-    sim.run_stage(Stage::Grid).unwrap();
-    sim.run_stage(Stage::Lambda).unwrap();
+    sim.run_step(Step::Predict).unwrap();
+    sim.run_step(Step::Grid).unwrap();
+    sim.run_step(Step::Lambda).unwrap();
     let pred: Vec<[f64; 3]> = sim.read_vec4(Buf::Pred).unwrap().iter().map(v3).collect();
     let cs = sim.read_u32(Buf::CellStart, grid.table_len()).unwrap();
     let h = sim.params().h0 as f64;

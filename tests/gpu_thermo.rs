@@ -4,26 +4,24 @@
 //! 3e-5 K, a handful of operations, and the GPU `exp` may be off by a few ulp), 1e-5 m/s in
 //! u_y, 1e-8 kg/kg in v and w. One `smooth_temperature` iteration agrees to 2e-3 K (f32 sums
 //! over ~30 neighbours of coefficients around 1e-2 K per K).
-use nimbus::config::{GpuConfig, ShotConfig};
-use nimbus::gpu::{buffers, Context};
+mod mirror;
+
+use nimbus::config::ShotConfig;
+use nimbus::gpu::Context;
 use nimbus::sim::grid_params::GridParams;
 use nimbus::sim::reference::grid::build_cell_table;
 use nimbus::sim::reference::smoothing::{
     mix_vapor, smooth_temperature, temperature_laplacian, SmoothInput,
 };
 use nimbus::sim::reference::thermo::thermo_step;
-use nimbus::sim::smoothing::{SmoothParams, SmoothingBuffers, SmoothingStage};
-use nimbus::sim::thermo::{
-    initial_thermo, LayerBuoyancy, ThermoBuffers, ThermoParams, ThermoStage,
-};
+use nimbus::sim::smoothing::{SmoothParams, SmoothingStage};
+use nimbus::sim::thermo::{initial_thermo, LayerBuoyancy, ThermoParams, ThermoStage};
+use nimbus::sim::ParticleState;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-fn context() -> Context {
-    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
-        std::env::set_var("XDG_RUNTIME_DIR", "/tmp/xdg");
-    }
-    Context::new(&GpuConfig::default()).expect("a GPU adapter (lavapipe on CI)")
+fn context() -> std::sync::Arc<Context> {
+    mirror::context()
 }
 
 fn shot() -> ShotConfig {
@@ -48,32 +46,33 @@ struct ThermoRun {
     thermo: Vec<[f32; 4]>,
 }
 
-/// Runs `steps` GPU thermo steps (one submit) from the given state.
+/// Runs one GPU thermo step per parameter set (a submit each, as substeps are) from the given
+/// state, particles in the given order.
 fn gpu_thermo(
     ctx: &Context,
-    stage: &ThermoStage,
+    cfg: &ShotConfig,
     params: &[ThermoParams],
     pos: &[[f32; 4]],
     vel: &[[f32; 4]],
     thermo: &[[f32; 4]],
 ) -> ThermoRun {
-    let d = &ctx.device;
-    let pos_b = buffers::storage_init(d, "pos", pos);
-    let vel_b = buffers::storage_init(d, "vel", vel);
-    let th_b = buffers::storage_init(d, "thermo", thermo);
-    let mut enc = d.create_command_encoder(&Default::default());
-    let bufs = ThermoBuffers {
-        pos: &pos_b,
-        vel: &vel_b,
-        thermo: &th_b,
+    let state = ParticleState {
+        pos: pos.to_vec(),
+        vel: vel.to_vec(),
+        thermo: thermo.to_vec(),
+        info: (0..pos.len() as u32).map(|i| [i, 0]).collect(),
+        density: Vec::new(),
     };
+    let scene = mirror::Scene::as_given(GridParams::for_shot(cfg), state, pos.len());
+    let b = scene.upload(ctx);
+    let stage = ThermoStage::new(ctx, cfg, &b).unwrap();
     for p in params {
-        stage.encode_params(&mut enc, &bufs, p);
+        mirror::submit(ctx, &b, |rec, live| stage.step_with(rec, live, p));
     }
-    ctx.queue.submit([enc.finish()]);
+    let (out, _) = mirror::read_particles(ctx, &b);
     ThermoRun {
-        vel: buffers::read_back(d, &ctx.queue, &vel_b, pos.len()).unwrap(),
-        thermo: buffers::read_back(d, &ctx.queue, &th_b, pos.len()).unwrap(),
+        vel: out.vel,
+        thermo: out.thermo,
     }
 }
 
@@ -140,7 +139,6 @@ fn thermo_step_matches_mirror() {
         end: Some(300.0),
         ramp: 50.0,
     });
-    let stage = ThermoStage::new(&ctx, &cfg).unwrap();
     let n = 3000;
     let (pos, vel, th) = random_thermo_state(n, 42, &cfg);
     // and a horizontal-mean buoyancy profile (physics.buoyancy_reference: layer_mean) of
@@ -149,8 +147,8 @@ fn thermo_step_matches_mirror() {
         layer_height: cfg.domain.size[1] / 7.0,
         values: (0..7).map(|k| 0.01 * (k as f64 - 2.5).powi(2)).collect(),
     };
-    let params = ThermoParams::new(&cfg, n as u32, 2.0, 137.0).with_layers(&layers);
-    let out = gpu_thermo(&ctx, &stage, &[params], &pos, &vel, &th);
+    let params = ThermoParams::new(&cfg, 2.0, 137.0).with_layers(&layers);
+    let out = gpu_thermo(&ctx, &cfg, &[params], &pos, &vel, &th);
 
     let pos64: Vec<[f64; 3]> = pos
         .iter()
@@ -203,14 +201,13 @@ fn gpu_phase_transition_conserves_water_and_is_deterministic() {
     let ctx = context();
     let mut cfg = shot();
     cfg.physics.phase_rate = 1.0;
-    let stage = ThermoStage::new(&ctx, &cfg).unwrap();
     let n = 2000;
     let (pos, vel, th) = random_thermo_state(n, 7, &cfg);
     let params: Vec<ThermoParams> = (0..50)
-        .map(|k| ThermoParams::new(&cfg, n as u32, 2.0, k as f64 * 2.0))
+        .map(|k| ThermoParams::new(&cfg, 2.0, k as f64 * 2.0))
         .collect();
-    let a = gpu_thermo(&ctx, &stage, &params, &pos, &vel, &th);
-    let b = gpu_thermo(&ctx, &stage, &params, &pos, &vel, &th);
+    let a = gpu_thermo(&ctx, &cfg, &params, &pos, &vel, &th);
+    let b = gpu_thermo(&ctx, &cfg, &params, &pos, &vel, &th);
     assert_eq!(
         bytemuck::cast_slice::<_, u8>(&a.thermo),
         bytemuck::cast_slice::<_, u8>(&b.thermo)
@@ -242,7 +239,6 @@ fn gpu_nothing_condenses_without_heating() {
     let ctx = context();
     let mut cfg = shot();
     cfg.physics.heat_source = 0.0;
-    let stage = ThermoStage::new(&ctx, &cfg).unwrap();
     let n = 1000;
     let pos: Vec<[f32; 4]> = (0..n)
         .map(|k| {
@@ -260,9 +256,9 @@ fn gpu_nothing_condenses_without_heating() {
         .collect();
     let vel = vec![[0.0f32; 4]; n];
     let params: Vec<ThermoParams> = (0..100)
-        .map(|k| ThermoParams::new(&cfg, n as u32, 2.0, k as f64 * 2.0))
+        .map(|k| ThermoParams::new(&cfg, 2.0, k as f64 * 2.0))
         .collect();
-    let out = gpu_thermo(&ctx, &stage, &params, &pos, &vel, &th);
+    let out = gpu_thermo(&ctx, &cfg, &params, &pos, &vel, &th);
     for i in 0..n {
         assert_eq!(out.thermo[i][2], 0.0, "cloud appeared at {i}");
         assert_eq!(out.thermo[i][1], th[i][1]);
@@ -339,7 +335,7 @@ fn scene(seed: u64) -> Scene {
 
 fn smooth_params(s: &Scene, kappa: f32) -> SmoothParams {
     SmoothParams {
-        count: s.pos.len() as u32,
+        _pad0: 0,
         h0: 20.0,
         kappa,
         epsilon: 1e-2,
@@ -358,43 +354,36 @@ fn gpu_smooth(
     iterations: u32,
     thermo: &[[f32; 4]],
 ) -> Vec<[f32; 4]> {
-    let d = &ctx.device;
-    let cfg = shot();
-    let mut stage = SmoothingStage::new(ctx, &cfg).unwrap();
+    let mut cfg = shot();
+    cfg.physics.smoothing.enabled = true;
+    if p.vapor_rate > 0.0 {
+        // the stage keeps a limiter only for shots that mix
+        cfg.physics.smoothing.vapor_diffusivity = 1.0;
+    }
+    let n = s.pos.len();
     let mut grid = s.grid;
-    grid.n_particles = s.pos.len() as u32;
     grid.n_boundary = s.boundary.len() as u32;
-    let grid_b = buffers::uniform_init(d, "grid", &grid);
-    let pos_b = buffers::storage_init(d, "pos", &vec4(&s.pos));
-    let info: Vec<[u32; 2]> = s
-        .level
-        .iter()
-        .enumerate()
-        .map(|(i, &l)| [i as u32, l])
-        .collect();
-    let info_b = buffers::storage_init(d, "info", &info);
-    let th_b = buffers::storage_init(d, "thermo", thermo);
-    let cs_b = buffers::storage_init(d, "cell_start", &s.cell_start);
-    let bnd: Vec<[f32; 4]> = s.boundary.iter().map(|b| b.map(|v| v as f32)).collect();
-    let bnd_b = buffers::storage_init(d, "boundary", &bnd);
-    let bcs_b = buffers::storage_init(d, "boundary_cell_start", &s.boundary_cell_start);
-    let mut enc = d.create_command_encoder(&Default::default());
-    stage.encode_params(
-        &mut enc,
-        &SmoothingBuffers {
-            grid: &grid_b,
-            pos: &pos_b,
-            info: &info_b,
-            thermo: &th_b,
-            cell_start: &cs_b,
-            boundary: &bnd_b,
-            boundary_cell_start: &bcs_b,
+    let scene = mirror::Scene {
+        grid,
+        state: ParticleState {
+            pos: s.pos.iter().map(|q| [q[0] as f32, q[1] as f32, q[2] as f32, 0.0]).collect(),
+            vel: vec![[0.0; 4]; n],
+            thermo: thermo.to_vec(),
+            info: s.level.iter().enumerate().map(|(i, &l)| [i as u32, l]).collect(),
+            density: vec![0.0; n],
         },
-        p,
-        iterations,
-    );
-    ctx.queue.submit([enc.finish()]);
-    buffers::read_back(d, &ctx.queue, &th_b, s.pos.len()).unwrap()
+        cell_start: s.cell_start.clone(),
+        boundary: (
+            s.boundary.iter().map(|b| b.map(|v| v as f32)).collect(),
+            s.boundary_cell_start.clone(),
+        ),
+        capacity: n.next_multiple_of(64) as u32,
+        next_id: n as u32,
+    };
+    let b = scene.upload(ctx);
+    let stage = SmoothingStage::new(ctx, &cfg, &b).unwrap();
+    let (out, _) = mirror::run_gpu(ctx, &b, |rec, live| stage.smooth_with(rec, live, p, iterations));
+    out.thermo
 }
 
 fn mirror_input<'a>(
