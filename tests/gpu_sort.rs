@@ -41,7 +41,8 @@ fn radix_sort_is_a_stable_sort() {
         let mut expect = vals.clone();
         expect.sort_by_key(|&i| keys[i as usize]);
         assert_eq!(gv, &expect[..], "n = {n}");
-        let (mk, mv) = nimbus::sim::reference::sort::radix_sort(&keys, &vals, key_bits(max_key));
+        let (mk, mv) =
+            nimbus::sim::reference::radix_sort::radix_sort(&keys, &vals, key_bits(max_key));
         assert_eq!(gk, &mk[..]);
         assert_eq!(gv, &mv[..]);
     }
