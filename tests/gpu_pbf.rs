@@ -130,7 +130,10 @@ fn kernels_match_the_mirror(levels: u32) {
     let gpu_cs = sim.read_u32(Buf::CellStart, grid.table_len()).unwrap();
     assert_eq!(gpu_cs, cell_start, "cell_start");
     let pred: Vec<[f64; 3]> = sim.read_vec4(Buf::Pred).unwrap().iter().map(v3).collect();
-    assert_eq!(pred, nimbus::sim::reference::grid::permute(&order, &pred0));
+    assert_eq!(
+        pred,
+        nimbus::sim::reference::permute::permute(&order, &pred0)
+    );
     let level: Vec<u32> = info.iter().map(|i| i[1]).collect();
     let (bpos4, bcs) = sim.boundary();
     let bpos: Vec<[f64; 3]> = bpos4.iter().map(v3).collect();
@@ -185,7 +188,7 @@ fn kernels_match_the_mirror(levels: u32) {
     // search (clipped by the cells as sorted) and the mirror's 27 cells find different pairs.
     sim.write(Buf::Pred, &pred_sorted);
     sim.run_step(Step::UpdateVelocity).unwrap();
-    let x: Vec<[f64; 3]> = nimbus::sim::reference::grid::permute(&order, &pos0);
+    let x: Vec<[f64; 3]> = nimbus::sim::reference::permute::permute(&order, &pos0);
     let gvel: Vec<[f64; 3]> = sim.read_vec4(Buf::Vel).unwrap().iter().map(v3).collect();
     let e = rel_err(&gvel, &mirror::update_velocity(&grid, &prm, &x, &pred));
     assert!(e < 1e-4, "update_velocity: {e}");

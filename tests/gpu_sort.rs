@@ -43,7 +43,8 @@ fn radix_sort_is_a_stable_sort() {
         let mut expect = vals.clone();
         expect.sort_by_key(|&i| keys[i as usize]);
         assert_eq!(gv, &expect[..], "n = {n}");
-        let (mk, mv) = nimbus::sim::reference::sort::radix_sort(&keys, &vals, key_bits(max_key));
+        let (mk, mv) =
+            nimbus::sim::reference::radix_sort::radix_sort(&keys, &vals, key_bits(max_key));
         assert_eq!(gk, &mk[..]);
         assert_eq!(gv, &mv[..]);
     }
@@ -68,21 +69,9 @@ fn prefix_scan_matches_its_mirror_in_both_modes() {
                 ScanOf::Values => (len as usize, 0),
                 ScanOf::LiveFlags(m) => (live_n as usize, *m),
             };
-            let want = mirror_scan(&values, n, mask);
+            let want = nimbus::sim::reference::scan::exclusive_scan(&values, n, mask);
             assert_eq!(&got[..n], &want[..n], "len {len}, live {live_n}, {what:?}");
         }
     }
 }
 
-/// Exclusive scan of the values (mask 0) or of `(value & mask) != 0` over the first n.
-fn mirror_scan(values: &[u32], n: usize, mask: u32) -> Vec<u32> {
-    let mut acc = 0;
-    values[..n]
-        .iter()
-        .map(|&v| {
-            let before = acc;
-            acc += if mask == 0 { v } else { (v & mask != 0) as u32 };
-            before
-        })
-        .collect()
-}

@@ -1,4 +1,5 @@
 //! Preview: sky alone, Beer-Lambert, sun side vs shadow side, determinism, files, contact sheet.
+use glam::DVec3;
 use nimbus::preview::particles::{render_particles, ParticleColor};
 use nimbus::preview::{
     auto_camera, contact_sheet, png_bytes, render, sky, write_contact_sheet, write_frame_preview,
@@ -50,8 +51,8 @@ fn grid_from(dim: i32, f: impl Fn([f64; 3]) -> f32) -> SparseGrid<f32> {
 
 fn side_params(w: u32, h: u32) -> PreviewParams {
     let cam = Camera {
-        position: [32.0, 32.0, 160.0],
-        look_at: [32.0, 32.0, 32.0],
+        position: DVec3::new(32.0, 32.0, 160.0),
+        look_at: DVec3::new(32.0, 32.0, 32.0),
         fov_deg: 40.0,
     };
     let mut p = PreviewParams::defaults(cam, w, h);
@@ -115,11 +116,7 @@ fn a_denser_cloud_transmits_less_light() {
 #[test]
 fn the_sun_side_is_brighter_than_the_shadow_side() {
     let mut p = side_params(64, 64);
-    p.sun_direction = {
-        let v = [1.0f64, 0.2, 0.0];
-        let n = (v[0] * v[0] + v[1] * v[1]).sqrt();
-        [v[0] / n, v[1] / n, 0.0]
-    };
+    p.sun_direction = DVec3::new(1.0, 0.2, 0.0).normalize();
     let img = render(&grid_from(64, sphere([32.0; 3], 14.0, 0.3)), &p).unwrap();
     let lum = |v: [f32; 4]| 0.2126 * v[0] + 0.7152 * v[1] + 0.0722 * v[2];
     // Columns about 0.6 radius left and right of the centre, centre rows.

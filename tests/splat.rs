@@ -1,5 +1,5 @@
 //! Splat: partition of unity on a lattice, periodic continuity, determinism, brute-force check.
-use nimbus::sim::reference::kernels::{min_image, poly6};
+use nimbus::sim::reference::common::{min_image, poly6};
 use nimbus::sim::ParticleState;
 use nimbus::splat::{splat, SparseGrid, SplatFields, SplatParams};
 use rand::{Rng, SeedableRng};

@@ -1,5 +1,5 @@
 // Shared by the adaptive split/merge stages (shaders/adaptive_*.wgsl); mirrored in f64 by
-// src/sim/reference/ (same names).
+// src/sim/reference/common.rs (same names).
 //!include shared/common.wgsl
 
 // Mirror of sim::adaptive::AdaptiveParams (byte layout must match). `count` and `next_id` are

@@ -1,5 +1,5 @@
 // Shared by every particle stage: grid parameters, SPH kernels, minimum-image wrapping, and the
-// live count (shared/live.wgsl). Mirrored in f64 by src/sim/reference/ (same names).
+// live count (shared/live.wgsl). Mirrored in f64 by src/sim/reference/common.rs (same names).
 //!include shared/live.wgsl
 
 const PI: f32 = 3.14159265358979;

@@ -1,5 +1,5 @@
 // Gather of a particle array into cell order (dst[i] = src[order[i]]), and a plain copy.
-// Mirror: src/sim/reference/grid.rs (`permute`).
+// Mirror: src/sim/reference/permute.rs.
 // A template (WGSL has no generics): src/gpu/shaders.rs builds the stages permute4.wgsl
 // (ELEM = vec4<f32>, entry points permute4/copy4) and permute2.wgsl (vec2<u32>, permute2/copy2)
 // from it by replacing ELEM and WIDTH.

@@ -154,9 +154,11 @@ pub fn validate(cfg: &ShotConfig) -> Result<()> {
 /// Values that are stored normalised (documented in docs/CONFIG.md).
 fn normalise(cfg: &mut ShotConfig) {
     let d = &mut cfg.output.preview.sun_direction;
-    let len = d.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let v = glam::DVec3::from(*d);
+    let len = v.length();
+    // divided, not times the reciprocal (glam's normalize): the stored config stays the same
     if len > 0.0 && len.is_finite() {
-        d.iter_mut().for_each(|x| *x /= len);
+        *d = (v / len).to_array();
     }
 }
 

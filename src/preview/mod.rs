@@ -29,14 +29,15 @@ pub use sheet::{contact_sheet, write_contact_sheet};
 use crate::config::{DensityMode, PreviewConfig};
 use crate::error::{Error, Result};
 use crate::splat::SparseGrid;
+use glam::DVec3;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use volume::Volume;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Camera {
-    pub position: [f64; 3],
-    pub look_at: [f64; 3],
+    pub position: DVec3,
+    pub look_at: DVec3,
     /// Vertical field of view, degrees.
     pub fov_deg: f64,
 }
@@ -47,7 +48,7 @@ pub struct PreviewParams {
     pub height: u32,
     pub camera: Camera,
     /// Unit vector towards the sun.
-    pub sun_direction: [f64; 3],
+    pub sun_direction: DVec3,
     pub sun_color: [f64; 3],
     pub sun_intensity: f64,
     /// Extinction per unit of density per metre (when `auto_density` is `None`).
@@ -81,17 +82,17 @@ impl PreviewParams {
         let [w, h] = cfg.resolution;
         let camera = match &cfg.camera {
             Some(c) => Camera {
-                position: c.position,
-                look_at: c.look_at,
+                position: c.position.into(),
+                look_at: c.look_at.into(),
                 fov_deg: c.fov_deg,
             },
-            None => blender_camera([0.0; 3], domain_size, w as f64 / h.max(1) as f64),
+            None => blender_camera(DVec3::ZERO, domain_size.into(), w as f64 / h.max(1) as f64),
         };
         let p = Self {
             width: w,
             height: h,
             camera,
-            sun_direction: normalize(cfg.sun_direction),
+            sun_direction: normalize(cfg.sun_direction.into()),
             sun_color: cfg.sun_color,
             sun_intensity: cfg.sun_intensity,
             density_scale: cfg.density_scale,
@@ -112,7 +113,7 @@ impl PreviewParams {
             width,
             height,
             camera,
-            sun_direction: normalize(d.sun_direction),
+            sun_direction: normalize(d.sun_direction.into()),
             sun_color: d.sun_color,
             sun_intensity: d.sun_intensity,
             density_scale: d.density_scale,
@@ -142,12 +143,12 @@ impl PreviewParams {
         if !(c.fov_deg > 0.0 && c.fov_deg < 180.0) {
             return bad(format!("camera fov_deg {} must be in (0, 180)", c.fov_deg));
         }
-        let fwd = sub(c.look_at, c.position);
-        if !c.position.iter().chain(&c.look_at).all(|v| v.is_finite()) || dot(fwd, fwd) <= 0.0 {
+        let fwd = c.look_at - c.position;
+        if !(c.position.is_finite() && c.look_at.is_finite()) || fwd.dot(fwd) <= 0.0 {
             return bad("camera position and look_at must be finite and distinct".into());
         }
         let s = self.sun_direction;
-        if !s.iter().all(|v| v.is_finite()) || (dot(s, s) - 1.0).abs() > 1e-6 {
+        if !s.is_finite() || (s.dot(s) - 1.0).abs() > 1e-6 {
             return bad("sun_direction must be a non-zero vector".into());
         }
         let nonneg = [
@@ -178,20 +179,28 @@ impl PreviewParams {
     }
 
     /// Unit ray direction through the centre of pixel (x, y).
-    pub fn ray(&self, x: u32, y: u32) -> [f64; 3] {
+    pub fn ray(&self, x: u32, y: u32) -> DVec3 {
         let c = &self.camera;
-        let fwd = normalize(sub(c.look_at, c.position));
-        let mut right = cross(fwd, [0.0, 1.0, 0.0]);
-        if dot(right, right) < 1e-12 {
-            right = cross(fwd, [0.0, 0.0, -1.0]);
-        }
-        let right = normalize(right);
-        let up = cross(right, fwd);
+        let (fwd, right, up) = c.basis();
         let th = (c.fov_deg.to_radians() * 0.5).tan();
         let aspect = self.width as f64 / self.height as f64;
         let u = ((x as f64 + 0.5) / self.width as f64 * 2.0 - 1.0) * th * aspect;
         let v = (1.0 - (y as f64 + 0.5) / self.height as f64 * 2.0) * th;
-        normalize([0, 1, 2].map(|a| fwd[a] + u * right[a] + v * up[a]))
+        normalize(fwd + u * right + v * up)
+    }
+}
+
+impl Camera {
+    /// Unit (forward, right, up): looking at `look_at`, y up (z when looking straight up or
+    /// down).
+    pub fn basis(&self) -> (DVec3, DVec3, DVec3) {
+        let fwd = normalize(self.look_at - self.position);
+        let mut right = fwd.cross(DVec3::Y);
+        if right.dot(right) < 1e-12 {
+            right = fwd.cross(DVec3::NEG_Z);
+        }
+        let right = normalize(right);
+        (fwd, right, right.cross(fwd))
     }
 }
 
@@ -203,10 +212,10 @@ pub const CORE_OPTICAL_DEPTH: f64 = 4.0;
 /// frame, y up): a 35 mm lens on a 36 mm sensor fitted to the wider side of the image, looking at
 /// the box centre from direction (0.25, 0.18, 1) (Blender's (0.25, -1, 0.18), z up), at the
 /// distance where all eight corners fit the frame with a 10% margin.
-pub fn blender_camera(lo: [f64; 3], hi: [f64; 3], aspect: f64) -> Camera {
+pub fn blender_camera(lo: DVec3, hi: DVec3, aspect: f64) -> Camera {
     let aspect = aspect.max(1e-6);
-    let centre = [0, 1, 2].map(|a| 0.5 * (lo[a] + hi[a]));
-    let dir = normalize([0.25, 0.18, 1.0]);
+    let centre = 0.5 * (lo + hi);
+    let dir = normalize(DVec3::new(0.25, 0.18, 1.0));
     let fov_wide = 2.0 * (36.0f64 / (2.0 * 35.0)).atan();
     let fov_x = if aspect >= 1.0 {
         fov_wide
@@ -215,19 +224,20 @@ pub fn blender_camera(lo: [f64; 3], hi: [f64; 3], aspect: f64) -> Camera {
     };
     let fov_y = 2.0 * ((fov_x / 2.0).tan() / aspect).atan();
     // the camera basis of `ray`: looking along -dir, y up
-    let fwd = dir.map(|v| -v);
-    let right = normalize(cross(fwd, [0.0, 1.0, 0.0]));
-    let up = cross(right, fwd);
+    let fwd = -dir;
+    let right = normalize(fwd.cross(DVec3::Y));
+    let up = right.cross(fwd);
     let (tx, ty) = ((fov_x / 2.0).tan() / 1.1, (fov_y / 2.0).tan() / 1.1);
     let mut dist = 1e-6f64;
     for i in 0..8 {
-        let p = [0, 1, 2].map(|k| if (i >> k) & 1 == 1 { hi[k] } else { lo[k] } - centre[k]);
+        let corner = DVec3::select(glam::BVec3::new(i & 1 == 1, i & 2 == 2, i & 4 == 4), hi, lo);
+        let p = corner - centre;
         dist = dist
-            .max(dot(p, right).abs() / tx + dot(p, dir))
-            .max(dot(p, up).abs() / ty + dot(p, dir));
+            .max(p.dot(right).abs() / tx + p.dot(dir))
+            .max(p.dot(up).abs() / ty + p.dot(dir));
     }
     Camera {
-        position: [0, 1, 2].map(|a| centre[a] + dir[a] * dist),
+        position: centre + dir * dist,
         look_at: centre,
         fov_deg: fov_y.to_degrees(),
     }
@@ -239,9 +249,9 @@ pub fn auto_camera(size: [f64; 3], aspect: f64, fov_deg: f64) -> Camera {
     let tv = (fov_deg.to_radians() * 0.5).tan();
     let th = tv * aspect.max(1e-3);
     let dist = (0.5 * size[0] / th).max(0.5 * size[1] / tv) * 1.05;
-    let centre = [0.5 * size[0], 0.5 * size[1], 0.5 * size[2]];
+    let centre = 0.5 * DVec3::from(size);
     Camera {
-        position: [centre[0], centre[1], size[2] + dist],
+        position: DVec3::new(centre.x, centre.y, size[2] + dist),
         look_at: centre,
         fov_deg,
     }
@@ -285,16 +295,16 @@ fn encode_srgb(x: f64) -> u8 {
 }
 
 /// tools/render_blender.py's world: a uniform pale sky blue (linear RGB, strength 1).
-pub const SKY_RGB: [f64; 3] = [0.16, 0.28, 0.55];
+pub const SKY_RGB: DVec3 = DVec3::new(0.16, 0.28, 0.55);
 
 /// Sky radiance: the ambient light on the clouds.
-fn sky_ambient() -> [f64; 3] {
+fn sky_ambient() -> DVec3 {
     SKY_RGB
 }
 
 /// What a ray from `origin` along `dir` sees without any cloud: Blender's uniform world colour
 /// (there is no ground in the Blender scene).
-pub fn sky(_params: &PreviewParams, _origin: [f64; 3], _dir: [f64; 3]) -> [f64; 3] {
+pub fn sky(_params: &PreviewParams, _origin: DVec3, _dir: DVec3) -> DVec3 {
     SKY_RGB
 }
 
@@ -371,30 +381,19 @@ fn shade_pixel(vol: &Volume, p: &PreviewParams, x: u32, y: u32) -> [f32; 4] {
     let o = p.camera.position;
     let d = p.ray(x, y);
     let (l, trans) = march(vol, p, o, d, hash01(x, y));
-    let bg = sky(p, o, d);
-    [
-        (l[0] + trans * bg[0]) as f32,
-        (l[1] + trans * bg[1]) as f32,
-        (l[2] + trans * bg[2]) as f32,
-        (1.0 - trans) as f32,
-    ]
+    let c = l + trans * sky(p, o, d);
+    c.as_vec3().extend((1.0 - trans) as f32).to_array()
 }
 
 /// In-scattered radiance and transmittance along the ray through the volume.
-fn march(
-    vol: &Volume,
-    p: &PreviewParams,
-    o: [f64; 3],
-    d: [f64; 3],
-    jitter: f64,
-) -> ([f64; 3], f64) {
-    let mut l = [0.0; 3];
+fn march(vol: &Volume, p: &PreviewParams, o: DVec3, d: DVec3, jitter: f64) -> (DVec3, f64) {
+    let mut l = DVec3::ZERO;
     let mut trans = 1.0f64;
     if vol.is_empty() || p.density_scale == 0.0 {
         return (l, trans);
     }
     // Index space: the transform is a uniform scale, so directions are unchanged.
-    let qo = [0, 1, 2].map(|a| (o[a] - vol.origin[a]) / vol.voxel);
+    let qo = (o - vol.origin) / vol.voxel;
     let (blo, bhi) = vol.index_box();
     let mut t0 = 0.0f64;
     let mut t1 = f64::INFINITY;
@@ -416,7 +415,7 @@ fn march(
         return (l, trans);
     }
     let sun = p.sun_direction;
-    let cos = dot(d, sun);
+    let cos = d.dot(sun);
     let mut sun_phase = [0.0; 16];
     for (i, ph) in sun_phase.iter_mut().enumerate().take(p.octaves as usize) {
         *ph = p.octave_b.powi(i as i32) * hg(cos, p.phase_g * p.octave_c.powi(i as i32));
@@ -427,7 +426,7 @@ fn march(
     let step_m = step * vol.voxel;
     let mut t = t0 + jitter * step;
     while t < t1 {
-        let q = [qo[0] + d[0] * t, qo[1] + d[1] * t, qo[2] + d[2] * t];
+        let q = qo + d * t;
         if !vol.maybe_dense(q) {
             // Empty leaf neighbourhood: jump to the next leaf, keeping the step phase.
             let exit = vol.leaf_exit(q, d);
@@ -468,10 +467,8 @@ fn march(
             let step_t = (-sigma_t * step_m).exp();
             // Integral of trans * exp(-sigma_t s) * S over the step, S = sigma_s * radiance.
             let k = trans * (1.0 - step_t) / sigma_t * sigma_s;
-            for c in 0..3 {
-                let radiance = sun_l * p.sun_intensity * p.sun_color[c] + amb_t * amb[c];
-                l[c] += k * radiance;
-            }
+            let radiance = sun_l * p.sun_intensity * DVec3::from(p.sun_color) + amb_t * amb;
+            l += k * radiance;
             trans *= step_t;
             if trans < 1e-4 {
                 trans = 0.0;
@@ -545,23 +542,12 @@ pub fn write_frame_preview(
     Ok(png)
 }
 
-pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-pub(crate) fn normalize(a: [f64; 3]) -> [f64; 3] {
-    let n = dot(a, a).sqrt();
+/// `a` divided by its length (zero and non-finite vectors unchanged): glam's `normalize`
+/// multiplies by the reciprocal, which rounds differently and would change the images.
+fn normalize(a: DVec3) -> DVec3 {
+    let n = a.length();
     if n > 0.0 && n.is_finite() {
-        a.map(|v| v / n)
+        a / n
     } else {
         a
     }

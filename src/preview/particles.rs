@@ -1,9 +1,10 @@
 //! Debug view (paper Fig. 3): particles drawn as discs of their kernel size, coloured by adaptive
 //! level or by shape energy, over the sky. Sequential with a depth test (strictly nearer wins),
 //! so ties go to the lower particle index: deterministic.
-use super::{cross, dot, normalize, sky, sub, LinearImage, PreviewParams};
+use super::{sky, LinearImage, PreviewParams};
 use crate::error::Result;
 use crate::sim::ParticleState;
+use glam::{DVec3, Vec4};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ParticleColor {
@@ -13,19 +14,19 @@ pub enum ParticleColor {
     ShapeEnergy,
 }
 
-fn ramp(t: f64) -> [f64; 3] {
+fn ramp(t: f64) -> DVec3 {
     let t = t.clamp(0.0, 1.0);
     // blue -> cyan -> yellow -> red
     let stops = [
-        [0.1, 0.2, 0.9],
-        [0.1, 0.8, 0.9],
-        [0.95, 0.9, 0.1],
-        [0.9, 0.1, 0.05],
+        DVec3::new(0.1, 0.2, 0.9),
+        DVec3::new(0.1, 0.8, 0.9),
+        DVec3::new(0.95, 0.9, 0.1),
+        DVec3::new(0.9, 0.1, 0.05),
     ];
     let x = t * 3.0;
     let i = (x.floor() as usize).min(2);
     let f = x - i as f64;
-    [0, 1, 2].map(|c| stops[i][c] + (stops[i + 1][c] - stops[i][c]) * f)
+    stops[i].lerp_monotonic(stops[i + 1], f)
 }
 
 /// Particles seen by the preview camera; disc radius = 0.5 h_j projected (at least one pixel).
@@ -39,32 +40,26 @@ pub fn render_particles(
     params.validate()?;
     let (w, h) = (params.width, params.height);
     let c = &params.camera;
-    let fwd = normalize(sub(c.look_at, c.position));
-    let mut right = cross(fwd, [0.0, 1.0, 0.0]);
-    if dot(right, right) < 1e-12 {
-        right = cross(fwd, [0.0, 0.0, -1.0]);
-    }
-    let right = normalize(right);
-    let up = cross(right, fwd);
+    let (fwd, right, up) = c.basis();
     let th = (c.fov_deg.to_radians() * 0.5).tan();
     let aspect = w as f64 / h as f64;
     let mut data: Vec<[f32; 4]> = (0..h)
         .flat_map(|y| (0..w).map(move |x| (x, y)))
         .map(|(x, y)| {
             let s = sky(params, c.position, params.ray(x, y));
-            [s[0] as f32, s[1] as f32, s[2] as f32, 0.0]
+            s.as_vec3().extend(0.0).to_array()
         })
         .collect();
     let mut depth = vec![f64::INFINITY; data.len()];
     for j in 0..state.len() {
         let p = state.pos[j];
-        let rel = sub([p[0] as f64, p[1] as f64, p[2] as f64], c.position);
-        let z = dot(rel, fwd);
+        let rel = Vec4::from(p).truncate().as_dvec3() - c.position;
+        let z = rel.dot(fwd);
         if z.is_nan() || z <= 1e-9 {
             continue;
         }
-        let u = dot(rel, right) / (z * th * aspect);
-        let v = dot(rel, up) / (z * th);
+        let u = rel.dot(right) / (z * th * aspect);
+        let v = rel.dot(up) / (z * th);
         let px = (u + 1.0) * 0.5 * w as f64;
         let py = (1.0 - v) * 0.5 * h as f64;
         let level = state.info.get(j).map_or(0, |i| i[1]);
@@ -102,12 +97,7 @@ pub fn render_particles(
                     depth[i] = z;
                     // Simple shading: darker towards the disc's rim.
                     let s = 1.0 - 0.4 * (dx * dx + dy * dy) / (rad * rad);
-                    data[i] = [
-                        (col[0] * s) as f32,
-                        (col[1] * s) as f32,
-                        (col[2] * s) as f32,
-                        1.0,
-                    ];
+                    data[i] = (col * s).as_vec3().extend(1.0).to_array();
                 }
             }
         }

@@ -3,11 +3,12 @@
 //! skipping, and a coarse copy of the density with the optical depth towards the sun and towards
 //! the zenith precomputed at its cell centres.
 use crate::splat::{SparseGrid, LEAF_DIM, LEAF_VOXELS};
+use glam::{DVec3, IVec3};
 use rayon::prelude::*;
 
 pub(crate) struct Volume {
     pub voxel: f64,
-    pub origin: [f64; 3],
+    pub origin: DVec3,
     /// Leaf-space box: leaf coordinates `leaf_lo .. leaf_lo + leaf_dims`.
     leaf_lo: [i32; 3],
     leaf_dims: [i32; 3],
@@ -37,7 +38,7 @@ impl Volume {
         self.blocks.is_empty()
     }
 
-    pub fn new(grid: &SparseGrid<f32>, sun: [f64; 3]) -> Self {
+    pub fn new(grid: &SparseGrid<f32>, sun: DVec3) -> Self {
         let t = grid.transform;
         let mut lo = [i32::MAX; 3];
         let mut hi = [i32::MIN; 3];
@@ -92,7 +93,7 @@ impl Volume {
         }
         let mut v = Volume {
             voxel: t.voxel_size,
-            origin: t.origin,
+            origin: t.origin.into(),
             leaf_lo: lo,
             leaf_dims: dims,
             table,
@@ -121,10 +122,12 @@ impl Volume {
     }
 
     /// Index-space box `[lo, hi]` that contains every non-zero trilinear sample.
-    pub fn index_box(&self) -> ([f64; 3], [f64; 3]) {
-        let lo = [0, 1, 2].map(|a| (self.leaf_lo[a] * LEAF_DIM) as f64 - 1.0);
-        let hi = [0, 1, 2].map(|a| ((self.leaf_lo[a] + self.leaf_dims[a]) * LEAF_DIM) as f64);
-        (lo, hi)
+    pub fn index_box(&self) -> (DVec3, DVec3) {
+        let (lo, dims) = (IVec3::from(self.leaf_lo), IVec3::from(self.leaf_dims));
+        (
+            (lo * LEAF_DIM).as_dvec3() - 1.0,
+            ((lo + dims) * LEAF_DIM).as_dvec3(),
+        )
     }
 
     #[inline]
@@ -146,17 +149,17 @@ impl Volume {
 
     /// Whether samples in the leaf containing index point `q` may be non-zero.
     #[inline]
-    pub fn maybe_dense(&self, q: [f64; 3]) -> bool {
-        let k = q.map(|v| (v.floor() as i32) >> 3);
+    pub fn maybe_dense(&self, q: DVec3) -> bool {
+        let k = (q.floor().as_ivec3() >> 3_i32).to_array();
         Self::cell(self.leaf_lo, self.leaf_dims, k).is_some_and(|c| self.near[c])
     }
 
     /// Trilinear density at index-space point `q`.
     #[inline]
-    pub fn sample(&self, q: [f64; 3]) -> f64 {
-        let f = q.map(f64::floor);
-        let i = f.map(|v| v as i32);
-        let t = [q[0] - f[0], q[1] - f[1], q[2] - f[2]];
+    pub fn sample(&self, q: DVec3) -> f64 {
+        let f = q.floor();
+        let i = f.as_ivec3();
+        let t = q - f;
         let mut acc = 0.0;
         for c in 0..8 {
             let o = [(c >> 2) & 1, (c >> 1) & 1, c & 1];
@@ -171,7 +174,7 @@ impl Volume {
     }
 
     /// Exit distance (in index units along unit direction `d`) of the leaf containing `q`.
-    pub fn leaf_exit(&self, q: [f64; 3], d: [f64; 3]) -> f64 {
+    pub fn leaf_exit(&self, q: DVec3, d: DVec3) -> f64 {
         let mut t = f64::INFINITY;
         for a in 0..3 {
             let k = ((q[a].floor() as i32) >> 3) as f64 * LEAF_DIM as f64;
@@ -184,7 +187,7 @@ impl Volume {
         t.max(0.0)
     }
 
-    fn build_coarse(&self, sun: [f64; 3]) -> Coarse {
+    fn build_coarse(&self, sun: DVec3) -> Coarse {
         let vox = [0, 1, 2].map(|a| self.leaf_dims[a].max(0) * LEAF_DIM);
         let maxdim = *vox.iter().max().unwrap();
         // About 64 cells across: cheap to march, fine enough for soft shadows.
@@ -256,7 +259,7 @@ impl Volume {
                 let z = i % dims[2];
                 let y = (i / dims[2]) % dims[1];
                 let x = i / (dims[2] * dims[1]);
-                let p = [x, y, z].map(|v| v as f64 + 0.5);
+                let p = IVec3::new(x, y, z).as_dvec3() + 0.5;
                 c.march(p, sun, cell_m) as f32
             })
             .collect();
@@ -267,15 +270,18 @@ impl Volume {
 
 impl Coarse {
     /// Coarse-cell coordinates (cell centres at +0.5) of an index-space point.
-    pub fn to_cell(&self, q: [f64; 3]) -> [f64; 3] {
-        [0, 1, 2].map(|a| (q[a] + 0.5 - self.lo[a] as f64) / self.stride as f64)
+    pub fn to_cell(&self, q: DVec3) -> DVec3 {
+        (q + 0.5 - IVec3::from(self.lo).as_dvec3()) / self.stride as f64
     }
 
-    fn lerp(&self, field: &[f32], p: [f64; 3]) -> f64 {
-        // Clamp to the cell centres: the edge value extends to the box faces.
-        let q = [0, 1, 2].map(|a| (p[a] - 0.5).clamp(0.0, (self.dims[a] - 1).max(0) as f64));
-        let f = q.map(f64::floor);
-        let t = [q[0] - f[0], q[1] - f[1], q[2] - f[2]];
+    fn lerp(&self, field: &[f32], p: DVec3) -> f64 {
+        // Clamp to the cell centres: the edge value extends to the box faces (f64::clamp per
+        // axis: glam's clamp treats NaN differently).
+        let q = DVec3::from_array(
+            [0, 1, 2].map(|a| (p[a] - 0.5).clamp(0.0, (self.dims[a] - 1).max(0) as f64)),
+        );
+        let f = q.floor();
+        let t = q - f;
         let mut acc = 0.0;
         for c in 0..8 {
             let o = [(c >> 2) & 1, (c >> 1) & 1, c & 1];
@@ -292,19 +298,19 @@ impl Coarse {
     }
 
     /// Optical depth per unit density scale towards the sun / the zenith at index point `q`.
-    pub fn tau_sun_at(&self, q: [f64; 3]) -> f64 {
+    pub fn tau_sun_at(&self, q: DVec3) -> f64 {
         self.lerp(&self.tau_sun, self.to_cell(q))
     }
-    pub fn tau_up_at(&self, q: [f64; 3]) -> f64 {
+    pub fn tau_up_at(&self, q: DVec3) -> f64 {
         self.lerp(&self.tau_up, self.to_cell(q))
     }
-    pub fn tau_down_at(&self, q: [f64; 3]) -> f64 {
+    pub fn tau_down_at(&self, q: DVec3) -> f64 {
         self.lerp(&self.tau_down, self.to_cell(q))
     }
 
     /// Marches from coarse-cell point `p` along `d` through the coarse density until it leaves the
     /// box; optical depth per unit density scale (metres x density).
-    pub fn march(&self, p: [f64; 3], d: [f64; 3], cell_m: f64) -> f64 {
+    pub fn march(&self, p: DVec3, d: DVec3, cell_m: f64) -> f64 {
         if self.density.is_empty() {
             return 0.0;
         }
@@ -333,8 +339,7 @@ impl Coarse {
         let mut tau = 0.0;
         let mut t = t0 + 0.5 * step;
         while t < t1 {
-            let q = [p[0] + d[0] * t, p[1] + d[1] * t, p[2] + d[2] * t];
-            tau += self.lerp(&self.density, q);
+            tau += self.lerp(&self.density, p + d * t);
             t += step;
         }
         tau * step * cell_m

@@ -7,6 +7,7 @@ use crate::config::ShotConfig;
 use crate::sim::grid_params::GridParams;
 use crate::sim::reference::grid::{build_cell_table, for_each_neighbor};
 use crate::sim::ParticleState;
+use glam::Vec4;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 
@@ -75,7 +76,7 @@ pub fn cloud_diagnostics(state: &ParticleState, cfg: &ShotConfig) -> BTreeMap<St
             let h2 = radius(i) * radius(i);
             let mut neighbours = 0usize;
             for_each_neighbor(&grid, &cell_start, &sorted, cpos[k], |j, d| {
-                let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                let r2 = d.length_squared();
                 if order[j] as usize != k && r2 < h2 {
                     neighbours += 1;
                 }
@@ -236,13 +237,13 @@ pub fn atmosphere_diagnostics(
     let mut cloud_pts = Vec::new();
     for i in 0..state.len() {
         let m = (-(state.info[i][1] as f64)).exp2();
-        let q = state.pos[i].map(|v| v as f64);
+        let q = Vec4::from(state.pos[i]).truncate().as_dvec3();
         let th = state.thermo[i].map(|v| v as f64);
-        let v = state.vel[i].map(|v| v as f64);
+        let v = Vec4::from(state.vel[i]).truncate().as_dvec3();
         mass += m;
         energy += m * (th[0] + p.adiabatic_lapse_rate * q[1] - p.latent_heat * th[2]);
-        heating += m * crate::sim::reference::thermo::heating_rate(&heat, [q[0], q[1], q[2]]);
-        if (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() >= 0.999 * max_speed {
+        heating += m * crate::sim::reference::thermo::heating_rate(&heat, q);
+        if v.length() >= 0.999 * max_speed {
             clamped += 1;
         }
         let w = m * th[2];

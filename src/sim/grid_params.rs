@@ -1,6 +1,7 @@
 //! The uniform neighbour grid shared by every particle stage (mirror of `GridParams` in
 //! shaders/shared/common.wgsl; the layout must match it byte for byte).
 use crate::config::{Axis, ShotConfig};
+use glam::DVec3;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
@@ -71,7 +72,7 @@ impl GridParams {
     }
 
     /// Integer cell of a position, clamped into the grid (mirror of `cell_coord`).
-    pub fn cell_coord(&self, p: [f64; 3]) -> [i32; 3] {
+    pub fn cell_coord(&self, p: DVec3) -> [i32; 3] {
         [0, 1, 2].map(|a| {
             let c = ((p[a] - self.domain_min[a] as f64) / self.cell_size[a] as f64).floor() as i64;
             c.clamp(0, self.dims[a] as i64 - 1) as i32
@@ -94,7 +95,7 @@ impl GridParams {
         Some(((n[2] * d[1] + n[1]) * d[0] + n[0]) as u32)
     }
 
-    pub fn cell_index(&self, p: [f64; 3]) -> u32 {
+    pub fn cell_index(&self, p: DVec3) -> u32 {
         self.neighbor_cell(self.cell_coord(p), [0, 0, 0])
             .expect("clamped cell is inside")
     }
@@ -112,12 +113,12 @@ impl GridParams {
 
     /// Sort key of a position: its cell's first table entry plus its x slice within the cell
     /// (mirror of `slice_key` in common.wgsl, computed in f32 like the shader).
-    pub fn slice_key(&self, p: [f64; 3]) -> u32 {
+    pub fn slice_key(&self, p: DVec3) -> u32 {
         let c = self.cell_coord(p);
         let cell = self
             .neighbor_cell(c, [0, 0, 0])
             .expect("clamped cell is inside");
-        cell * self.x_slices + self.slice_in_cell(p[0] as f32, c[0])
+        cell * self.x_slices + self.slice_in_cell(p.x as f32, c[0])
     }
 
     fn slice_in_cell(&self, x: f32, cx: i32) -> u32 {

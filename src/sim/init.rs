@@ -7,9 +7,10 @@
 //! state either.
 use crate::config::ShotConfig;
 use crate::sim::grid_params::GridParams;
-use crate::sim::reference::kernels::poly6;
+use crate::sim::reference::common::poly6;
 use crate::sim::thermo::{environment_temperature, initial_thermo};
 use crate::sim::ParticleState;
+use glam::DVec3;
 
 /// Particles per axis of the initial lattice and its spacing per axis: `round(size / d)` cells
 /// of edge `size / n` (= d when d divides the box, as validation asks for periodic axes).
@@ -38,8 +39,8 @@ pub fn particle_mass(cfg: &ShotConfig) -> f64 {
     for k in -r[2]..=r[2] {
         for j in -r[1]..=r[1] {
             for i in -r[0]..=r[0] {
-                let x = [i as f64 * d[0], j as f64 * d[1], k as f64 * d[2]];
-                sum += poly6(x[0] * x[0] + x[1] * x[1] + x[2] * x[2], h);
+                let x = DVec3::new(i as f64, j as f64, k as f64) * DVec3::from(d);
+                sum += poly6(x.length_squared(), h);
             }
         }
     }

@@ -1,23 +1,71 @@
-//! CPU mirror of the neighbour-grid build: a stable sort of particles by (cell, x slice), and
-//! the cell table with one entry per slice.
+//! f64 mirror of shaders/grid.wgsl (`cell_keys`, `cell_table`), the neighbour-grid build they
+//! compose with the stable sort, and the 27-cell neighbour walks of the other mirrors.
+//!
+//! As in every mirror, arrays of particles are `[f64; 3]`/`[f64; 4]` like the GPU's storage
+//! buffers, and the maths on one particle is `DVec3`, loaded from and stored to them.
+use super::common::min_image;
 use crate::sim::grid_params::GridParams;
+use glam::DVec3;
 
-/// Returns `(order, cell_start)`: `order[k]` is the original index of the k-th particle in
-/// (cell, slice) order (stable: equal keys keep their original order), and the particles of
-/// slice e are `order[cell_start[e]..cell_start[e + 1]]` (`GridParams::table_len` entries; cell
-/// c is slices `c * x_slices .. (c + 1) * x_slices`).
-pub fn build_cell_table(grid: &GridParams, pos: &[[f64; 3]]) -> (Vec<u32>, Vec<u32>) {
-    let keys: Vec<u32> = pos.iter().map(|p| grid.slice_key(*p)).collect();
-    let mut order: Vec<u32> = (0..pos.len() as u32).collect();
-    order.sort_by_key(|&i| keys[i as usize]);
+/// Mirror of `cell_keys`: the (cell, x slice) key of each position.
+pub fn cell_keys(grid: &GridParams, pos: &[[f64; 3]]) -> Vec<u32> {
+    pos.iter().map(|&p| grid.slice_key(p.into())).collect()
+}
+
+/// Mirror of `cell_table`: from the sorted keys, the first sorted index of every table entry
+/// (`GridParams::table_len` entries, the last one the particle count).
+pub fn cell_table(grid: &GridParams, sorted_keys: &[u32]) -> Vec<u32> {
     let mut cell_start = vec![0u32; grid.table_len()];
-    for &k in &keys {
-        cell_start[k as usize + 1] += 1;
+    let n = sorted_keys.len();
+    for (i, &k) in sorted_keys.iter().enumerate() {
+        let first = if i > 0 { sorted_keys[i - 1] + 1 } else { 0 };
+        for c in first..=k {
+            cell_start[c as usize] = i as u32;
+        }
+        if i == n - 1 {
+            for s in &mut cell_start[k as usize + 1..] {
+                *s = n as u32;
+            }
+        }
     }
-    for e in 0..grid.table_len() - 1 {
-        cell_start[e + 1] += cell_start[e];
+    cell_start
+}
+
+/// The whole grid build: returns `(order, cell_start)`, `order[k]` the original index of the
+/// k-th particle in (cell, slice) order (stable: equal keys keep their original order), and the
+/// particles of slice e are `order[cell_start[e]..cell_start[e + 1]]` (cell c is slices
+/// `c * x_slices .. (c + 1) * x_slices`).
+pub fn build_cell_table(grid: &GridParams, pos: &[[f64; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let keys = cell_keys(grid, pos);
+    let mut order: Vec<u32> = (0..pos.len() as u32).collect();
+    // any stable sort gives the radix sort's order (`radix_sort::radix_sort`)
+    order.sort_by_key(|&i| keys[i as usize]);
+    let sorted: Vec<u32> = order.iter().map(|&i| keys[i as usize]).collect();
+    (order, cell_table(grid, &sorted))
+}
+
+/// Calls `f(k)` for every slot of the 27 cells around cell `c`, in the shaders' order, until
+/// `f` returns false.
+pub fn for_each_slot(
+    g: &GridParams,
+    cell_start: &[u32],
+    c: [i32; 3],
+    mut f: impl FnMut(usize) -> bool,
+) {
+    for dz in -1..=1 {
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                let Some(n) = g.neighbor_cell(c, [dx, dy, dz]) else {
+                    continue;
+                };
+                for k in g.cell_slots(cell_start, n) {
+                    if !f(k as usize) {
+                        return;
+                    }
+                }
+            }
+        }
     }
-    (order, cell_start)
 }
 
 /// Calls `f(j, x_ij)` for every particle j (index into the cell-ordered arrays) within the 27
@@ -26,34 +74,36 @@ pub fn for_each_neighbor(
     grid: &GridParams,
     cell_start: &[u32],
     sorted_pos: &[[f64; 3]],
-    p: [f64; 3],
-    mut f: impl FnMut(usize, [f64; 3]),
+    p: impl Into<DVec3>,
+    mut f: impl FnMut(usize, DVec3),
 ) {
-    let size = grid.domain_size.map(|v| v as f64);
+    let p = p.into();
+    let size = super::common::domain_size(grid);
     let periodic = [grid.periodic_x(), grid.periodic_z()];
-    let c = grid.cell_coord(p);
-    for dz in -1..=1 {
-        for dy in -1..=1 {
-            for dx in -1..=1 {
-                let Some(n) = grid.neighbor_cell(c, [dx, dy, dz]) else {
-                    continue;
-                };
-                for j in grid.cell_slots(cell_start, n) {
-                    let q = sorted_pos[j as usize];
-                    let d = [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
-                    f(j as usize, super::kernels::min_image(d, size, periodic));
-                }
-            }
+    for_each_slot(grid, cell_start, grid.cell_coord(p), |j| {
+        f(j, min_image(p - DVec3::from(sorted_pos[j]), size, periodic));
+        true
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `cell_table` of sorted keys: entry e holds the number of keys below e.
+    #[test]
+    fn cell_table_counts_the_keys_below_each_entry() {
+        let grid = GridParams::new([1.0, 0.5, 0.7], 0.1, true, false);
+        let entries = grid.table_len() as u32;
+        let mut keys: Vec<u32> = (0..3000u32)
+            .map(|i| (i.wrapping_mul(2654435761) >> 9) % (entries - 1))
+            .collect();
+        keys.sort();
+        let table = cell_table(&grid, &keys);
+        for (e, &start) in table.iter().enumerate() {
+            let below = keys.iter().filter(|&&k| k < e as u32).count() as u32;
+            assert_eq!(start, below, "entry {e}");
         }
+        assert_eq!(*table.last().unwrap(), keys.len() as u32);
     }
-}
-
-/// Mirror of `cell_keys` (grid.wgsl): the (cell, x slice) key of each position.
-pub fn cell_keys(grid: &GridParams, pos: &[[f64; 3]]) -> Vec<u32> {
-    pos.iter().map(|p| grid.slice_key(*p)).collect()
-}
-
-/// Mirror of `permute4`/`permute2`: `dst[i] = src[order[i]]`.
-pub fn permute<T: Copy>(order: &[u32], src: &[T]) -> Vec<T> {
-    order.iter().map(|&o| src[o as usize]).collect()
 }

@@ -1,34 +1,13 @@
 //! f64 mirror of shaders/pbf.wgsl, same entry names. Inputs are cell-ordered arrays with their
 //! cell table (as after the grid build); each function returns what its shader writes.
+use super::common::{domain_size, min_image, poly6_sym, spiky_grad_sym};
 use super::grid::for_each_neighbor;
-use super::kernels::{min_image, poly6_sym, spiky_grad_sym};
 use crate::sim::grid_params::GridParams;
 use crate::sim::pbf::PbfParams;
+use glam::DVec3;
 
+/// One element of a particle array (cell order, as on the GPU).
 type V3 = [f64; 3];
-
-fn add(a: V3, b: V3) -> V3 {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-fn sub(a: V3, b: V3) -> V3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn scale(a: V3, s: f64) -> V3 {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-fn dot(a: V3, b: V3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: V3, b: V3) -> V3 {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-fn len(a: V3) -> f64 {
-    dot(a, a).sqrt()
-}
 
 /// Shared inputs of the neighbour loops.
 pub struct Scene<'a> {
@@ -60,8 +39,8 @@ impl Scene<'_> {
 }
 
 /// Periodic wrap in x/z and the walls in y (mirror of `confine`).
-pub fn confine(grid: &GridParams, p: V3) -> V3 {
-    let s = grid.domain_size.map(|v| v as f64);
+pub fn confine(grid: &GridParams, p: DVec3) -> DVec3 {
+    let s = domain_size(grid);
     let mut q = p;
     for (a, per) in [(0, grid.periodic_x()), (2, grid.periodic_z())] {
         if per {
@@ -77,11 +56,11 @@ pub fn confine(grid: &GridParams, p: V3) -> V3 {
     q
 }
 
-fn clamp_speed(prm: &PbfParams, v: V3) -> V3 {
-    let s = len(v);
+fn clamp_speed(prm: &PbfParams, v: DVec3) -> DVec3 {
+    let s = v.length();
     let m = prm.max_speed as f64;
     if s > m {
-        scale(v, m / s)
+        v * (m / s)
     } else {
         v
     }
@@ -91,11 +70,11 @@ pub fn predict(grid: &GridParams, prm: &PbfParams, pos: &[V3], vel: &[V3]) -> Ve
     let dt = prm.dt as f64;
     pos.iter()
         .zip(vel)
-        .map(|(p, v)| {
-            let mut v = *v;
-            v[1] -= prm.gravity as f64 * dt;
+        .map(|(&p, &v)| {
+            let mut v = DVec3::from(v);
+            v.y -= prm.gravity as f64 * dt;
             let v = clamp_speed(prm, v);
-            confine(grid, add(*p, scale(v, dt)))
+            confine(grid, DVec3::from(p) + v * dt).to_array()
         })
         .collect()
 }
@@ -110,33 +89,30 @@ pub fn compute_lambda(sc: &Scene, pred: &[V3]) -> (Vec<f64>, Vec<f64>) {
         let hi = sc.h(i);
         let m0 = sc.prm.m0 as f64;
         let mut rho = 0.0;
-        let mut grad_i = [0.0; 3];
+        let mut grad_i = DVec3::ZERO;
         let mut sum2 = 0.0;
         let mut near_wall = false;
         for_each_neighbor(sc.grid, sc.cell_start, pred, p, |j, xij| {
-            let r2 = dot(xij, xij);
+            let r2 = xij.dot(xij);
             let hj = sc.h(j);
             if r2 >= hi.max(hj).powi(2) {
                 return;
             }
             let mj = sc.m(j);
             rho += mj * poly6_sym(r2, hi, hj);
-            let g = scale(spiky_grad_sym(xij, r2.sqrt(), hi, hj), mj / rho0);
-            grad_i = add(grad_i, g);
-            sum2 += dot(g, g);
+            let g = spiky_grad_sym(xij, r2.sqrt(), hi, hj) * (mj / rho0);
+            grad_i += g;
+            sum2 += g.dot(g);
         });
         for_each_neighbor(sc.grid, sc.bcell_start, sc.bpos, p, |_, xik| {
-            let r2 = dot(xik, xik);
+            let r2 = xik.dot(xik);
             if r2 >= hi.max(h0).powi(2) {
                 return;
             }
             // wall particles weigh m0 whatever the fluid particle's level
             rho += m0 * poly6_sym(r2, hi, h0);
             near_wall = true;
-            grad_i = add(
-                grad_i,
-                scale(spiky_grad_sym(xik, r2.sqrt(), hi, h0), m0 / rho0),
-            );
+            grad_i += spiky_grad_sym(xik, r2.sqrt(), hi, h0) * (m0 / rho0);
         });
         let mut c = rho / rho0 - 1.0;
         // the under-density tolerance, and a share of the rest for split particles, none next
@@ -151,7 +127,7 @@ pub fn compute_lambda(sc: &Scene, pred: &[V3]) -> (Vec<f64>, Vec<f64>) {
                 };
             }
         }
-        lam.push(-c / (sum2 + dot(grad_i, grad_i) + sc.prm.eps as f64));
+        lam.push(-c / (sum2 + grad_i.dot(grad_i) + sc.prm.eps as f64));
         den.push(rho);
     }
     (lam, den)
@@ -165,36 +141,38 @@ pub fn compute_delta(sc: &Scene, pred: &[V3], lambda: &[f64]) -> Vec<V3> {
         .enumerate()
         .map(|(i, &p)| {
             let (hi, mi, li) = (sc.h(i), sc.m(i), lambda[i]);
-            let mut dp = [0.0; 3];
+            let mut dp = DVec3::ZERO;
             for_each_neighbor(sc.grid, sc.cell_start, pred, p, |j, xij| {
-                let r2 = dot(xij, xij);
+                let r2 = xij.dot(xij);
                 let hj = sc.h(j);
                 if r2 >= hi.max(hj).powi(2) {
                     return;
                 }
                 let mj = sc.m(j);
                 let s = li * mj + lambda[j] * mi + sc.scorr(r2, hi, hj) * mj;
-                dp = add(dp, scale(spiky_grad_sym(xij, r2.sqrt(), hi, hj), s));
+                dp += spiky_grad_sym(xij, r2.sqrt(), hi, hj) * s;
             });
             for_each_neighbor(sc.grid, sc.bcell_start, sc.bpos, p, |_, xik| {
-                let r2 = dot(xik, xik);
+                let r2 = xik.dot(xik);
                 if r2 >= hi.max(h0).powi(2) {
                     return;
                 }
                 let s = (li + sc.scorr(r2, hi, h0)) * sc.prm.m0 as f64;
-                dp = add(dp, scale(spiky_grad_sym(xik, r2.sqrt(), hi, h0), s));
+                dp += spiky_grad_sym(xik, r2.sqrt(), hi, h0) * s;
             });
-            confine(sc.grid, add(p, scale(dp, 1.0 / rho0)))
+            confine(sc.grid, DVec3::from(p) + dp * (1.0 / rho0)).to_array()
         })
         .collect()
 }
 
 pub fn update_velocity(grid: &GridParams, prm: &PbfParams, pos: &[V3], pred: &[V3]) -> Vec<V3> {
-    let size = grid.domain_size.map(|v| v as f64);
+    let size = domain_size(grid);
     let per = [grid.periodic_x(), grid.periodic_z()];
     pos.iter()
         .zip(pred)
-        .map(|(x, p)| scale(min_image(sub(*p, *x), size, per), prm.inv_dt as f64))
+        .map(|(&x, &p)| {
+            (min_image(DVec3::from(p) - DVec3::from(x), size, per) * prm.inv_dt as f64).to_array()
+        })
         .collect()
 }
 
@@ -204,18 +182,18 @@ pub fn vorticity(sc: &Scene, pred: &[V3], vel: &[V3], density: &[f64]) -> Vec<[f
         .enumerate()
         .map(|(i, &p)| {
             let hi = sc.h(i);
-            let mut w = [0.0; 3];
+            let mut w = DVec3::ZERO;
             for_each_neighbor(sc.grid, sc.cell_start, pred, p, |j, xij| {
-                let r2 = dot(xij, xij);
+                let r2 = xij.dot(xij);
                 let hj = sc.h(j);
                 if r2 >= hi.max(hj).powi(2) {
                     return;
                 }
                 let vj = sc.m(j) / density[j];
                 let g = spiky_grad_sym(xij, r2.sqrt(), hi, hj);
-                w = add(w, scale(cross(sub(vel[i], vel[j]), g), vj));
+                w += (DVec3::from(vel[i]) - DVec3::from(vel[j])).cross(g) * vj;
             });
-            [w[0], w[1], w[2], len(w)]
+            w.extend(w.length()).to_array()
         })
         .collect()
 }
@@ -234,30 +212,30 @@ pub fn viscosity_confine(
         .map(|(i, &p)| {
             let hi = sc.h(i);
             let wi = if use_vort { omega[i][3] } else { 0.0 };
-            let mut acc = [0.0; 3];
-            let mut eta = [0.0; 3];
+            let mut acc = DVec3::ZERO;
+            let mut eta = DVec3::ZERO;
             for_each_neighbor(sc.grid, sc.cell_start, pred, p, |j, xij| {
-                let r2 = dot(xij, xij);
+                let r2 = xij.dot(xij);
                 let hj = sc.h(j);
                 if r2 >= hi.max(hj).powi(2) {
                     return;
                 }
                 let vj = sc.m(j) / density[j];
                 let vs = 2.0 * sc.m(j) / (density[i] + density[j]);
-                acc = add(acc, scale(sub(vel[j], vel[i]), vs * poly6_sym(r2, hi, hj)));
+                acc += (DVec3::from(vel[j]) - DVec3::from(vel[i])) * (vs * poly6_sym(r2, hi, hj));
                 if use_vort {
                     let g = spiky_grad_sym(xij, r2.sqrt(), hi, hj);
-                    eta = add(eta, scale(g, vj * (omega[j][3] - wi)));
+                    eta += g * (vj * (omega[j][3] - wi));
                 }
             });
-            let mut v = add(vel[i], scale(acc, sc.prm.xsph as f64));
-            let le = len(eta);
+            let mut v = DVec3::from(vel[i]) + acc * sc.prm.xsph as f64;
+            let le = eta.length();
             if use_vort && le > 0.0 {
-                let o = [omega[i][0], omega[i][1], omega[i][2]];
-                let a = cross(scale(eta, 1.0 / le), o);
-                v = add(v, scale(a, sc.prm.dt as f64 * sc.prm.vorticity as f64));
+                let o = DVec3::from_slice(&omega[i][..3]);
+                let a = (eta * (1.0 / le)).cross(o);
+                v += a * (sc.prm.dt as f64 * sc.prm.vorticity as f64);
             }
-            clamp_speed(sc.prm, v)
+            clamp_speed(sc.prm, v).to_array()
         })
         .collect()
 }

@@ -1,9 +1,10 @@
 //! f64 mirror of shaders/smoothing.wgsl (`smooth_temperature`): one Jacobi iteration of the
 //! temperature-smoothing constraint (eqs. 12-17). Arrays are in cell order, as on the GPU.
+use super::common::spiky_grad_sym;
 use super::grid::for_each_neighbor;
-use super::kernels::spiky_grad_sym;
 use crate::sim::grid_params::GridParams;
 use crate::sim::smoothing::SmoothParams;
+use glam::DVec3;
 
 /// The particle side of one smoothing iteration (cell-ordered arrays).
 pub struct SmoothInput<'a> {
@@ -22,15 +23,15 @@ fn radius_of_level(p: &SmoothParams, level: u32) -> f64 {
     p.h0 as f64 * (-(level as f64) / 3.0).exp2()
 }
 
-fn laplacian_coefficient(p: &SmoothParams, xij: [f64; 3], hi: f64, hj: f64, volume: f64) -> f64 {
-    let r2 = xij[0] * xij[0] + xij[1] * xij[1] + xij[2] * xij[2];
+fn laplacian_coefficient(p: &SmoothParams, xij: DVec3, hi: f64, hj: f64, volume: f64) -> f64 {
+    let r2 = xij.dot(xij);
     let hmax = hi.max(hj);
     if r2 >= hmax * hmax {
         return 0.0;
     }
     let r = r2.sqrt();
     let g = spiky_grad_sym(xij, r, hi, hj);
-    volume * (xij[0] * g[0] + xij[1] * g[1] + xij[2] * g[2]) / (r2 + p.epsilon as f64)
+    volume * xij.dot(g) / (r2 + p.epsilon as f64)
 }
 
 /// `(S_i, sum_k a_ik^2, C_i)` of particle i: the diagonal of the constraint gradient (eq. 16),
@@ -224,7 +225,7 @@ mod tests {
 
     fn params(s: &Scene, kappa: f32) -> SmoothParams {
         SmoothParams {
-            count: s.pos.len() as u32,
+            _pad0: 0,
             h0: 2.0,
             kappa,
             epsilon: 1e-2,
@@ -306,7 +307,7 @@ mod tests {
             .map(|p| if p[0] < 4.0 { 290.0 } else { 300.0 })
             .collect();
         let run = |dt: f64, substeps: usize, per_substep: bool| {
-            let mut p = SmoothParams::new(&cfg, s.pos.len() as u32, dt);
+            let mut p = SmoothParams::new(&cfg, dt);
             if per_substep {
                 p.kappa = cfg.physics.smoothing.kappa as f32;
             }

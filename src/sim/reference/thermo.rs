@@ -3,6 +3,7 @@
 //! same [`ThermoParams`] the GPU gets, widened to f64.
 use crate::sim::noise::value_noise3;
 use crate::sim::thermo::ThermoParams;
+use glam::DVec3;
 
 /// Saturation limit gamma of eq. 10: `min(A exp(B / (T + C)), v + w)`.
 pub fn saturation_limit(p: &ThermoParams, temperature: f64, vapor: f64, cloud: f64) -> f64 {
@@ -37,18 +38,18 @@ fn wrap_delta(d: f64, s: f64, periodic: bool) -> f64 {
 
 /// Ground heating rate of eq. 5 (K/s) at a position, at the time in `p`: the noise pattern
 /// and the disc sources (mirror of `heating_rate`, below `heat_height` only).
-pub fn heating_rate(p: &ThermoParams, pos: [f64; 3]) -> f64 {
-    if pos[1] >= p.heat_height as f64 {
+pub fn heating_rate(p: &ThermoParams, pos: DVec3) -> f64 {
+    if pos.y >= p.heat_height as f64 {
         return 0.0;
     }
     let mut rate = 0.0;
     if p.heat_noise != 0 {
-        rate = p.heat_source as f64 * heat_factor(p, pos[0], pos[2], p.time as f64);
+        rate = p.heat_source as f64 * heat_factor(p, pos.x, pos.z, p.time as f64);
     }
     for src in &p.sources[..p.n_sources as usize] {
         let s = src.map(|v| v as f64);
-        let dx = wrap_delta(pos[0] - s[0], p.size_x as f64, p.periodic & 1 != 0);
-        let dz = wrap_delta(pos[2] - s[1], p.size_z as f64, p.periodic & 4 != 0);
+        let dx = wrap_delta(pos.x - s[0], p.size_x as f64, p.periodic & 1 != 0);
+        let dz = wrap_delta(pos.z - s[1], p.size_z as f64, p.periodic & 4 != 0);
         rate += s[3] * crate::config::HeatSource::falloff(s[2], dx, dz);
     }
     rate
@@ -85,12 +86,7 @@ pub fn layer_mean(p: &ThermoParams, y: f64) -> f64 {
 
 /// One particle: `pos` read, `vel` (xyz, w = the height gained by this substep's move) and
 /// `thermo` = (T, v, w, E) updated in place.
-pub fn thermo_step_particle(
-    p: &ThermoParams,
-    pos: [f64; 3],
-    vel: &mut [f64; 4],
-    th: &mut [f64; 4],
-) {
+pub fn thermo_step_particle(p: &ThermoParams, pos: DVec3, vel: &mut [f64; 4], th: &mut [f64; 4]) {
     let dt = p.dt as f64;
     let mut temp = th[0];
     // eq. 5, and the ground's evaporation
@@ -98,9 +94,9 @@ pub fn thermo_step_particle(
     temp += heat;
     th[1] += heat * p.ground_vapor as f64;
     // eq. 6
-    let t0 = environment_temperature(p, pos[1]);
+    let t0 = environment_temperature(p, pos.y);
     let force = p.buoyancy as f64 * (temp - t0) / t0 - p.cloud_weight as f64 * th[2];
-    vel[1] += dt * (force - layer_mean(p, pos[1]));
+    vel[1] += dt * (force - layer_mean(p, pos.y));
     // eq. 7, over the height gained by the move
     temp -= p.adiabatic_lapse_rate as f64 * vel[3];
     // eqs. 8-10
@@ -128,7 +124,7 @@ pub fn thermo_step(
         .zip(thermo.iter_mut())
         .take(n)
     {
-        thermo_step_particle(p, *q, u, th);
+        thermo_step_particle(p, DVec3::from(*q), u, th);
     }
 }
 
@@ -155,7 +151,7 @@ mod tests {
     fn phase_transition_conserves_water_per_particle() {
         let mut cfg = shot();
         cfg.physics.phase_rate = 2.0; // phase_fraction near 1: the hardest case for clamping
-        let p = ThermoParams::new(&cfg, 500, 2.0, 0.0);
+        let p = ThermoParams::new(&cfg, 2.0, 0.0);
         let mut rng = ChaCha8Rng::seed_from_u64(11);
         let pos: Vec<[f64; 3]> = (0..500)
             .map(|_| {
@@ -227,7 +223,7 @@ mod tests {
         let mut cfg = shot();
         cfg.physics.heat_source = 0.0;
         let n = 300;
-        let p = ThermoParams::new(&cfg, n as u32, 2.0, 0.0);
+        let p = ThermoParams::new(&cfg, 2.0, 0.0);
         let pos: Vec<[f64; 3]> = (0..n)
             .map(|k| [13.0 * k as f64, 10.0 * k as f64, 7.0 * k as f64])
             .collect();
@@ -258,7 +254,7 @@ mod tests {
     #[test]
     fn saturation_limit_matches_eq10() {
         let cfg = shot();
-        let p = ThermoParams::new(&cfg, 1, 1.0, 0.0);
+        let p = ThermoParams::new(&cfg, 1.0, 0.0);
         let (a, b, c) = (
             p.saturation_a as f64,
             p.saturation_b as f64,
@@ -353,7 +349,7 @@ mod tests {
         dt: f64,
         steps: usize,
     ) -> (Vec<ParcelRow>, Option<usize>) {
-        let p0 = ThermoParams::new(cfg, 1, dt, 0.0);
+        let p0 = ThermoParams::new(cfg, dt, 0.0);
         // Hottest ground point of the pattern at t = 0 on a 20 m raster.
         let mut best = (0.0, 0.0, -1.0);
         for i in 0..(cfg.domain.size[0] / 20.0) as usize {
@@ -368,24 +364,24 @@ mod tests {
         let y0 = 0.25 * cfg.physics.heat_height;
         let init = initial_thermo(&cfg.physics, y0);
         let mut th = [init[0] as f64, init[1] as f64, 0.0, 0.0];
-        let mut pos = [best.0, y0, best.1];
+        let mut pos = DVec3::new(best.0, y0, best.1);
         let mut vel = [0.0; 4];
         let mut trace = Vec::new();
         let mut base = None;
         for step in 0..steps {
             // the move, then the thermodynamics of the height it gained (the substep's order)
-            pos[1] += vel[1] * dt;
+            pos.y += vel[1] * dt;
             vel[3] = vel[1] * dt;
-            let p = ThermoParams::new(cfg, 1, dt, step as f64 * dt);
+            let p = ThermoParams::new(cfg, dt, step as f64 * dt);
             thermo_step_particle(&p, pos, &mut vel, &mut th);
             if th[2] > 0.0 && base.is_none() {
                 base = Some(step);
             }
             trace.push(ParcelRow {
                 time: (step + 1) as f64 * dt,
-                y: pos[1],
+                y: pos.y,
                 t: th[0],
-                t0: environment_temperature(&cfg.physics, pos[1]),
+                t0: environment_temperature(&cfg.physics, pos.y),
                 v: th[1],
                 w: th[2],
             });

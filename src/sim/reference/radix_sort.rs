@@ -1,39 +1,6 @@
-//! CPU mirror of shaders/scan.wgsl and shaders/radix_sort.wgsl (same entry names), composed
-//! into the whole sort as `gpu::sort::RadixSort` runs it.
-pub const BLOCK: usize = 256;
-
-/// Exclusive scan of each block of 256 in place; returns the block sums.
-pub fn scan_blocks(data: &mut [u32]) -> Vec<u32> {
-    data.chunks_mut(BLOCK)
-        .map(|b| {
-            let mut s = 0u32;
-            for v in b.iter_mut() {
-                let x = *v;
-                *v = s;
-                s = s.wrapping_add(x);
-            }
-            s
-        })
-        .collect()
-}
-
-/// Adds the scanned block sums back to each block.
-pub fn scan_add(data: &mut [u32], sums: &[u32]) {
-    for (b, s) in data.chunks_mut(BLOCK).zip(sums) {
-        for v in b {
-            *v = v.wrapping_add(*s);
-        }
-    }
-}
-
-/// Multi-level exclusive scan, as `PrefixScan::encode` composes it.
-pub fn prefix_scan(data: &mut [u32]) {
-    let mut sums = scan_blocks(data);
-    if sums.len() > 1 {
-        prefix_scan(&mut sums);
-        scan_add(data, &sums);
-    }
-}
+//! Mirror of shaders/radix_sort.wgsl (`radix_count`, `radix_scatter`), composed with the
+//! [`scan`](super::scan) mirror into the whole sort as `gpu::sort::RadixSort` runs it.
+use super::scan::{prefix_scan, BLOCK};
 
 /// Digit histogram per tile of 256, digit-major.
 pub fn radix_count(keys: &[u32], shift: u32) -> Vec<u32> {
@@ -75,7 +42,7 @@ pub fn radix_sort(keys: &[u32], vals: &[u32], bits: u32) -> (Vec<u32>, Vec<u32>)
     let (mut k, mut v) = (keys.to_vec(), vals.to_vec());
     for p in 0..bits.max(1).div_ceil(4) {
         let mut hist = radix_count(&k, 4 * p);
-        prefix_scan(&mut hist);
+        prefix_scan(&mut hist, 0);
         (k, v) = radix_scatter(&k, &v, 4 * p, &hist);
     }
     (k, v)
