@@ -2,16 +2,16 @@
 //! water, disjoint merges, determinism, split-then-merge round trip, full capacity.
 //! Runs on any wgpu adapter (lavapipe here): `XDG_RUNTIME_DIR=/tmp/xdg cargo test --test gpu_adaptive`.
 #![allow(clippy::needless_range_loop)] // component loops over xyz read clearer indexed
-mod mirror;
+mod harness;
 
 use nimbus::config::AdaptiveConfig;
 use nimbus::gpu::Context;
 use nimbus::sim::adaptive::{level_mass_units, AdaptiveParams, AdaptiveReport, AdaptiveStage};
 use nimbus::sim::buffers::ParticleBuffers;
 use nimbus::sim::grid_params::GridParams;
-use nimbus::sim::ParticleState;
 use nimbus::sim::reference::adaptive::{self as mirror, RefParticles};
 use nimbus::sim::reference::grid::build_cell_table;
+use nimbus::sim::ParticleState;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -21,7 +21,7 @@ const H0: f64 = 0.1;
 const TOL: f64 = 1e-5;
 
 fn ctx() -> std::sync::Arc<Context> {
-    mirror::context()
+    harness::context()
 }
 
 /// The device side of a setup: particle buffers of its capacity and the stage bound to them.
@@ -83,12 +83,6 @@ impl Host {
     }
 }
 
-fn pad<T: Copy + Default>(v: &[T], cap: usize) -> Vec<T> {
-    let mut out = v.to_vec();
-    out.resize(cap, T::default());
-    out
-}
-
 struct Setup {
     grid: GridParams,
     cfg: AdaptiveConfig,
@@ -104,10 +98,10 @@ impl Setup {
     }
 
     /// The scene of `host` (sorted into cell order) in the stage's input contract.
-    fn scene(&self, host: &mut Host, next_id: u32) -> mirror::Scene {
+    fn scene(&self, host: &mut Host, next_id: u32) -> harness::Scene {
         let cell_start = host.sort(&self.grid);
         let n = host.len();
-        mirror::Scene {
+        harness::Scene {
             grid: self.grid,
             state: ParticleState {
                 pos: host.pos.clone(),
@@ -124,10 +118,16 @@ impl Setup {
     }
 
     /// Sorts `host`, runs the GPU stage, returns the live particles and the report.
-    fn gpu(&self, ctx: &Context, gpu: &Gpu, host: &mut Host, next_id: u32) -> (Host, AdaptiveReport) {
+    fn gpu(
+        &self,
+        ctx: &Context,
+        gpu: &Gpu,
+        host: &mut Host,
+        next_id: u32,
+    ) -> (Host, AdaptiveReport) {
         self.scene(host, next_id).write_into(ctx, &gpu.b);
         let rep = gpu.stage.run(ctx, &gpu.b.live).unwrap();
-        let (out, live) = mirror::read_particles(ctx, &gpu.b);
+        let (out, live) = harness::read_particles(ctx, &gpu.b);
         assert_eq!((live.count, live.next_id), (rep.count, rep.next_id));
         let out = Host {
             pos: out.pos,
@@ -592,13 +592,5 @@ fn empty_input_and_bad_count() {
     // more particles than the capacity: refused before anything runs
     let mut crowded = random_host(&mut ChaCha8Rng::seed_from_u64(1), 17, &s.grid);
     let scene = s.scene(&mut crowded, 0);
-    assert!(ParticleBuffers::new(
-        &ctx,
-        &scene.state,
-        16,
-        &scene.grid,
-        &scene.boundary,
-        0
-    )
-    .is_err());
+    assert!(ParticleBuffers::new(&ctx, &scene.state, 16, &scene.grid, &scene.boundary, 0).is_err());
 }

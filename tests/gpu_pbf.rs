@@ -2,9 +2,9 @@
 //! periodicity, determinism, resume, momentum). Runs on any adapter (lavapipe in CI).
 use nimbus::config::{GpuConfig, ShotConfig};
 use nimbus::gpu::Context;
+use nimbus::sim::hooks::{Buf, Step};
 use nimbus::sim::reference::grid::{build_cell_table, for_each_neighbor};
 use nimbus::sim::reference::pbf as mirror;
-use nimbus::sim::hooks::{Buf, Step};
 use nimbus::sim::{ParticleState, SimClock, Simulation};
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
@@ -111,7 +111,7 @@ fn kernels_match_the_mirror(levels: u32) {
     let ctx = ctx();
     let mut sim = Simulation::from_state(ctx, &cfg, &state, SimClock::default()).unwrap();
     let (grid, prm) = (*sim.grid(), *sim.params());
-    assert_eq!(prm.single_level, (levels == 0) as u32);
+    assert_eq!(sim.live().unwrap().single_level, (levels == 0) as u32);
     let n = sim.count();
 
     sim.run_step(Step::Predict).unwrap();

@@ -1,6 +1,6 @@
 //! The GPU radix sort is a stable sort (equal keys keep input order) and matches its mirror; the
 //! one prefix scan matches its mirror in both its modes (values, live flag bits).
-mod mirror;
+mod harness;
 
 use nimbus::gpu::buffers::{read_back, storage_init};
 use nimbus::gpu::live::{Live, LiveBuffer};
@@ -11,8 +11,8 @@ use rand::{Rng, SeedableRng};
 
 #[test]
 fn radix_sort_is_a_stable_sort() {
-    let ctx = mirror::context();
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(mirror::fresh_seed());
+    let ctx = harness::context();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(harness::fresh_seed());
     for (n, max_key, spare) in [
         (1usize, 5u32, 0usize),
         (255, 3, 700),
@@ -52,9 +52,15 @@ fn radix_sort_is_a_stable_sort() {
 
 #[test]
 fn prefix_scan_matches_its_mirror_in_both_modes() {
-    let ctx = mirror::context();
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(mirror::fresh_seed());
-    for (len, live_n) in [(1u32, 1u32), (256, 200), (257, 257), (70_000, 65_537), (300_000, 5)] {
+    let ctx = harness::context();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(harness::fresh_seed());
+    for (len, live_n) in [
+        (1u32, 1u32),
+        (256, 200),
+        (257, 257),
+        (70_000, 65_537),
+        (300_000, 5),
+    ] {
         let values: Vec<u32> = (0..len).map(|_| rng.random_range(0..16u32)).collect();
         let input = storage_init(&ctx.device, "scan input", &values);
         let live = LiveBuffer::new(&ctx, &Live::new(&ctx, live_n, 0, true));
@@ -74,4 +80,3 @@ fn prefix_scan_matches_its_mirror_in_both_modes() {
         }
     }
 }
-

@@ -4,7 +4,7 @@
 //! 3e-5 K, a handful of operations, and the GPU `exp` may be off by a few ulp), 1e-5 m/s in
 //! u_y, 1e-8 kg/kg in v and w. One `smooth_temperature` iteration agrees to 2e-3 K (f32 sums
 //! over ~30 neighbours of coefficients around 1e-2 K per K).
-mod mirror;
+mod harness;
 
 use nimbus::config::ShotConfig;
 use nimbus::gpu::Context;
@@ -21,7 +21,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 fn context() -> std::sync::Arc<Context> {
-    mirror::context()
+    harness::context()
 }
 
 fn shot() -> ShotConfig {
@@ -30,12 +30,6 @@ fn shot() -> ShotConfig {
          domain: {size: [2000.0, 3000.0, 1600.0], spacing: 40.0}\n",
     )
     .unwrap()
-}
-
-fn vec4(v: &[[f64; 3]]) -> Vec<[f32; 4]> {
-    v.iter()
-        .map(|p| [p[0] as f32, p[1] as f32, p[2] as f32, 0.0])
-        .collect()
 }
 
 /// (pos, vel, thermo) arrays.
@@ -63,13 +57,13 @@ fn gpu_thermo(
         info: (0..pos.len() as u32).map(|i| [i, 0]).collect(),
         density: Vec::new(),
     };
-    let scene = mirror::Scene::as_given(GridParams::for_shot(cfg), state, pos.len());
+    let scene = harness::Scene::as_given(GridParams::for_shot(cfg), state, pos.len());
     let b = scene.upload(ctx);
     let stage = ThermoStage::new(ctx, cfg, &b).unwrap();
     for p in params {
-        mirror::submit(ctx, &b, |rec, live| stage.step_with(rec, live, p));
+        harness::submit(ctx, &b, |rec, live| stage.step_with(rec, live, p));
     }
-    let (out, _) = mirror::read_particles(ctx, &b);
+    let (out, _) = harness::read_particles(ctx, &b);
     ThermoRun {
         vel: out.vel,
         thermo: out.thermo,
@@ -333,7 +327,7 @@ fn scene(seed: u64) -> Scene {
     }
 }
 
-fn smooth_params(s: &Scene, kappa: f32) -> SmoothParams {
+fn smooth_params(kappa: f32) -> SmoothParams {
     SmoothParams {
         _pad0: 0,
         h0: 20.0,
@@ -363,13 +357,22 @@ fn gpu_smooth(
     let n = s.pos.len();
     let mut grid = s.grid;
     grid.n_boundary = s.boundary.len() as u32;
-    let scene = mirror::Scene {
+    let scene = harness::Scene {
         grid,
         state: ParticleState {
-            pos: s.pos.iter().map(|q| [q[0] as f32, q[1] as f32, q[2] as f32, 0.0]).collect(),
+            pos: s
+                .pos
+                .iter()
+                .map(|q| [q[0] as f32, q[1] as f32, q[2] as f32, 0.0])
+                .collect(),
             vel: vec![[0.0; 4]; n],
             thermo: thermo.to_vec(),
-            info: s.level.iter().enumerate().map(|(i, &l)| [i as u32, l]).collect(),
+            info: s
+                .level
+                .iter()
+                .enumerate()
+                .map(|(i, &l)| [i as u32, l])
+                .collect(),
             density: vec![0.0; n],
         },
         cell_start: s.cell_start.clone(),
@@ -382,7 +385,9 @@ fn gpu_smooth(
     };
     let b = scene.upload(ctx);
     let stage = SmoothingStage::new(ctx, &cfg, &b).unwrap();
-    let (out, _) = mirror::run_gpu(ctx, &b, |rec, live| stage.smooth_with(rec, live, p, iterations));
+    let (out, _) = harness::run_gpu(ctx, &b, |rec, live| {
+        stage.smooth_with(rec, live, p, iterations)
+    });
     out.thermo
 }
 
@@ -409,7 +414,7 @@ fn smooth_temperature_matches_mirror() {
     let ctx = context();
     for (seed, kappa, iterations) in [(5, 0.1f32, 1u32), (6, 1.0, 1), (8, 0.1, 3)] {
         let s = scene(seed);
-        let p = smooth_params(&s, kappa);
+        let p = smooth_params(kappa);
         let thermo: Vec<[f32; 4]> = s
             .temp
             .iter()
@@ -448,7 +453,7 @@ fn smooth_temperature_matches_mirror() {
 fn gpu_vapor_mixing_matches_mirror_and_conserves() {
     let ctx = context();
     let s = scene(21);
-    let mut p = smooth_params(&s, 0.1);
+    let mut p = smooth_params(0.1);
     let h_min = p.h0 as f64 * (-2.0f64 / 3.0).exp2();
     p.vapor_rate = (10.0 * 2.0 * h_min * h_min / 40.0) as f32;
     let mut rng = ChaCha8Rng::seed_from_u64(22);
@@ -498,7 +503,7 @@ fn gpu_vapor_mixing_matches_mirror_and_conserves() {
 fn gpu_smoothing_lowers_laplacian_norm_and_is_deterministic() {
     let ctx = context();
     let s = scene(12);
-    let p = smooth_params(&s, 0.1);
+    let p = smooth_params(0.1);
     let mut thermo: Vec<[f32; 4]> = s.temp.iter().map(|&t| [t as f32, 0.0, 0.0, 0.0]).collect();
     let norm = |th: &[[f32; 4]]| {
         let t: Vec<f64> = th.iter().map(|v| v[0] as f64).collect();

@@ -40,7 +40,8 @@ pub struct ParticleBuffers {
 }
 
 impl ParticleBuffers {
-    /// Uploads `state` into arrays of `capacity` (a multiple of 64, at least the state's length).
+    /// Uploads `state` into arrays of `capacity` (at least the state's length; the simulation
+    /// rounds it up to a multiple of 64, which the radix sort's array offsets need).
     pub fn new(
         ctx: &Context,
         state: &ParticleState,
@@ -50,7 +51,7 @@ impl ParticleBuffers {
         next_id: u32,
     ) -> Result<Self> {
         let n = state.len();
-        if n > capacity as usize || !capacity.is_multiple_of(64) {
+        if n > capacity as usize {
             return Err(Error::Runtime(format!(
                 "{n} particles do not fit a capacity of {capacity}"
             )));

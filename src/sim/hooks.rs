@@ -94,6 +94,11 @@ impl Simulation {
             .write_buffer(self.buffer(which), 0, bytemuck::cast_slice(data));
     }
 
+    /// The live state on the GPU (count, next id, single-level flag, dispatch arguments).
+    pub fn live(&self) -> Result<crate::gpu::live::Live> {
+        Ok(read_back::<crate::gpu::live::Live>(&self.ctx, self.b.live.buffer(), 1)?[0])
+    }
+
     /// The device arrays (a test runs another stage over them).
     pub fn buffers(&self) -> &ParticleBuffers {
         &self.b

@@ -223,7 +223,7 @@ mod tests {
         }
     }
 
-    fn params(s: &Scene, kappa: f32) -> SmoothParams {
+    fn params(kappa: f32) -> SmoothParams {
         SmoothParams {
             _pad0: 0,
             h0: 2.0,
@@ -270,7 +270,7 @@ mod tests {
             (4, true, 1.0),
         ] {
             let s = scene(seed, levels, 296.0, 284.0);
-            let p = params(&s, kappa);
+            let p = params(kappa);
             let mut rng = ChaCha8Rng::seed_from_u64(seed + 100);
             let mut t: Vec<f64> = (0..s.pos.len())
                 .map(|_| rng.random_range(280.0..300.0))
@@ -342,7 +342,7 @@ mod tests {
             .map(|p| if p[0] < 4.0 { 290.0 } else { 300.0 })
             .collect();
         let run = |kappa: f32, iterations: usize| {
-            let p = params(&s, kappa);
+            let p = params(kappa);
             let mut t = t0.clone();
             for _ in 0..iterations {
                 t = smooth_temperature(&input(&s, &p, &t));
@@ -368,7 +368,7 @@ mod tests {
     #[test]
     fn uniform_field_is_unchanged() {
         let s = scene(9, true, 291.0, 291.0);
-        let p = params(&s, 1.0);
+        let p = params(1.0);
         let t = vec![291.0; s.pos.len()];
         let out = smooth_temperature(&input(&s, &p, &t));
         assert!(out.iter().all(|&v| (v - 291.0).abs() < 1e-9));
@@ -382,7 +382,7 @@ mod tests {
     #[test]
     fn vapor_mixing_conserves_and_stays_in_range() {
         let s = scene(11, true, 295.0, 295.0);
-        let mut p = params(&s, 0.0);
+        let mut p = params(0.0);
         let h_min = 2.0 * (-2.0f64 / 3.0).exp2();
         p.vapor_rate = (100.0 * 2.0 * h_min * h_min / 40.0) as f32;
         let mut rng = ChaCha8Rng::seed_from_u64(12);

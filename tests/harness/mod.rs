@@ -62,9 +62,7 @@ impl Scene {
         capacity: usize,
     ) -> Self {
         let p64 = |v: &[[f32; 4]]| -> Vec<[f64; 3]> {
-            v.iter()
-                .map(|p| [0, 1, 2].map(|a| p[a] as f64))
-                .collect()
+            v.iter().map(|p| [0, 1, 2].map(|a| p[a] as f64)).collect()
         };
         let (order, cell_start) = build_cell_table(&grid, &p64(&state.pos));
         let pick4 = |v: &[[f32; 4]]| order.iter().map(|&o| v[o as usize]).collect::<Vec<_>>();
@@ -82,7 +80,10 @@ impl Scene {
             density,
         };
         let (border, bcell) = build_cell_table(&grid, &p64(&walls));
-        let walls = border.iter().map(|&o| walls[o as usize]).collect::<Vec<_>>();
+        let walls = border
+            .iter()
+            .map(|&o| walls[o as usize])
+            .collect::<Vec<_>>();
         grid.n_boundary = walls.len() as u32;
         let next_id = sorted.info.iter().map(|i| i[0] + 1).max().unwrap_or(0);
         Self {
@@ -146,8 +147,10 @@ impl Scene {
         q.write_buffer(&b.density, 0, bytemuck::cast_slice(&self.state.density));
         q.write_buffer(&b.cell_start, 0, bytemuck::cast_slice(&self.cell_start));
         let single = self.state.info.iter().all(|i| i[1] == 0);
-        b.live
-            .write(ctx, &Live::new(ctx, self.len() as u32, self.next_id, single));
+        b.live.write(
+            ctx,
+            &Live::new(ctx, self.len() as u32, self.next_id, single),
+        );
     }
 }
 
