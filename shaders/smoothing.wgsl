@@ -41,8 +41,8 @@ struct SmoothParams {
 @group(0) @binding(4) var<storage, read> thermo_in: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read_write> thermo_out: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> cell_start: array<u32>;
-@group(0) @binding(7) var<storage, read> boundary: array<vec4<f32>>;
-@group(0) @binding(8) var<storage, read> boundary_cell_start: array<u32>;
+@group(0) @binding(7) var<storage, read> bpos: array<vec4<f32>>;
+@group(0) @binding(8) var<storage, read> bcell_start: array<u32>;
 // the vapor-mixing limiter l_i (written by vapor_limit, read by smooth_temperature)
 @group(0) @binding(9) var<storage, read_write> vapor_limit_of: array<f32>;
 @group(0) @binding(10) var<storage, read> live: Live;
@@ -165,9 +165,9 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                     }
                 }
                 if (S.fixed_walls == 0u) { continue; }
-                let k_end = boundary_cell_start[e.y];
-                for (var k = boundary_cell_start[e.x]; k < k_end; k++) {
-                    let b = boundary[k];
+                let k_end = bcell_start[e.y];
+                for (var k = bcell_start[e.x]; k < k_end; k++) {
+                    let b = bpos[k];
                     let xik = min_image(xi - b.xyz, grid);
                     let r2 = dot(xik, xik);
                     if (r2 >= h02) { continue; }

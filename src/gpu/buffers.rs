@@ -28,11 +28,6 @@ pub fn storage_init<T: bytemuck::Pod>(
     })
 }
 
-/// A binding over the whole of `buffer`.
-pub fn whole(buffer: &wgpu::Buffer) -> wgpu::BindingResource<'_> {
-    buffer.as_entire_binding()
-}
-
 /// A binding over `size` bytes of `buffer` from `offset`.
 pub fn range(buffer: &wgpu::Buffer, offset: u64, size: u64) -> wgpu::BindingResource<'_> {
     wgpu::BindingResource::Buffer(wgpu::BufferBinding {

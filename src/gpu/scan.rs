@@ -92,31 +92,22 @@ impl PrefixScan {
         let mut levels = Vec::new();
         for (k, &len) in lens.iter().enumerate() {
             let src = if k == 0 { input } else { &sums[k - 1] };
-            let blocks = stage.bind(
-                ctx,
-                &[
+            // scan_blocks reads `input`; scan_add adds the next level's output back
+            let level = |input: &wgpu::Buffer| {
+                let own = [
                     ("live", live.binding()),
-                    ("input", src.as_entire_binding()),
+                    ("input", input.as_entire_binding()),
                     ("output", outputs[k].as_entire_binding()),
                     ("sums", sums[k].as_entire_binding()),
-                ],
-            )?;
-            let add = match outputs.get(k + 1) {
-                Some(next) => Some(stage.bind(
-                    ctx,
-                    &[
-                        ("live", live.binding()),
-                        ("input", next.as_entire_binding()),
-                        ("output", outputs[k].as_entire_binding()),
-                        ("sums", sums[k].as_entire_binding()),
-                    ],
-                )?),
-                None => None,
+                ];
+                stage.bind(ctx, &[&own])
             };
+            let blocks = level(src)?;
+            let add = outputs.get(k + 1).map(level).transpose()?;
             levels.push(Level { len, blocks, add });
         }
         // the per-dispatch parameters: group 1, a dynamic offset picks mode and level
-        let param_group = stage.bind_group(ctx, 1, &[("sp", params.slot(0))])?;
+        let param_group = stage.bind_group(ctx, 1, &[&[("sp", params.slot(0))]])?;
         Ok(Self {
             stage,
             params,

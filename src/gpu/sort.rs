@@ -63,7 +63,7 @@ impl RadixSort {
                 })
                 .collect::<Vec<_>>(),
         );
-        let param_group = stage.bind_group(ctx, 1, &[("rp", params.slot(0))])?;
+        let param_group = stage.bind_group(ctx, 1, &[&[("rp", params.slot(0))]])?;
         let arr = capacity as u64 * 4;
         let binds = (0..passes)
             .map(|p| {
@@ -72,18 +72,16 @@ impl RadixSort {
                 } else {
                     (2 * arr, 0)
                 };
-                stage.bind(
-                    ctx,
-                    &[
-                        ("live", live.binding()),
-                        ("keys_in", range(pairs, src, arr)),
-                        ("vals_in", range(pairs, src + arr, arr)),
-                        ("keys_out", range(pairs, dst, arr)),
-                        ("vals_out", range(pairs, dst + arr, arr)),
-                        ("hist", hist.as_entire_binding()),
-                        ("offsets", scan.output().as_entire_binding()),
-                    ],
-                )
+                let own = [
+                    ("live", live.binding()),
+                    ("keys_in", range(pairs, src, arr)),
+                    ("vals_in", range(pairs, src + arr, arr)),
+                    ("keys_out", range(pairs, dst, arr)),
+                    ("vals_out", range(pairs, dst + arr, arr)),
+                    ("hist", hist.as_entire_binding()),
+                    ("offsets", scan.output().as_entire_binding()),
+                ];
+                stage.bind(ctx, &[&own])
             })
             .collect::<Result<Vec<_>>>()?;
         Ok(Self {

@@ -3,9 +3,9 @@
 //! A stage is one WGSL file (`shaders/<name>.wgsl`) and the entry points the Rust side uses. Its
 //! bindings are not written down twice: naga reflects them from the WGSL when the stage is built
 //! (name, group, uniform / read-only storage / read-write storage), the bind-group layouts come
-//! from that, and bind groups are made by binding *name*, so a buffer bound under a name the
-//! shader does not declare, or a binding left out, fails when the bind group is made (in a test),
-//! never at dispatch. Workgroup sizes are reflected too (the WGSL writes them with the prelude's
+//! from that, and bind groups are made by binding *name* from [`Resources`] (the particle
+//! buffers, a stage's own buffers), so a binding no source provides fails when the bind group is
+//! made (in every test that builds the stage), never at dispatch. Workgroup sizes are reflected too (the WGSL writes them with the prelude's
 //! constants, `gpu::shaders::Prelude`), so a dispatch is sized in threads.
 //!
 //! Conventions:
@@ -15,10 +15,30 @@
 //! - every entry point of a file shares the file's layouts, so one bind group serves them all.
 //!
 //! Declaring a stage: `Stage::new(ctx, "thermo.wgsl", &["thermo_step"])?`; binding:
-//! `stage.bind(ctx, &[("params", params.binding()), ("pos", pos.as_entire_binding()), ..])?`;
-//! dispatching: `stage.dispatch(pass, "thermo_step", &[&group], Dispatch::Live(&live))`.
+//! `stage.bind(ctx, &[&[("P", params.slot(0))], &particle_buffers])?`; dispatching:
+//! `stage.dispatch(pass, "thermo_step", &[(&group, 0)], Dispatch::Live(&live))`.
 use crate::error::{Error, Result};
 use crate::gpu::Context;
+
+/// Buffers a bind group can be made from, by the WGSL variable name they bind to.
+pub trait Resources {
+    fn resource(&self, name: &str) -> Option<wgpu::BindingResource<'_>>;
+}
+
+/// A stage's own buffers, by name.
+impl Resources for [(&str, wgpu::BindingResource<'_>)] {
+    fn resource(&self, name: &str) -> Option<wgpu::BindingResource<'_>> {
+        self.iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, r)| r.clone())
+    }
+}
+
+impl<const N: usize> Resources for [(&str, wgpu::BindingResource<'_>); N] {
+    fn resource(&self, name: &str) -> Option<wgpu::BindingResource<'_>> {
+        self.as_slice().resource(name)
+    }
+}
 
 /// What a binding holds, as the WGSL declares it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -204,13 +224,11 @@ impl Stage {
         &self.bindings
     }
 
-    /// A group-0 bind group: every binding the WGSL declares in group 0, by name.
-    pub fn bind(
-        &self,
-        ctx: &Context,
-        resources: &[(&str, wgpu::BindingResource)],
-    ) -> Result<wgpu::BindGroup> {
-        self.bind_group(ctx, 0, resources)
+    /// A group-0 bind group: every binding the WGSL declares in group 0, looked up by name in
+    /// `sources`, first source first (so a stage's own buffers can stand in for a particle
+    /// array of the same name).
+    pub fn bind(&self, ctx: &Context, sources: &[&dyn Resources]) -> Result<wgpu::BindGroup> {
+        self.bind_group(ctx, 0, sources)
     }
 
     /// A bind group of `group` (group 0: the buffers; 1..: a per-dispatch uniform, bound with
@@ -219,44 +237,32 @@ impl Stage {
         &self,
         ctx: &Context,
         group: u32,
-        resources: &[(&str, wgpu::BindingResource)],
+        sources: &[&dyn Resources],
     ) -> Result<wgpu::BindGroup> {
-        let declared: Vec<&Binding> = self.bindings.iter().filter(|b| b.group == group).collect();
-        let mut entries = Vec::with_capacity(declared.len());
-        for b in &declared {
-            let matching: Vec<_> = resources.iter().filter(|(n, _)| *n == b.name).collect();
-            match matching.as_slice() {
-                [(_, r)] => entries.push(wgpu::BindGroupEntry {
-                    binding: b.binding,
-                    resource: r.clone(),
-                }),
-                [] => {
-                    return Err(Error::Runtime(format!(
-                        "{}: binding '{}' (group {group}) was not given a buffer",
-                        self.shader, b.name
-                    )))
-                }
-                _ => {
-                    return Err(Error::Runtime(format!(
-                        "{}: binding '{}' was given twice",
-                        self.shader, b.name
-                    )))
-                }
-            }
-        }
-        if let Some((unknown, _)) = resources
-            .iter()
-            .find(|(n, _)| !declared.iter().any(|b| b.name == *n))
-        {
-            return Err(Error::Runtime(format!(
-                "{}: group {group} declares no binding '{unknown}'",
-                self.shader
-            )));
-        }
         let layout = self
             .layouts
             .get(group as usize)
             .ok_or_else(|| Error::Runtime(format!("{}: no bind group {group}", self.shader)))?;
+        let entries = self
+            .bindings
+            .iter()
+            .filter(|b| b.group == group)
+            .map(|b| {
+                let resource = sources
+                    .iter()
+                    .find_map(|s| s.resource(&b.name))
+                    .ok_or_else(|| {
+                        Error::Runtime(format!(
+                            "{}: no buffer for binding '{}' (group {group})",
+                            self.shader, b.name
+                        ))
+                    })?;
+                Ok(wgpu::BindGroupEntry {
+                    binding: b.binding,
+                    resource,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
         Ok(ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some(self.shader),
             layout,

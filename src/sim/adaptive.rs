@@ -23,7 +23,7 @@ use crate::error::{Error, Result};
 use crate::gpu::buffers::{self, ParamSlots};
 use crate::gpu::live::LiveBuffer;
 use crate::gpu::scan::{PrefixScan, ScanOf};
-use crate::gpu::stage::{Dispatch, Stage};
+use crate::gpu::stage::{Dispatch, Resources, Stage};
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::grid_params::GridParams;
@@ -412,94 +412,29 @@ impl AdaptiveStage {
             &b.live,
             &[ScanOf::LiveFlags(FLAG_DEAD), ScanOf::LiveFlags(FLAG_SPLIT)],
         )?;
-        let e = crate::gpu::buffers::whole;
-        let scan0 = scan.output();
+        // the stage's own buffers, by the names its shaders bind them by
+        let own = [
+            ("params", param_buf.slot(0)),
+            ("flags", flags.as_entire_binding()),
+            ("scan", scan.output().as_entire_binding()),
+            ("hole_index", hole_index.as_entire_binding()),
+            ("counters", counters.as_entire_binding()),
+            ("load", load.as_entire_binding()),
+            ("cells", cells.as_entire_binding()),
+            ("colour_list", colour_list.as_entire_binding()),
+            ("colour_count", colour_count.as_entire_binding()),
+            ("merge_args", merge_args.as_entire_binding()),
+            ("colour_map", colour_map.slot(0)),
+        ];
+        let sources: [&dyn Resources; 2] = [&own, b];
         let binds = Binds {
-            mark: mark.bind(
-                ctx,
-                &[
-                    ("grid", b.grid.slot(0)),
-                    ("params", param_buf.slot(0)),
-                    ("pos", e(&b.pos)),
-                    ("thermo", e(&b.thermo)),
-                    ("info", e(&b.info)),
-                    ("cell_start", e(&b.cell_start)),
-                    ("flags", e(&flags)),
-                    ("live", b.live.binding()),
-                ],
-            )?,
-            merge: merge.bind(
-                ctx,
-                &[
-                    ("grid", b.grid.slot(0)),
-                    ("params", param_buf.slot(0)),
-                    ("pos", e(&b.pos)),
-                    ("vel", e(&b.vel)),
-                    ("thermo", e(&b.thermo)),
-                    ("info", e(&b.info)),
-                    ("cell_start", e(&b.cell_start)),
-                    ("flags", e(&flags)),
-                    ("cells", e(&cells)),
-                    ("colour_list", e(&colour_list)),
-                    ("colour_count", e(&colour_count)),
-                ],
-            )?,
-            colour: merge.bind_group(ctx, 1, &[("colour", colours.slot(0))])?,
-            plan: plan.bind(
-                ctx,
-                &[
-                    ("grid", b.grid.slot(0)),
-                    ("colour_map", colour_map.slot(0)),
-                    ("cell_start", e(&b.cell_start)),
-                    ("flags", e(&flags)),
-                    ("cells", e(&cells)),
-                    ("colour_list", e(&colour_list)),
-                    ("colour_count", e(&colour_count)),
-                    ("merge_args", e(&merge_args)),
-                    ("load", e(&load)),
-                ],
-            )?,
-            compact: compact.bind(
-                ctx,
-                &[
-                    ("params", param_buf.slot(0)),
-                    ("counters", e(&counters)),
-                    ("scan", e(scan0)),
-                    ("flags", e(&flags)),
-                    ("hole_index", e(&hole_index)),
-                    ("pos", e(&b.pos)),
-                    ("vel", e(&b.vel)),
-                    ("thermo", e(&b.thermo)),
-                    ("info", e(&b.info)),
-                    ("live", b.live.binding()),
-                ],
-            )?,
-            split: split.bind(
-                ctx,
-                &[
-                    ("grid", b.grid.slot(0)),
-                    ("params", param_buf.slot(0)),
-                    ("counters", e(&counters)),
-                    ("scan", e(scan0)),
-                    ("flags", e(&flags)),
-                    ("pos", e(&b.pos)),
-                    ("vel", e(&b.vel)),
-                    ("thermo", e(&b.thermo)),
-                    ("info", e(&b.info)),
-                    ("live", b.live.binding()),
-                ],
-            )?,
-            stats: stats.bind(
-                ctx,
-                &[
-                    ("params", param_buf.slot(0)),
-                    ("counters", e(&counters)),
-                    ("scan", e(scan0)),
-                    ("flags", e(&flags)),
-                    ("info", e(&b.info)),
-                    ("live", b.live.binding()),
-                ],
-            )?,
+            mark: mark.bind(ctx, &sources)?,
+            merge: merge.bind(ctx, &sources)?,
+            colour: merge.bind_group(ctx, 1, &[&[("colour", colours.slot(0))]])?,
+            plan: plan.bind(ctx, &sources)?,
+            compact: compact.bind(ctx, &sources)?,
+            split: split.bind(ctx, &sources)?,
+            stats: stats.bind(ctx, &sources)?,
         };
         Ok(Self {
             params,

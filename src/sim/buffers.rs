@@ -81,6 +81,7 @@ impl ParticleBuffers {
         })
     }
 
+    /// Bytes of the particle set's buffers (the stages' own scratch not included).
     pub fn device_bytes(&self) -> u64 {
         [
             &self.pos,
@@ -99,5 +100,26 @@ impl ParticleBuffers {
         .sum::<u64>()
             + self.grid.size()
             + self.live.size()
+    }
+}
+
+/// The particle set's buffers under the names every stage's WGSL binds them by.
+impl crate::gpu::stage::Resources for ParticleBuffers {
+    fn resource(&self, name: &str) -> Option<wgpu::BindingResource<'_>> {
+        let buffer = match name {
+            "grid" => return Some(self.grid.slot(0)),
+            "live" => return Some(self.live.binding()),
+            "pos" => &self.pos,
+            "vel" => &self.vel,
+            "thermo" => &self.thermo,
+            "info" => &self.info,
+            "pred" => &self.pred,
+            "density" => &self.density,
+            "cell_start" => &self.cell_start,
+            "bpos" => &self.bpos,
+            "bcell_start" => &self.bcell_start,
+            _ => return None,
+        };
+        Some(buffer.as_entire_binding())
     }
 }

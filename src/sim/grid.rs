@@ -34,30 +34,22 @@ impl GridStage {
         let sort = RadixSort::new(ctx, &b.pairs, b.capacity, bits, &b.live)?;
         let arr = b.capacity as u64 * 4;
         let (ko, vo) = sort.result_offsets();
-        let e = crate::gpu::buffers::whole;
+        // the keys of the predicted positions, sorted in the pairs buffer's arrays
         let grid_bind = |keys_at: u64, vals_at: u64| {
-            keys.bind(
-                ctx,
-                &[
-                    ("grid", b.grid.slot(0)),
-                    ("pos_in", e(&b.pred)),
-                    ("keys", range(&b.pairs, keys_at, arr)),
-                    ("vals", range(&b.pairs, vals_at, arr)),
-                    ("cell_start", e(&b.cell_start)),
-                    ("live", b.live.binding()),
-                ],
-            )
+            let own = [
+                ("pos_in", b.pred.as_entire_binding()),
+                ("keys", range(&b.pairs, keys_at, arr)),
+                ("vals", range(&b.pairs, vals_at, arr)),
+            ];
+            keys.bind(ctx, &[&own, b])
         };
         let perm = |stage: &Stage, src: &wgpu::Buffer, dst: &wgpu::Buffer| {
-            stage.bind(
-                ctx,
-                &[
-                    ("live", b.live.binding()),
-                    ("order", range(&b.pairs, vo, arr)),
-                    ("src", e(src)),
-                    ("dst", e(dst)),
-                ],
-            )
+            let own = [
+                ("order", range(&b.pairs, vo, arr)),
+                ("src", src.as_entire_binding()),
+                ("dst", dst.as_entire_binding()),
+            ];
+            stage.bind(ctx, &[&own, b])
         };
         let perm4_binds = [&b.pos, &b.pred, &b.thermo]
             .iter()

@@ -119,35 +119,19 @@ impl PbfStage {
         let stage = Stage::new(ctx, "pbf.wgsl", &ENTRIES)?;
         let copy = Stage::new(ctx, "permute4.wgsl", &["copy4"])?;
         let params = ParamSlots::single(ctx, "pbf params", params);
-        let e = crate::gpu::buffers::whole;
-        let bind = stage.bind(
-            ctx,
-            &[
-                ("grid", b.grid.slot(0)),
-                ("prm", params.slot(0)),
-                ("pos", e(&b.pos)),
-                ("vel", e(&b.vel)),
-                ("pred", e(&b.pred)),
-                ("scratch", e(&b.pairs)),
-                ("density", e(&b.density)),
-                ("info", e(&b.info)),
-                ("cell_start", e(&b.cell_start)),
-                ("bpos", e(&b.bpos)),
-                ("bcell_start", e(&b.bcell_start)),
-                ("live", b.live.binding()),
-            ],
-        )?;
+        let own = [
+            ("prm", params.slot(0)),
+            ("scratch", b.pairs.as_entire_binding()),
+        ];
+        let bind = stage.bind(ctx, &[&own, b])?;
         // copies do not read `order`; bind an unrelated buffer there so nothing aliases
         let copy_bind = |src: &wgpu::Buffer, dst: &wgpu::Buffer| {
-            copy.bind(
-                ctx,
-                &[
-                    ("live", b.live.binding()),
-                    ("order", e(&b.density)),
-                    ("src", e(src)),
-                    ("dst", e(dst)),
-                ],
-            )
+            let own = [
+                ("order", b.density.as_entire_binding()),
+                ("src", src.as_entire_binding()),
+                ("dst", dst.as_entire_binding()),
+            ];
+            copy.bind(ctx, &[&own, b])
         };
         Ok(Self {
             scratch_to_vel: copy_bind(&b.pairs, &b.vel)?,

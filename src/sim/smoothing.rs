@@ -109,23 +109,13 @@ impl SmoothingStage {
             limit_len.max(1),
         );
         let params = ParamSlots::single(ctx, "smoothing params", &SmoothParams::new(cfg, 1.0));
-        let e = crate::gpu::buffers::whole;
-        let bind = stage.bind(
-            ctx,
-            &[
-                ("grid", b.grid.slot(0)),
-                ("S", params.slot(0)),
-                ("pos", e(&b.pos)),
-                ("info", e(&b.info)),
-                ("thermo_in", e(&b.thermo)),
-                ("thermo_out", e(&scratch)),
-                ("cell_start", e(&b.cell_start)),
-                ("boundary", e(&b.bpos)),
-                ("boundary_cell_start", e(&b.bcell_start)),
-                ("vapor_limit_of", e(&limit)),
-                ("live", b.live.binding()),
-            ],
-        )?;
+        let own = [
+            ("S", params.slot(0)),
+            ("thermo_in", b.thermo.as_entire_binding()),
+            ("thermo_out", scratch.as_entire_binding()),
+            ("vapor_limit_of", limit.as_entire_binding()),
+        ];
+        let bind = stage.bind(ctx, &[&own, b])?;
         Ok(Self {
             stage,
             params,

@@ -256,16 +256,7 @@ impl ThermoStage {
     pub fn new(ctx: &Context, cfg: &ShotConfig, b: &ParticleBuffers) -> Result<Self> {
         let stage = Stage::new(ctx, SHADER, &[ENTRY])?;
         let params = ParamSlots::single(ctx, "thermo params", &ThermoParams::new(cfg, 0.0, 0.0));
-        let bind = stage.bind(
-            ctx,
-            &[
-                ("P", params.slot(0)),
-                ("pos", b.pos.as_entire_binding()),
-                ("vel", b.vel.as_entire_binding()),
-                ("thermo", b.thermo.as_entire_binding()),
-                ("live", b.live.binding()),
-            ],
-        )?;
+        let bind = stage.bind(ctx, &[&[("P", params.slot(0))], b])?;
         Ok(Self {
             stage,
             params,
