@@ -2,7 +2,7 @@
 //! one prefix scan matches its mirror in both its modes (values, live flag bits).
 mod harness;
 
-use nimbus::gpu::buffers::{read_back, storage_init};
+use nimbus::gpu::buffers::{read_back, storage_init, Span};
 use nimbus::gpu::live::{Live, LiveBuffer};
 use nimbus::gpu::scan::{PrefixScan, ScanOf};
 use nimbus::gpu::sort::{key_bits, RadixSort};
@@ -65,12 +65,12 @@ fn prefix_scan_matches_its_mirror_in_both_modes() {
         let input = storage_init(&ctx.device, "scan input", &values);
         let live = LiveBuffer::new(&ctx, &Live::new(&ctx, live_n, 0, true));
         let modes = [ScanOf::Values, ScanOf::LiveFlags(4)];
-        let scan = PrefixScan::new(&ctx, &input, len, &live, &modes).unwrap();
+        let scan = PrefixScan::new(&ctx, &Span::whole(&input), None, len, &live, &modes).unwrap();
         for (mode, what) in modes.iter().enumerate() {
             let mut rec = Recorder::new(&ctx, None, None);
             scan.encode(&mut rec.pass(Phase::Grid), mode);
             rec.submit();
-            let got: Vec<u32> = read_back(&ctx, scan.output(), len as usize).unwrap();
+            let got: Vec<u32> = read_back(&ctx, &scan.output().buffer, len as usize).unwrap();
             let (n, mask) = match what {
                 ScanOf::Values => (len as usize, 0),
                 ScanOf::LiveFlags(m) => (live_n as usize, *m),

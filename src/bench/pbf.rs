@@ -43,6 +43,7 @@ pub fn bench_pbf(particles: usize, steps: u32, warmup: u32) -> Result<serde_json
         *v /= steps.max(1) as f64;
     }
     let diag = last.map(|r| r.diagnostics).unwrap_or_default();
+    let adaptive = adaptive_memory(&ctx, &cfg)?;
     Ok(serde_json::json!({
         "particles": n,
         "boundary_particles": sim.boundary_count(),
@@ -55,6 +56,23 @@ pub fn bench_pbf(particles: usize, steps: u32, warmup: u32) -> Result<serde_json
         "phase_ms": phases,
         "device_bytes": sim.device_bytes(),
         "device_bytes_per_particle": sim.device_bytes() as f64 / n as f64,
+        "with_adaptivity": adaptive,
         "diagnostics": diag,
+    }))
+}
+
+/// Device bytes of the same box with smoothing and adaptivity on (every stage's buffers), per
+/// live particle and per particle of capacity (`adaptive.capacity_factor` slots per particle).
+fn adaptive_memory(ctx: &Arc<crate::gpu::Context>, cfg: &ShotConfig) -> Result<serde_json::Value> {
+    let mut cfg = cfg.clone();
+    cfg.adaptive.enabled = true;
+    cfg.physics.smoothing.enabled = true;
+    let sim = Simulation::new(ctx.clone(), &cfg)?;
+    let bytes = sim.device_bytes() as f64;
+    Ok(serde_json::json!({
+        "capacity_factor": cfg.adaptive.capacity_factor,
+        "device_bytes": bytes,
+        "device_bytes_per_particle": bytes / sim.count() as f64,
+        "device_bytes_per_capacity_slot": bytes / sim.capacity() as f64,
     }))
 }

@@ -28,6 +28,39 @@ pub fn storage_init<T: bytemuck::Pod>(
     })
 }
 
+/// A range of a buffer that a stage binds as one array (a stage's scratch can be a stretch of
+/// a particle array that is dead while the stage runs).
+#[derive(Debug, Clone)]
+pub struct Span {
+    pub buffer: wgpu::Buffer,
+    pub offset: u64,
+    pub size: u64,
+}
+
+impl Span {
+    pub fn whole(buffer: &wgpu::Buffer) -> Self {
+        Self {
+            buffer: buffer.clone(),
+            offset: 0,
+            size: buffer.size(),
+        }
+    }
+
+    /// `size` bytes of `buffer` from `offset` (multiples of 256, the storage binding alignment).
+    pub fn new(buffer: &wgpu::Buffer, offset: u64, size: u64) -> Self {
+        assert!(offset + size <= buffer.size(), "span past the buffer's end");
+        Self {
+            buffer: buffer.clone(),
+            offset,
+            size,
+        }
+    }
+
+    pub fn binding(&self) -> wgpu::BindingResource<'_> {
+        range(&self.buffer, self.offset, self.size)
+    }
+}
+
 /// A binding over `size` bytes of `buffer` from `offset`.
 pub fn range(buffer: &wgpu::Buffer, offset: u64, size: u64) -> wgpu::BindingResource<'_> {
     wgpu::BindingResource::Buffer(wgpu::BufferBinding {

@@ -3,7 +3,7 @@
 //! radix sort scans its digit histograms with it, the adaptive stage its flag bits. Integer adds
 //! only: exact, and the same on every run. Mirror: `sim::reference::scan`.
 use crate::error::Result;
-use crate::gpu::buffers::{storage_zeroed, ParamSlots};
+use crate::gpu::buffers::{storage_zeroed, ParamSlots, Span};
 use crate::gpu::live::LiveBuffer;
 use crate::gpu::stage::{Dispatch, Stage};
 use crate::gpu::Context;
@@ -36,23 +36,27 @@ struct Level {
     add: Option<wgpu::BindGroup>,
 }
 
-/// An exclusive scan of the first `max_len` u32 of one input buffer into its own output buffer,
-/// in one or more modes ([`ScanOf`]) that share the buffers.
+/// An exclusive scan of the first `max_len` u32 of one input array into an output array (its
+/// own, or a span the caller lends), in one or more modes ([`ScanOf`]) that share the buffers.
 pub struct PrefixScan {
     stage: Stage,
     params: ParamSlots<ScanParams>,
     param_group: wgpu::BindGroup,
     levels: Vec<Level>,
     /// Scanned values of each level (level 0's is the result).
-    outputs: Vec<wgpu::Buffer>,
+    outputs: Vec<Span>,
+    /// Level 0's output is a span the caller lent.
+    lent_output: bool,
     sums: Vec<wgpu::Buffer>,
     modes: usize,
 }
 
 impl PrefixScan {
+    /// A scan of `input` into `output` (`max_len` u32 each; `None`: a buffer of its own).
     pub fn new(
         ctx: &Context,
-        input: &wgpu::Buffer,
+        input: &Span,
+        output: Option<Span>,
         max_len: u32,
         live: &LiveBuffer,
         modes: &[ScanOf],
@@ -65,10 +69,18 @@ impl PrefixScan {
             lens.push(lens.last().unwrap().div_ceil(block));
         }
         let dev = &ctx.device;
-        let outputs: Vec<wgpu::Buffer> = lens
-            .iter()
-            .map(|&n| storage_zeroed::<u32>(dev, "scan output", n as usize))
-            .collect();
+        let own_output =
+            |n: u32| Span::whole(&storage_zeroed::<u32>(dev, "scan output", n as usize));
+        let mut outputs: Vec<Span> = lens.iter().map(|&n| own_output(n)).collect();
+        let lent_output = output.is_some();
+        if let Some(lent) = output {
+            assert!(
+                lent.size >= max_len as u64 * 4,
+                "scan output span too short"
+            );
+            outputs[0] = lent;
+        }
+        let input = input.clone();
         let sums: Vec<wgpu::Buffer> = lens
             .iter()
             .map(|&n| storage_zeroed::<u32>(dev, "scan sums", n.div_ceil(block) as usize))
@@ -91,18 +103,22 @@ impl PrefixScan {
         let params = ParamSlots::new(ctx, "scan params", &slots);
         let mut levels = Vec::new();
         for (k, &len) in lens.iter().enumerate() {
-            let src = if k == 0 { input } else { &sums[k - 1] };
+            let src = if k == 0 {
+                input.clone()
+            } else {
+                Span::whole(&sums[k - 1])
+            };
             // scan_blocks reads `input`; scan_add adds the next level's output back
-            let level = |input: &wgpu::Buffer| {
+            let level = |input: &Span| {
                 let own = [
                     ("live", live.binding()),
-                    ("input", input.as_entire_binding()),
-                    ("output", outputs[k].as_entire_binding()),
+                    ("input", input.binding()),
+                    ("output", outputs[k].binding()),
                     ("sums", sums[k].as_entire_binding()),
                 ];
                 stage.bind(ctx, &[&own])
             };
-            let blocks = level(src)?;
+            let blocks = level(&src)?;
             let add = outputs.get(k + 1).map(level).transpose()?;
             levels.push(Level { len, blocks, add });
         }
@@ -114,13 +130,14 @@ impl PrefixScan {
             param_group,
             levels,
             outputs,
+            lent_output,
             sums,
             modes: modes.len(),
         })
     }
 
     /// The scan's result: `max_len` exclusive prefix sums.
-    pub fn output(&self) -> &wgpu::Buffer {
+    pub fn output(&self) -> &Span {
         &self.outputs[0]
     }
 
@@ -149,12 +166,11 @@ impl PrefixScan {
         }
     }
 
+    /// Bytes the scan allocated (a lent output span is the lender's).
     pub fn device_bytes(&self) -> u64 {
-        self.outputs
-            .iter()
-            .chain(&self.sums)
-            .map(|b| b.size())
-            .sum::<u64>()
+        let own = self.outputs.iter().skip(self.lent_output as usize);
+        own.map(|o| o.size).sum::<u64>()
+            + self.sums.iter().map(|b| b.size()).sum::<u64>()
             + self.params.size()
     }
 }

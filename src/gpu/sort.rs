@@ -4,7 +4,7 @@
 //! the output order is the same on every run and equal keys keep their input order. The number
 //! of pairs is the live particle count, read on the GPU (`gpu::live`).
 use crate::error::Result;
-use crate::gpu::buffers::{range, storage_zeroed, ParamSlots};
+use crate::gpu::buffers::{range, storage_zeroed, ParamSlots, Span};
 use crate::gpu::live::LiveBuffer;
 use crate::gpu::scan::{PrefixScan, ScanOf};
 use crate::gpu::stage::{Dispatch, Stage};
@@ -51,7 +51,14 @@ impl RadixSort {
         let passes = key_bits.max(1).div_ceil(4);
         let max_tiles = capacity.div_ceil(ctx.prelude.wg_block).max(1);
         let hist = storage_zeroed::<u32>(&ctx.device, "radix hist", (16 * max_tiles) as usize);
-        let scan = PrefixScan::new(ctx, &hist, 16 * max_tiles, live, &[ScanOf::Values])?;
+        let scan = PrefixScan::new(
+            ctx,
+            &Span::whole(&hist),
+            None,
+            16 * max_tiles,
+            live,
+            &[ScanOf::Values],
+        )?;
         let params = ParamSlots::new(
             ctx,
             "radix params",
@@ -79,7 +86,7 @@ impl RadixSort {
                     ("keys_out", range(pairs, dst, arr)),
                     ("vals_out", range(pairs, dst + arr, arr)),
                     ("hist", hist.as_entire_binding()),
-                    ("offsets", scan.output().as_entire_binding()),
+                    ("offsets", scan.output().binding()),
                 ];
                 stage.bind(ctx, &[&own])
             })

@@ -287,8 +287,10 @@ pub struct FrameTotals {
     pub skipped_splits: u32,
 }
 
-/// The GPU split/merge stage, bound once to the particle buffers, with its scratch (flags,
-/// scan, holes: about 12 bytes per particle of capacity) and small counters.
+/// The GPU split/merge stage, bound once to the particle buffers. Its per-particle scratch is
+/// borrowed from arrays dead at the end of a substep: flags and holes from `pred`, the flags'
+/// scan from `pairs`; it owns the counters, the merge cell lists (4 bytes per grid cell) and
+/// small uniforms.
 pub struct AdaptiveStage {
     params: AdaptiveParams,
     capacity: u32,
@@ -302,8 +304,6 @@ pub struct AdaptiveStage {
     colour_map: ParamSlots<ColourMap>,
     colours: ParamSlots<MergeColour>,
     n_colours: u32,
-    flags: wgpu::Buffer,
-    hole_index: wgpu::Buffer,
     counters: wgpu::Buffer,
     load: wgpu::Buffer,
     /// The cells to merge, colour by colour; (list start, cells) per colour; listed per colour.
@@ -373,10 +373,9 @@ impl AdaptiveStage {
             "adaptive_stats.wgsl",
             &["totals_merge", "totals_split", "count_levels"],
         )?;
-        let cap = capacity.max(1) as usize;
         let param_buf = ParamSlots::single(ctx, "adaptive params", &params);
-        let flags = buffers::storage_zeroed::<u32>(d, "adaptive flags", cap);
-        let hole_index = buffers::storage_zeroed::<u32>(d, "adaptive holes", cap);
+        let flags = b.quarter(&b.pred, 0);
+        let hole_index = b.quarter(&b.pred, 1);
         let counters = buffers::storage_zeroed::<u32>(d, "adaptive counters", N_COUNTERS);
         let load = buffers::storage_zeroed::<u32>(d, "adaptive cell load", N_LOAD);
         let passes = colour_passes(grid);
@@ -408,6 +407,7 @@ impl AdaptiveStage {
         let scan = PrefixScan::new(
             ctx,
             &flags,
+            Some(b.quarter(&b.pairs, 0)),
             capacity.max(1),
             &b.live,
             &[ScanOf::LiveFlags(FLAG_DEAD), ScanOf::LiveFlags(FLAG_SPLIT)],
@@ -415,9 +415,9 @@ impl AdaptiveStage {
         // the stage's own buffers, by the names its shaders bind them by
         let own = [
             ("params", param_buf.slot(0)),
-            ("flags", flags.as_entire_binding()),
-            ("scan", scan.output().as_entire_binding()),
-            ("hole_index", hole_index.as_entire_binding()),
+            ("flags", flags.binding()),
+            ("scan", scan.output().binding()),
+            ("hole_index", hole_index.binding()),
             ("counters", counters.as_entire_binding()),
             ("load", load.as_entire_binding()),
             ("cells", cells.as_entire_binding()),
@@ -449,8 +449,6 @@ impl AdaptiveStage {
             colour_map,
             colours,
             n_colours,
-            flags,
-            hole_index,
             counters,
             load,
             cells,
@@ -618,8 +616,6 @@ impl AdaptiveStage {
 
     pub fn device_bytes(&self) -> u64 {
         [
-            &self.flags,
-            &self.hole_index,
             &self.counters,
             &self.load,
             &self.cells,

@@ -4,18 +4,24 @@
 //! Every array is `capacity` long and the first `live.count` entries are live. Between
 //! `predict` and `update_velocity` the velocity array is dead (PBF recomputes v from the
 //! positions), so the neighbour grid's permutation gathers into it; the radix sort's (key,
-//! value) arrays and the PBF solve's vec4 scratch share `pairs`. That keeps the core at 92 bytes
-//! per particle; the stages own their scratch ([`crate::sim::Simulation::device_bytes`] adds
-//! them up).
+//! value) arrays and the PBF solve's vec4 scratch share `pairs`. The later stages take their
+//! scratch from arrays dead while they run: smoothing the whole of `pairs` (and its vapor limiter
+//! a quarter of `pred`), split and merge their flags and holes from `pred` and their ranks from
+//! `pairs` (`quarter`). That keeps the particle set at 92 bytes per particle plus the cell
+//! tables ([`crate::sim::Simulation::device_bytes`] adds every stage's buffers up).
 use crate::error::{Error, Result};
-use crate::gpu::buffers::{storage_init, storage_zeroed, ParamSlots};
+use crate::gpu::buffers::{storage_init, storage_zeroed, ParamSlots, Span};
 use crate::gpu::live::{Live, LiveBuffer};
 use crate::gpu::Context;
 use crate::sim::grid_params::GridParams;
 use crate::sim::ParticleState;
 
 pub struct ParticleBuffers {
+    /// Particles the arrays hold at most (what split and merge may fill).
     pub capacity: u32,
+    /// Elements allocated per array: the capacity rounded up to 64, so that a quarter of a
+    /// 16-byte array starts on a 256-byte binding boundary (`quarter`).
+    pub slots: u32,
     /// `vec4<f32>`: xyz position (w unused)
     pub pos: wgpu::Buffer,
     /// `vec4<f32>`: xyz velocity (w: the height gained in the substep, for eq. 7)
@@ -57,7 +63,8 @@ impl ParticleBuffers {
             )));
         }
         let dev = &ctx.device;
-        let cap = capacity as usize;
+        let slots = capacity.next_multiple_of(64);
+        let cap = slots as usize;
         let upload = |label: &str, bytes: &[u8], elem: usize| {
             let buf = storage_zeroed::<u8>(dev, label, cap * elem);
             ctx.queue.write_buffer(&buf, 0, bytes);
@@ -66,6 +73,7 @@ impl ParticleBuffers {
         let single_level = state.info.iter().all(|i| i[1] == 0);
         Ok(Self {
             capacity,
+            slots,
             pos: upload("pos", bytemuck::cast_slice(&state.pos), 16),
             vel: upload("vel", bytemuck::cast_slice(&state.vel), 16),
             thermo: upload("thermo", bytemuck::cast_slice(&state.thermo), 16),
@@ -79,6 +87,14 @@ impl ParticleBuffers {
             grid: ParamSlots::single(ctx, "grid", grid),
             live: LiveBuffer::new(ctx, &Live::new(ctx, n as u32, next_id, single_level)),
         })
+    }
+
+    /// Quarter `k` (0..4) of a 16-byte-per-particle array as a u32 array of `slots`: scratch for
+    /// a stage that runs while that array is dead (`pred` after the PBF substep, `pairs`
+    /// outside the grid build and the density solve).
+    pub fn quarter(&self, buffer: &wgpu::Buffer, k: u64) -> Span {
+        let len = self.slots as u64 * 4;
+        Span::new(buffer, k * len, len)
     }
 
     /// Bytes of the particle set's buffers (the stages' own scratch not included).

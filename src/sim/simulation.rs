@@ -204,10 +204,12 @@ impl Simulation {
         self.timing = timing;
     }
 
-    /// Bytes of every device buffer this simulation and its stages allocated.
+    /// Bytes of every device buffer this simulation and its stages allocated (the frame's
+    /// read-back staging, host memory that lives for one wait, not counted).
     pub fn device_bytes(&self) -> u64 {
         let s = &self.s;
         self.b.device_bytes()
+            + self.timer.as_ref().map_or(0, |t| t.buffer().size())
             + s.pbf.device_bytes()
             + s.grid.device_bytes()
             + s.smoothing.device_bytes()

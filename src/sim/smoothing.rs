@@ -13,11 +13,11 @@
 //! Usage: `let stage = SmoothingStage::new(&ctx, &cfg, &buffers)?;` once, then per substep
 //! `stage.smooth(&mut recorder, &live, dt)`.
 use crate::config::ShotConfig;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::gpu::buffers::ParamSlots;
 use crate::gpu::live::LiveBuffer;
 use crate::gpu::stage::{Dispatch, Stage};
-use crate::gpu::{self, Context};
+use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::phase::{Phase, Recorder};
 
@@ -74,46 +74,31 @@ impl SmoothParams {
     }
 }
 
-/// The smoothing pass, bound once to the particle buffers, with its scratch (the smoothed
-/// thermo, 16 B per particle of capacity, while smoothing or mixing is on) and the vapor-mixing
-/// limiter (4 B per particle while mixing is on; one element otherwise, bound and never read).
+/// The smoothing pass, bound once to the particle buffers. Its scratch is borrowed from arrays
+/// dead after the PBF substep: the smoothed thermo goes to `pairs` and is copied back, the
+/// vapor-mixing limiter lives in a quarter of `pred`. It allocates nothing per particle.
 pub struct SmoothingStage {
     stage: Stage,
     params: ParamSlots<SmoothParams>,
     bind: wgpu::BindGroup,
     cfg: ShotConfig,
+    /// `pairs`, where an iteration writes the smoothed thermo.
     scratch: wgpu::Buffer,
     /// The particles' thermo array the scratch is copied back into.
     thermo: wgpu::Buffer,
-    limit: wgpu::Buffer,
-    /// Particles the limiter has room for (0 when mixing is off).
-    limit_len: u32,
     thermo_bytes: u64,
 }
 
 impl SmoothingStage {
     pub fn new(ctx: &Context, cfg: &ShotConfig, b: &ParticleBuffers) -> Result<Self> {
         let stage = Stage::new(ctx, SHADER, &[LIMIT_ENTRY, ENTRY])?;
-        let s = &cfg.physics.smoothing;
-        let on = s.enabled || s.vapor_diffusivity > 0.0;
-        let cap = b.capacity as usize;
-        let scratch = gpu::buffers::storage_zeroed::<[f32; 4]>(
-            &ctx.device,
-            "smoothing scratch",
-            if on { cap } else { 1 },
-        );
-        let limit_len = if s.vapor_diffusivity > 0.0 { cap } else { 0 };
-        let limit = gpu::buffers::storage_zeroed::<f32>(
-            &ctx.device,
-            "vapor mixing limiter",
-            limit_len.max(1),
-        );
         let params = ParamSlots::single(ctx, "smoothing params", &SmoothParams::new(cfg, 1.0));
+        let limiter = b.quarter(&b.pred, 0);
         let own = [
             ("S", params.slot(0)),
             ("thermo_in", b.thermo.as_entire_binding()),
-            ("thermo_out", scratch.as_entire_binding()),
-            ("vapor_limit_of", limit.as_entire_binding()),
+            ("thermo_out", b.pairs.as_entire_binding()),
+            ("vapor_limit_of", limiter.binding()),
         ];
         let bind = stage.bind(ctx, &[&own, b])?;
         Ok(Self {
@@ -121,11 +106,9 @@ impl SmoothingStage {
             params,
             bind,
             cfg: cfg.clone(),
-            thermo_bytes: if on { b.capacity as u64 * 16 } else { 0 },
-            scratch,
+            thermo_bytes: b.slots as u64 * 16,
+            scratch: b.pairs.clone(),
             thermo: b.thermo.clone(),
-            limit,
-            limit_len: limit_len as u32,
         })
     }
 
@@ -159,12 +142,6 @@ impl SmoothingStage {
             return Ok(());
         }
         let mixing = params.vapor_rate > 0.0;
-        if self.thermo_bytes == 0 || (mixing && self.limit_len == 0) {
-            return Err(Error::Runtime(
-                "smoothing: the stage was built for a shot without smoothing or vapor mixing"
-                    .into(),
-            ));
-        }
         self.params.write(rec.ctx(), 0, params);
         for _ in 0..iterations {
             {
@@ -190,7 +167,7 @@ impl SmoothingStage {
     }
 
     pub fn device_bytes(&self) -> u64 {
-        self.scratch.size() + self.limit.size() + self.params.size()
+        self.params.size()
     }
 }
 
