@@ -132,13 +132,10 @@ fn thermo_step_matches_mirror() {
     cfg.physics.environment.inversion_strength = 3.0;
     cfg.physics.environment.lapse_rate_above = Some(0.002);
     cfg.physics.sources.push(nimbus::config::HeatSource {
-        shape: nimbus::config::SourceShape::Disc,
-        center: [1900.0, 800.0],
-        radius: 400.0,
-        strength: 0.1,
         start: 100.0,
         end: Some(300.0),
         ramp: 50.0,
+        ..nimbus::config::HeatSource::disc(1900.0, 800.0, 400.0, 0.1)
     });
     let stage = ThermoStage::new(&ctx, &cfg).unwrap();
     let n = 3000;
@@ -158,7 +155,7 @@ fn thermo_step_matches_mirror() {
         .collect();
     let mut vel64: Vec<[f64; 4]> = vel.iter().map(|v| v.map(|c| c as f64)).collect();
     let mut th64: Vec<[f64; 4]> = th.iter().map(|t| t.map(|v| v as f64)).collect();
-    thermo_step(&params, &pos64, &mut vel64, &mut th64);
+    thermo_step(&params, &[], &pos64, &mut vel64, &mut th64);
 
     let (mut heated, mut condensed, mut evaporated, mut moistened) = (0, 0, 0, 0);
     for i in 0..n {

@@ -17,7 +17,9 @@ pub mod reference;
 pub mod rest;
 mod simulation;
 pub mod smoothing;
+pub mod sources;
 pub mod thermo;
+pub mod wind;
 
 pub use simulation::{density_error, Buf, FrameReport, SimClock, Simulation, Stage};
 

@@ -77,20 +77,27 @@ pub struct ThermoParams {
     /// Layers of the horizontal-mean buoyancy profile (`physics.buoyancy_reference:
     /// layer_mean`); 0 = none.
     pub n_layers: u32,
-    /// Heat sources: (centre x, centre z, radius, strength K/s).
-    pub sources: [[f32; 4]; MAX_SOURCES],
     /// Thickness of a layer (m); the profile's values sit at the layer centres.
     pub layer_height: f32,
     /// Vapor the ground evaporates per kelvin of heating, 1 / (Bowen ratio Q) (kg/kg per K;
     /// 0 = dry ground, `physics.bowen_ratio`).
     pub ground_vapor: f32,
-    pub _pad: [u32; 2],
+    /// Levels of `wind` in use (0 = no wind) and the relaxation fraction of a substep,
+    /// 1 - exp(-dt / tau) ([`crate::sim::wind`]).
+    pub n_wind: u32,
+    pub wind_fraction: f32,
     /// The profile (m/s^2), four layers a row: [`LayerBuoyancy`].
     pub layers: [[f32; 4]; MAX_LAYERS / 4],
+    // --- art direction (issue 18): wind and sources, after everything else ---
+    /// Wind levels (height m, speed m/s, heading rad, 0) ([`crate::sim::wind::rows`]).
+    pub wind: [[f32; 4]; MAX_WIND_LEVELS],
+    /// `physics.sources` with this substep's schedule ([`crate::sim::sources::pack`]); the
+    /// heat-map entries of image sources come from [`ThermoParams::with_maps`].
+    pub sources: [SourceGpu; MAX_SOURCES],
 }
 
-/// Most entries of `physics.sources`.
-pub const MAX_SOURCES: usize = 8;
+pub use crate::sim::sources::{HeatMaps, SourceGpu, MAX_SOURCES};
+pub use crate::sim::wind::MAX_WIND_LEVELS;
 /// Most layers of the horizontal-mean buoyancy profile.
 pub const MAX_LAYERS: usize = 32;
 
@@ -100,6 +107,7 @@ impl ThermoParams {
         let p = &cfg.physics;
         let (cell_x, period_x) = noise::lattice_for_extent(cfg.domain.size[0], p.heat_noise_scale);
         let (cell_z, period_z) = noise::lattice_for_extent(cfg.domain.size[2], p.heat_noise_scale);
+        let (wind_levels, wind) = crate::sim::wind::rows(cfg);
         Self {
             dt: dt as f32,
             time: time as f32,
@@ -133,22 +141,21 @@ impl ThermoParams {
             size_z: cfg.domain.size[2] as f32,
             periodic: crate::sim::grid_params::GridParams::for_shot(cfg).periodic,
             n_layers: 0,
-            sources: std::array::from_fn(|k| {
-                p.sources.get(k).map_or([0.0; 4], |s| {
-                    [
-                        s.center[0] as f32,
-                        s.center[1] as f32,
-                        s.radius as f32,
-                        // the schedule at the substep's midpoint, computed here in f64
-                        (s.strength * s.envelope(time + 0.5 * dt)) as f32,
-                    ]
-                })
-            }),
             layer_height: 0.0,
             ground_vapor: p.bowen_ratio.map_or(0.0, |b| 1.0 / (b * p.latent_heat)) as f32,
-            _pad: [0; 2],
+            n_wind: wind_levels,
+            wind_fraction: crate::sim::wind::fraction(cfg, dt),
+            wind,
+            sources: crate::sim::sources::pack(cfg, dt, time),
             layers: [[0.0; 4]; MAX_LAYERS / 4],
         }
+    }
+
+    /// These parameters with the heat-map entries of the image sources (where each map starts
+    /// in the stage's map buffer, and its size).
+    pub fn with_maps(mut self, maps: &HeatMaps) -> Self {
+        self.sources = maps.with_maps(self.sources);
+        self
     }
 
     /// These parameters with the horizontal-mean buoyancy profile subtracted in eq. 6.
@@ -257,19 +264,31 @@ pub struct ThermoStage {
     cfg: ShotConfig,
     /// Subtracted in eq. 6 (empty unless `physics.buoyancy_reference` is `layer_mean`).
     layers: LayerBuoyancy,
+    /// The image sources' heat maps ([`HeatMaps`]) and their device copy (binding 4).
+    maps: HeatMaps,
+    map_buffer: wgpu::Buffer,
 }
 
 impl ThermoStage {
     pub fn new(ctx: &Context, cfg: &ShotConfig) -> Result<Self> {
         let pipeline = gpu::shaders::compute_pipeline(&ctx.device, SHADER, ENTRY)?;
         let layout = pipeline.get_bind_group_layout(0);
+        let maps = HeatMaps::load(cfg)?;
+        let map_buffer = gpu::buffers::storage_init(&ctx.device, "heat maps", &maps.values);
         Ok(Self {
             device: ctx.device.clone(),
             pipeline,
             layout,
             cfg: cfg.clone(),
             layers: LayerBuoyancy::default(),
+            maps,
+            map_buffer,
         })
+    }
+
+    /// The heat maps this stage samples (what the mirror needs besides the parameters).
+    pub fn maps(&self) -> &HeatMaps {
+        &self.maps
     }
 
     /// The horizontal-mean buoyancy profile the next substeps subtract (set at frame starts).
@@ -290,7 +309,9 @@ impl ThermoStage {
         if count == 0 {
             return;
         }
-        let params = ThermoParams::new(&self.cfg, count, dt, time).with_layers(&self.layers);
+        let params = ThermoParams::new(&self.cfg, count, dt, time)
+            .with_layers(&self.layers)
+            .with_maps(&self.maps);
         self.encode_params(encoder, bufs, &params);
     }
 
@@ -314,6 +335,7 @@ impl ThermoStage {
                 entry(1, bufs.pos),
                 entry(2, bufs.vel),
                 entry(3, bufs.thermo),
+                entry(4, &self.map_buffer),
             ],
         });
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
@@ -348,7 +370,7 @@ mod tests {
 
     #[test]
     fn params_layout_matches_wgsl() {
-        assert_eq!(std::mem::size_of::<ThermoParams>(), 400);
+        assert_eq!(std::mem::size_of::<ThermoParams>(), 1040);
     }
 
     /// A force that depends on height alone is the whole profile: eq. 6 less the profile is
