@@ -125,9 +125,11 @@ fn decode_exr(path: &Path) -> Result<(usize, usize, Vec<f32>), String> {
         let colour: Vec<&String> = names.iter().filter(|n| n.as_str() != "A").collect();
         match colour.as_slice() {
             [one] => find(one).unwrap_or_default(),
-            _ => return Err(format!(
+            _ => {
+                return Err(format!(
                 "OpenEXR channels {names:?}: a heat map has a Y channel, or R G B, or one channel"
-            )),
+            ))
+            }
         }
     };
     if let Some(a) = alpha {
