@@ -6,8 +6,11 @@
 //! 1. ground heating, eq. 5: `T += dt Se n(x, z, t)` for particles below `heat_height`, where
 //!    `n` in [0, 1] is the hash value noise of [`crate::sim::noise`] over the ground, drifting in
 //!    time at `heat_noise_speed` lattice cells per second and stretched by `heat_noise_contrast`;
+//!    plus every `physics.sources` entry's heating and vapor ([`crate::sim::sources`]: shapes
+//!    on the ground and in the air, heat maps in a storage buffer at binding 4);
 //! 2. buoyancy and cloud weight, eq. 6: `u_y += dt (kb (T - T0(y)) / T0(y) - kg w)` with the
-//!    environment `T0(y)` of `physics.environment` (with its optional capping inversion);
+//!    environment `T0(y)` of `physics.environment` (with its optional capping inversion); and
+//!    the wind, `u_h += f (U(y) - u_h)` with `f = 1 - exp(-dt / tau)` ([`crate::sim::wind`]);
 //! 3. adiabatic cooling, eq. 7: `T -= Gamma_d dy` over the height `dy` the substep's move gained
 //!    (`vel.w`, written by pbf.wgsl's `update_velocity`);
 //! 4. phase transition, eqs. 8-10: `w* = clamp(w + f (v - gamma), 0, v + w)`, `v* = (v + w) - w*`
@@ -17,8 +20,8 @@
 //!    rounding and neither goes negative;
 //! 5. latent heat, eq. 11: `T += Q (w* - w)` (eq. 11 integrated the same way as eq. 9).
 //!
-//! Usage: `let stage = ThermoStage::new(&ctx, &cfg)?;` once, then per substep
-//! `stage.encode(&mut encoder, &ThermoBuffers { pos, vel, thermo }, count, dt, time)`.
+//! Usage: `let stage = ThermoStage::new(&ctx, &cfg)?;` once (it reads the heat maps), then per
+//! substep `stage.encode(&mut encoder, &ThermoBuffers { pos, vel, thermo }, count, dt, time)`.
 //! Each call records its own small uniform (dt, time), so several substeps can be recorded
 //! into one encoder. Initial state (section 5): [`initial_thermo`].
 use crate::config::{PhysicsConfig, ShotConfig};
