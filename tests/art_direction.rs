@@ -424,3 +424,55 @@ fn every_shape_validates_and_images_resolve_next_to_the_config() {
         "{e}"
     );
 }
+
+/// A run lists every source in its manifest (shape, placement, bounds, rates, schedule, the heat
+/// map's absolute path and SHA-256), and the sources heat: with the noise off, the frame's
+/// heating and the vapor sources' water show in stats.jsonl.
+#[test]
+fn a_run_lists_its_sources_in_the_manifest() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    image::GrayImage::from_fn(16, 16, |x, _| image::Luma([(x * 16) as u8]))
+        .save(d.join("heat.png"))
+        .unwrap();
+    let body = "physics:\n  heat_noise: off\n  sources:\n\
+        \x20   - {shape: disc, center: [400, 400], radius: 200, strength: 0.1, end: 600, ramp: 20}\n\
+        \x20   - {shape: sphere, center: [200, 300, 600], radius: 120, vapor: 1.0e-5}\n\
+        \x20   - {shape: image, image: heat.png, strength: 0.05, height: 150}\n";
+    let path = config(d, body);
+    let out = d.join("run");
+    let o = nimbus()
+        .arg("run")
+        .arg(&path)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let m = manifest(&out);
+    let s = m["sources"].as_array().expect("manifest.sources");
+    assert_eq!(s.len(), 3, "{s:?}");
+    assert_eq!(s[0]["shape"], "disc");
+    assert_eq!(s[0]["placement"], "ground");
+    assert_eq!(s[0]["bounds_min"], serde_json::json!([200.0, 0.0, 200.0]));
+    assert_eq!(s[0]["bounds_max"], serde_json::json!([600.0, 100.0, 600.0]));
+    assert_eq!(s[0]["end"], 600.0);
+    assert_eq!(s[1]["placement"], "air");
+    assert_eq!(s[1]["bounds_max"], serde_json::json!([320.0, 420.0, 720.0]));
+    assert_eq!(s[1]["vapor"], 1.0e-5);
+    assert_eq!(s[2]["bounds_max"], serde_json::json!([800.0, 150.0, 800.0]));
+    let sha = nimbus::io::heat_map::file_sha256(&d.join("heat.png")).unwrap();
+    assert_eq!(s[2]["image_sha256"], sha.as_str());
+    assert!(Path::new(s[2]["image"].as_str().unwrap()).is_absolute());
+    let stats = std::fs::read_to_string(out.join("stats.jsonl")).unwrap();
+    let rows: Vec<serde_json::Value> = stats
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let d = |k: usize, key: &str| rows[k]["diagnostics"][key].as_f64().unwrap();
+    assert!(d(1, "heat_input_mean") > 0.0);
+    // the vapor source's water: the estimate (frame-end positions) against the rise of the total
+    let (rise, input) = (d(1, "total_water") - d(0, "total_water"), d(1, "water_input"));
+    eprintln!("frame 2: total water +{rise:.1} kg, water_input {input:.1} kg");
+    assert!(input > 0.0 && (rise - input).abs() < 0.1 * input, "{rise} vs {input}");
+}
