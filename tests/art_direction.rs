@@ -472,7 +472,13 @@ fn a_run_lists_its_sources_in_the_manifest() {
     let d = |k: usize, key: &str| rows[k]["diagnostics"][key].as_f64().unwrap();
     assert!(d(1, "heat_input_mean") > 0.0);
     // the vapor source's water: the estimate (frame-end positions) against the rise of the total
-    let (rise, input) = (d(1, "total_water") - d(0, "total_water"), d(1, "water_input"));
+    let (rise, input) = (
+        d(1, "total_water") - d(0, "total_water"),
+        d(1, "water_input"),
+    );
     eprintln!("frame 2: total water +{rise:.1} kg, water_input {input:.1} kg");
-    assert!(input > 0.0 && (rise - input).abs() < 0.1 * input, "{rise} vs {input}");
+    assert!(
+        input > 0.0 && (rise - input).abs() < 0.1 * input,
+        "{rise} vs {input}"
+    );
 }

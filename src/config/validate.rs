@@ -1042,6 +1042,35 @@ mod tests {
                 _ => {}
             }
         }
+        // every optional number of a source and the wind, too
+        c.physics.sources = vec![
+            HeatSource {
+                shape: SourceShape::Ellipse,
+                radius: None,
+                radii: Some([30.0, 20.0]),
+                angle: Some(10.0),
+                height: Some(20.0),
+                vapor: Some(1e-6),
+                end: Some(100.0),
+                ..HeatSource::disc(50.0, 50.0, 1.0, 0.1)
+            },
+            HeatSource {
+                shape: SourceShape::Box,
+                center: vec![50.0, 20.0, 50.0],
+                radius: None,
+                size: Some(vec![10.0, 10.0, 10.0]),
+                ..HeatSource::disc(0.0, 0.0, 1.0, 0.1)
+            },
+        ];
+        c.physics.wind = Some(WindConfig {
+            time_constant: 30.0,
+            profile: vec![WindLevel {
+                height: 10.0,
+                speed: 2.0,
+                direction: 45.0,
+            }],
+        });
+        assert_eq!(issues(&c), vec![]);
         let mut want = Vec::new();
         floats(&serde_json::to_value(&c).unwrap(), "", &mut want);
         let mut have: Vec<String> = float_values(&c).into_iter().map(|(k, _, _)| k).collect();

@@ -254,3 +254,60 @@ pub fn bounds(s: &HeatSource, size: [f64; 3], heat_height: f64) -> ([f64; 3], [f
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shot(sources: &str) -> ShotConfig {
+        crate::config::load_str(
+            &format!(
+                "shot: t\noutput: {{frames: {{start: 1, end: 2}}}}\n\
+                 domain: {{size: [1000, 800, 1000], spacing: 50}}\nphysics: {{sources: {sources}}}\n"
+            ),
+            "t.yaml",
+            &[],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn packing_and_bounds_of_each_shape() {
+        let cfg = shot(
+            "[{shape: ellipse, center: [500, 500], radii: [200, 100], angle: 90, strength: 0.1},\
+              {shape: box, center: [300, 200, 700], size: [100, 60, 40], angle: 90, strength: 0.2, start: 10, ramp: 10},\
+              {shape: box, center: [300, 700], size: [100, 40], height: 250, vapor: 1.0e-5}]",
+        );
+        let p = pack(&cfg, 2.0, 14.0);
+        assert_eq!(p[0].kind[0], KIND_ELLIPSE);
+        assert_eq!(p[0].center, [500.0, 0.0, 500.0, 100.0]);
+        assert_eq!(&p[0].extent[..2], &[200.0, 100.0]);
+        assert!(p[0].rate[0].abs() < 1e-7 && (p[0].rate[1] - 1.0).abs() < 1e-7);
+        assert_eq!(p[1].kind[0], KIND_AIR_BOX);
+        assert_eq!(p[1].center[..3], [300.0, 200.0, 700.0]);
+        assert_eq!(&p[1].extent[..3], &[50.0, 30.0, 20.0]);
+        // the schedule at the substep's midpoint, 15 s: halfway up the 10 s ramp
+        assert!((p[1].rate[2] - 0.1).abs() < 1e-7, "{:?}", p[1].rate);
+        assert_eq!(p[2].kind[0], KIND_GROUND_BOX);
+        assert_eq!(p[2].center[3], 250.0);
+        assert_eq!(p[2].rate[2..], [0.0, 1e-5]);
+        assert_eq!(p[3], SourceGpu::default());
+        // bounds: the ellipse turned by 90 degrees spans 100 m along x and 200 m along z
+        let s = &cfg.physics.sources;
+        let (lo, hi) = bounds(&s[0], cfg.domain.size, 100.0);
+        let near = |a: [f64; 3], b: [f64; 3]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-9);
+        assert!(
+            near(lo, [400.0, 0.0, 300.0]) && near(hi, [600.0, 100.0, 700.0]),
+            "{lo:?} {hi:?}"
+        );
+        let (lo, hi) = bounds(&s[1], cfg.domain.size, 100.0);
+        assert!(
+            near(lo, [280.0, 170.0, 650.0]) && near(hi, [320.0, 230.0, 750.0]),
+            "{lo:?} {hi:?}"
+        );
+        let r = records(&cfg);
+        assert_eq!(r[2].placement, "ground");
+        assert_eq!(r[2].bounds_max[1], 250.0);
+        assert_eq!(r[1].placement, "air");
+    }
+}
