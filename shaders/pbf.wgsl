@@ -722,11 +722,15 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
 
 // XSPH viscosity v_i += c sum_j 2 m_j / (rho_i + rho_j) (v_j - v_i) W_ij and vorticity confinement
 // a = eps (N x omega_i), N = eta / |eta|, eta = sum_j V_j (|omega_j| - |omega_i|) grad_i W_ij;
-// then the speed clamp. Reads v from the scratch (update_velocity), writes the new v to vel.
+// then the speed clamp. Reads v from the scratch (update_velocity), writes the new v to vel, and
+// sums the density at the corrected positions over the same pairs and the walls (what one more
+// compute_lambda would measure: the frame's density, the splat's m / rho).
 // Without vorticity the pairs are the mask's (vorticity writes omega over pos, and the anchor).
 struct Visc {
     acc: vec3<f32>,
     eta: vec3<f32>,
+    // the density at the corrected positions (compute_lambda's sum over the same pairs)
+    rho: f32,
 }
 struct Vi {
     p: vec3<f32>,
@@ -748,9 +752,20 @@ fn visc_pair(a: ptr<function, Visc>, me: Vi, j: u32) {
     let rho_j = density[j];
     // 2 m_j / (rho_i + rho_j): pairwise symmetric, so XSPH conserves momentum
     let vs = 2.0 * lvj.w / (me.rho + rho_j);
-    (*a).acc += vs * pair_w(r2, me.lv, lvj) * (scratch[j].xyz - me.v);
+    let w = pair_w(r2, me.lv, lvj);
+    (*a).acc += vs * w * (scratch[j].xyz - me.v);
+    (*a).rho += lvj.w * w;
     if (me.vort) {
         (*a).eta += (lvj.w / rho_j) * (pos[j].w - me.w) * pair_g(xij, r2, me.lv, lvj);
+    }
+}
+// A wall particle's share of the density (lam_wall's).
+fn visc_wall(a: ptr<function, Visc>, me: Vi, k: u32) {
+    let xik = min_image_r(me.p - bpos[k].xyz, me.inv);
+    let r2 = dot(xik, xik);
+    let hm = max(me.lv.x, prm.h0);
+    if (r2 < hm * hm) {
+        (*a).rho += prm.lv[0].w * wsym(r2, me.lv, prm.lv[0]);
     }
 }
 fn visc_scan(a: ptr<function, Visc>, me: Vi) {
@@ -763,6 +778,9 @@ fn visc_scan(a: ptr<function, Visc>, me: Vi) {
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) { visc_pair(a, me, j); }
+                if (!wall_row(c.y + dy)) { continue; }
+                let k_end = bcell_start[e.y];
+                for (var k = bcell_start[e.x]; k < k_end; k++) { visc_wall(a, me, k); }
             }
         }
     }
@@ -788,6 +806,9 @@ fn visc_masked(a: ptr<function, Visc>, me: Vi, an: Anchor, m: Mask) {
                     if (k2.y != 0u) { visc_pair(a, me, j0 + k2.x); }
                 }
                 for (var j = j0 + nb; j < j1; j++) { visc_pair(a, me, j); }
+                if (!wall_row(an.c.y + dy)) { continue; }
+                let k_end = bcell_start[e.y];
+                for (var k = bcell_start[e.x]; k < k_end; k++) { visc_wall(a, me, k); }
             }
         }
     }
@@ -801,7 +822,7 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     let xm = pos[i];
     let me = Vi(pred[i].xyz, vw.xyz, lv_of(level_of(i)), density[i], select(0.0, xm.w, use_vort),
         1.0 / grid.domain_size, use_vort);
-    var a = Visc(vec3<f32>(0.0), vec3<f32>(0.0));
+    var a = Visc(vec3<f32>(0.0), vec3<f32>(0.0), 0.0);
     var an = Anchor(vec3<i32>(0), vec3<i32>(0), false);
     if (!use_vort) { an = anchor_of(xm.xyz, bitcast<u32>(xm.w)); }
     if (an.ok) {
@@ -816,12 +837,17 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
         v += prm.dt * prm.vorticity * cross(a.eta / le, xm.xyz);
     }
     vel[i] = vec4<f32>(clamp_speed(v), vw.w);
+    // the new density waits in the scratch's w (the neighbours read density[j] and the scratch's
+    // xyz) until finish_positions
+    scratch[i].w = a.rho;
 }
 
-// x = p* at the end of the substep (w = 0: pred.w held the neighbour mask).
+// x = p* at the end of the substep (w = 0: pred.w held the neighbour mask), and the density
+// at x that viscosity_confine summed.
 @compute @workgroup_size(WG_PARTICLES)
 fn finish_positions(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= live.count) { return; }
     pos[i] = vec4<f32>(pred[i].xyz, 0.0);
+    density[i] = scratch[i].w;
 }

@@ -225,6 +225,17 @@ fn kernels_match_the_mirror(levels: u32) {
     let e = rel_err(&dv(&gv), &dv(&cv));
     assert!(e < 1e-3, "viscosity_confine (velocity change): {e}");
     assert_eq!(gv.len(), n);
+    // viscosity_confine also summed the density at p* (here the p* of compute_lambda), which
+    // finish_positions stores
+    sim.run_step(Step::Finish).unwrap();
+    let fden: Vec<f64> = sim
+        .read_f32(Buf::Density)
+        .unwrap()
+        .iter()
+        .map(|&v| v as f64)
+        .collect();
+    let e = rel_err(&as3(&fden), &as3(&den));
+    assert!(e < TOL, "viscosity_confine density: {e}");
 }
 
 /// The passes after a substep's first compute_lambda visit the neighbours that one found (its
@@ -353,6 +364,16 @@ fn later_passes_keep_the_first_lambdas_neighbours() {
     let cv = mirror::viscosity_confine_in(&sc, &moved, &gvel, &gden, &[], Some(&sets));
     let e = rel_err(&dv(&gv), &dv(&cv));
     assert!(e < 1e-3, "viscosity_confine (velocity change): {e}");
+    // and the density at the moved positions over the same sets (compute_lambda_masked's)
+    sim.run_step(Step::Finish).unwrap();
+    let fden: Vec<f64> = sim
+        .read_f32(Buf::Density)
+        .unwrap()
+        .iter()
+        .map(|&v| v as f64)
+        .collect();
+    let e = rel_err(&as3(&fden), &as3(&den));
+    assert!(e < TOL, "viscosity_confine density: {e}");
 }
 
 /// The solver alone (heating and buoyancy off) on a box filled at rest density, walls top and

@@ -22,7 +22,7 @@ pub enum Step {
     UpdateVelocity,
     Vorticity,
     ViscosityConfine,
-    /// the rest of the substep after `ViscosityConfine`: x = p*
+    /// the rest of the substep after `ViscosityConfine`: x = p*, the density at it
     Finish,
 }
 

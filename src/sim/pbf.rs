@@ -144,17 +144,10 @@ impl PbfStage {
         rec.end_phase(Phase::Predict)
     }
 
-    /// `iterations` Jacobi iterations of the density constraint (eqs. 1-4); with `measure`, one
-    /// more density pass so the frame reports the density of the corrected positions. The first
+    /// `iterations` Jacobi iterations of the density constraint (eqs. 1-4). The first
     /// compute_lambda records each particle's neighbours (shaders/pbf.wgsl "Neighbour mask"),
     /// the later passes of the substep visit only those.
-    pub fn solve(
-        &self,
-        rec: &mut Recorder,
-        live: &LiveBuffer,
-        iterations: u32,
-        measure: bool,
-    ) -> Result<()> {
+    pub fn solve(&self, rec: &mut Recorder, live: &LiveBuffer, iterations: u32) -> Result<()> {
         {
             let mut pass = rec.pass(Phase::Solve);
             for it in 0..iterations {
@@ -166,15 +159,12 @@ impl PbfStage {
                 self.run(&mut pass, lambda, live);
                 self.run(&mut pass, "compute_delta", live);
             }
-            if measure {
-                self.run(&mut pass, "compute_lambda_masked", live);
-            }
         }
         rec.end_phase(Phase::Solve)
     }
 
     /// v = (p* - x) / dt (w = the height gained) into the scratch, vorticity confinement (if
-    /// on), XSPH (the final v into vel), x = p*.
+    /// on), XSPH (the final v into vel, and the density at p*), x = p*.
     pub fn update_velocity(
         &self,
         rec: &mut Recorder,
@@ -193,7 +183,8 @@ impl PbfStage {
         rec.end_phase(Phase::Velocity)
     }
 
-    /// The close of a substep: x = p* (w = 0: pred.w and pos.w held the neighbour mask).
+    /// The close of a substep: x = p* (w = 0: pred.w and pos.w held the neighbour mask), the
+    /// density viscosity_confine summed.
     pub fn finish(&self, pass: &mut wgpu::ComputePass, live: &LiveBuffer) {
         self.run(pass, "finish_positions", live);
     }

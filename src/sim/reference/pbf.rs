@@ -256,7 +256,8 @@ pub fn vorticity(sc: &Scene, pred: &[V3], vel: &[V3], density: &[f64]) -> Vec<[f
         .collect()
 }
 
-/// XSPH + vorticity confinement + speed clamp; `omega` is ignored when vorticity is 0.
+/// XSPH + vorticity confinement + speed clamp; `omega` is ignored when vorticity is 0. (The
+/// shader also sums the density over the same pairs and the walls: `compute_lambda_in`'s.)
 pub fn viscosity_confine(
     sc: &Scene,
     pred: &[V3],
