@@ -1,6 +1,7 @@
 // Cloud thermodynamics of one substep, per particle (paper section 4, in the paper's order
 // after the PBF move and the temperature smoothing):
-//   ground heating (eq. 5, and the ground's evaporation) -> buoyancy and cloud weight (eq. 6) -> adiabatic cooling (eq. 7)
+//   ground heating and sources (eq. 5, and the ground's evaporation) -> buoyancy and cloud
+//   weight (eq. 6), wind -> adiabatic cooling (eq. 7)
 //   -> phase transition (eqs. 8-10) -> latent heat (eq. 11).
 // f64 mirror: src/sim/reference/thermo.rs (`thermo_step`); noise mirror: src/sim/noise.rs.
 // No neighbours are read, so every particle is independent (deterministic).
@@ -42,22 +43,40 @@ struct ThermoParams {
     periodic: u32,
     // layers of the horizontal-mean buoyancy profile (0 = none: physics.buoyancy_reference)
     n_layers: u32,
-    // (centre x, centre z, radius, strength K/s)
-    sources: array<vec4<f32>, 8>,
     layer_height: f32,
     // vapor per kelvin of ground heating, 1 / (Bowen ratio Q) (0 = dry ground)
     ground_vapor: f32,
-    _pad2: u32,
-    _pad3: u32,
+    // levels of the wind profile (0 = no wind) and 1 - exp(-dt / tau) (physics.wind)
+    n_wind: u32,
+    wind_fraction: f32,
     // the profile (m/s^2) at the layer centres, four a row (sim::thermo::LayerBuoyancy)
     layers: array<vec4<f32>, 8>,
+    // --- art direction (sim::wind, sim::sources) ---
+    // (height m, speed m/s, heading rad unwrapped along the profile, -) by increasing height
+    wind: array<vec4<f32>, 16>,
+    sources: array<Source, 8>,
+}
+
+// Mirror of sim::sources::SourceGpu.
+struct Source {
+    // (kind, heat-map offset, width, height); kinds: 0 disc, 1 ellipse, 2 box on the ground,
+    // 3 sphere, 4 box in the air, 5 image
+    kind: vec4<u32>,
+    // (x, y, z, top of the heated layer; 3e38 in the air)
+    center: vec4<f32>,
+    // radius, semi-axes or half edges (m)
+    extent: vec4<f32>,
+    // (cos angle, sin angle, heating K/s, vapor kg/kg/s) at this substep
+    rate: vec4<f32>,
 }
 
 @group(0) @binding(0) var<uniform> P: ThermoParams;
 @group(0) @binding(1) var<storage, read> pos: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> vel: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> thermo: array<vec4<f32>>;
-@group(0) @binding(4) var<storage, read> live: Live;
+// every image source's heat map, row-major (row = z), at its source's offset
+@group(0) @binding(4) var<storage, read> heat_maps: array<f32>;
+@group(0) @binding(5) var<storage, read> live: Live;
 
 // Lattice value in [0, 1): the top 24 bits are exact in f32, so GPU and mirror agree.
 fn lattice_value(ix: i32, iz: i32, it: i32, seed: u32) -> f32 {
@@ -107,19 +126,94 @@ fn wrap_delta(d: f32, s: f32, periodic: bool) -> f32 {
     return select(d, d - s * round(d / s), periodic);
 }
 
-// Heating rate (K/s) at ground point (x, z): the noise pattern and the disc sources
-// (mirror: sim::reference::thermo::heating_rate; falloff: HeatSource::falloff).
-fn heating_rate(x: f32, z: f32, time: f32) -> f32 {
-    var rate = 0.0;
-    if (P.heat_noise != 0u) { rate = P.heat_source * heat_factor(x, z, time); }
-    for (var k = 0u; k < P.n_sources; k++) {
-        let src = P.sources[k];
-        let dx = wrap_delta(x - src.x, P.size_x, (P.periodic & 1u) != 0u);
-        let dz = wrap_delta(z - src.y, P.size_z, (P.periodic & 4u) != 0u);
-        let t = clamp((src.z - sqrt(dx * dx + dz * dz)) / (0.3 * src.z), 0.0, 1.0);
-        rate += src.w * t * t * (3.0 - 2.0 * t);
+// Smoothstep from 0 at q = 1 (the shape's edge) to 1 at q = 0.7 and inside.
+fn edge(q: f32) -> f32 {
+    let t = clamp((1.0 - q) / 0.3, 0.0, 1.0);
+    return t * t * (3.0 - 2.0 * t);
+}
+
+// Pixel index i of a map n wide: wrapped on a periodic axis, clamped on a walled one.
+fn map_pixel(i: i32, n: u32, periodic: bool) -> u32 {
+    if (periodic) { return u32(wrap_index(i, n)); }
+    return u32(clamp(i, 0, i32(n) - 1));
+}
+
+// A heat map over the ground at (x, z): bilinear between pixel centres.
+fn heat_map(e: vec4<u32>, x: f32, z: f32) -> f32 {
+    if (e.z == 0u) { return 0.0; }
+    let px = (P.periodic & 1u) != 0u;
+    let pz = (P.periodic & 4u) != 0u;
+    let u = x / P.size_x * f32(e.z) - 0.5;
+    let w = z / P.size_z * f32(e.w) - 0.5;
+    let fu = floor(u);
+    let fw = floor(w);
+    let i0 = map_pixel(i32(fu), e.z, px);
+    let i1 = map_pixel(i32(fu) + 1, e.z, px);
+    let r0 = e.y + map_pixel(i32(fw), e.w, pz) * e.z;
+    let r1 = e.y + map_pixel(i32(fw) + 1, e.w, pz) * e.z;
+    let a = mix(heat_maps[r0 + i0], heat_maps[r0 + i1], u - fu);
+    let b = mix(heat_maps[r1 + i0], heat_maps[r1 + i1], u - fu);
+    return mix(a, b, w - fw);
+}
+
+// Strength fraction in [0, 1] of a source other than a disc at p, with the wrapped offsets
+// (dx, dz) from its centre (mirror: sim::reference::thermo::shape_factor).
+fn shape_factor(s: Source, p: vec3<f32>, dx: f32, dz: f32) -> f32 {
+    // in the frame of a shape turned by its angle about y
+    let lx = s.rate.x * dx + s.rate.y * dz;
+    let lz = s.rate.x * dz - s.rate.y * dx;
+    let dy = p.y - s.center.y;
+    switch s.kind.x {
+        case 1u: { return edge(sqrt((lx / s.extent.x) * (lx / s.extent.x) + (lz / s.extent.y) * (lz / s.extent.y))); }
+        case 2u: { return edge(abs(lx) / s.extent.x) * edge(abs(lz) / s.extent.y); }
+        case 3u: { return edge(sqrt(dx * dx + dy * dy + dz * dz) / s.extent.x); }
+        case 4u: { return edge(abs(lx) / s.extent.x) * edge(abs(dy) / s.extent.y) * edge(abs(lz) / s.extent.z); }
+        case 5u: { return heat_map(s.kind, p.x, p.z); }
+        default: { return 0.0; }
     }
-    return rate;
+}
+
+// (heating K/s, vapor kg/kg/s) at p: the noise pattern below heat_height and every source
+// (mirror: sim::reference::thermo::source_rates).
+fn source_rates(p: vec3<f32>, time: f32) -> vec2<f32> {
+    var rate = 0.0;
+    var vapor = 0.0;
+    if (P.heat_noise != 0u && p.y < P.heat_height) { rate = P.heat_source * heat_factor(p.x, p.z, time); }
+    for (var k = 0u; k < P.n_sources; k++) {
+        let s = P.sources[k];
+        // a ground shape acts below the top of its layer
+        if (p.y >= s.center.w) { continue; }
+        let dx = wrap_delta(p.x - s.center.x, P.size_x, (P.periodic & 1u) != 0u);
+        let dz = wrap_delta(p.z - s.center.z, P.size_z, (P.periodic & 4u) != 0u);
+        if (s.kind.x == 0u) {
+            // the disc as before the other shapes existed, so its shots stay bit-identical
+            let t = clamp((s.extent.x - sqrt(dx * dx + dz * dz)) / (0.3 * s.extent.x), 0.0, 1.0);
+            rate += s.rate.z * t * t * (3.0 - 2.0 * t);
+            vapor += s.rate.w * t * t * (3.0 - 2.0 * t);
+        } else {
+            let f = shape_factor(s, p, dx, dz);
+            rate += s.rate.z * f;
+            vapor += s.rate.w * f;
+        }
+    }
+    return vec2<f32>(rate, vapor);
+}
+
+// The wind (u_x, u_z) at height y: speed and heading linear between levels, constant
+// outside them (mirror: sim::reference::thermo::wind_at).
+fn wind_at(y: f32) -> vec2<f32> {
+    var a = P.wind[0];
+    var b = a;
+    for (var k = 1u; k < P.n_wind; k++) {
+        b = P.wind[k];
+        if (y < b.x) { break; }
+        a = b;
+    }
+    var t = 0.0;
+    if (b.x > a.x) { t = clamp((y - a.x) / (b.x - a.x), 0.0, 1.0); }
+    let speed = mix(a.y, b.y, t);
+    let heading = mix(a.z, b.z, t);
+    return speed * vec2<f32>(cos(heading), sin(heading));
 }
 
 // Environment temperature T0(y): piecewise linear with an optional capping inversion
@@ -155,13 +249,14 @@ fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     var temp = th.x;
     var v = th.y;
 
-    // eq. 5: dT/dt = Se near the ground, in a noise pattern over the ground that drifts in time;
-    // a moist ground also evaporates Se / (Bowen ratio Q) of vapor (not in the paper).
-    if (p.y < P.heat_height) {
-        let heat = P.dt * heating_rate(p.x, p.z, P.time);
-        temp = temp + heat;
-        v = v + heat * P.ground_vapor;
-    }
+    // eq. 5: dT/dt = Se near the ground, in a noise pattern over the ground that drifts in time,
+    // and the sources; a moist ground also evaporates Se / (Bowen ratio Q) of vapor, and vapor
+    // sources add theirs (not in the paper). Where nothing heats, heat is 0 and T, v stay.
+    let rates = source_rates(p, P.time);
+    let heat = P.dt * rates.x;
+    temp = temp + heat;
+    v = v + heat * P.ground_vapor;
+    v = v + P.dt * rates.y;
 
     // eq. 6: F = kb (T - T0) / T0 j - kg w j, applied as a velocity change dt F, less its
     // horizontal mean at this height when there is a profile (a force of height alone only
@@ -169,6 +264,14 @@ fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     let t0 = environment_temperature(p.y);
     let force = P.buoyancy * (temp - t0) / t0 - P.cloud_weight * th.z;
     u.y = u.y + P.dt * (force - layer_mean(p.y));
+
+    // wind (not in the paper): the horizontal velocity relaxes towards the profile at this
+    // height, exactly over dt (1 - exp(-dt / tau)), so the substeps do not change it.
+    if (P.n_wind > 0u) {
+        let air = wind_at(p.y);
+        u.x = u.x + P.wind_fraction * (air.x - u.x);
+        u.z = u.z + P.wind_fraction * (air.y - u.z);
+    }
 
     // eq. 7: dT = -Gamma_d dy over the height this substep's move gained (vel.w, written by
     // pbf.wgsl's update_velocity): T + Gamma_d y is kept exactly by a dry parcel, however the

@@ -125,13 +125,10 @@ fn thermo_step_matches_mirror() {
     cfg.physics.environment.inversion_strength = 3.0;
     cfg.physics.environment.lapse_rate_above = Some(0.002);
     cfg.physics.sources.push(nimbus::config::HeatSource {
-        shape: nimbus::config::SourceShape::Disc,
-        center: [1900.0, 800.0],
-        radius: 400.0,
-        strength: 0.1,
         start: 100.0,
         end: Some(300.0),
         ramp: 50.0,
+        ..nimbus::config::HeatSource::disc(1900.0, 800.0, 400.0, 0.1)
     });
     let n = 3000;
     let (pos, vel, th) = random_thermo_state(n, 42, &cfg);
@@ -150,7 +147,7 @@ fn thermo_step_matches_mirror() {
         .collect();
     let mut vel64: Vec<[f64; 4]> = vel.iter().map(|v| v.map(|c| c as f64)).collect();
     let mut th64: Vec<[f64; 4]> = th.iter().map(|t| t.map(|v| v as f64)).collect();
-    thermo_step(&params, &pos64, &mut vel64, &mut th64);
+    thermo_step(&params, &[], &pos64, &mut vel64, &mut th64);
 
     let (mut heated, mut condensed, mut evaporated, mut moistened) = (0, 0, 0, 0);
     for i in 0..n {
@@ -185,6 +182,170 @@ fn thermo_step_matches_mirror() {
         heated > 100 && condensed > 100 && evaporated > 100 && moistened > 50,
         "{heated} {condensed} {evaporated} {moistened}"
     );
+}
+
+/// Every source shape (rotated, across periodic faces, on the ground with its own layer, in
+/// the air, a heat map with alpha, vapor rates, a schedule) and a sheared, turning wind: one
+/// GPU step against the mirror, with the tolerances above (u_x, u_z too). Each source must
+/// heat some particles, the map must be sampled between pixels, and the wind must move u_x
+/// and u_z.
+#[test]
+#[allow(clippy::needless_range_loop)] // parallel arrays indexed together
+fn sources_and_wind_match_mirror() {
+    use nimbus::config::{HeatSource, SourceShape, WindConfig, WindLevel};
+    let ctx = context();
+    let dir = tempfile::tempdir().unwrap();
+    // 40 x 32 pixels over the 2000 x 1600 m ground: random grey with random alpha
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let mut im = image::RgbaImage::new(40, 32);
+    for px in im.pixels_mut() {
+        let v: u8 = rng.random();
+        *px = image::Rgba([v, v, v, rng.random()]);
+    }
+    let map_path = dir.path().join("heat.png");
+    im.save(&map_path).unwrap();
+
+    let mut cfg = shot();
+    cfg.physics.bowen_ratio = Some(0.5);
+    let src = |shape: SourceShape, center: Vec<f64>, strength: f64| HeatSource {
+        shape,
+        center,
+        radius: None,
+        strength,
+        ..HeatSource::disc(0.0, 0.0, 1.0, 0.0)
+    };
+    cfg.physics.sources = vec![
+        HeatSource {
+            radii: Some([500.0, 200.0]),
+            angle: Some(35.0),
+            vapor: Some(2e-5),
+            ..src(SourceShape::Ellipse, vec![1900.0, 100.0], 0.2)
+        },
+        HeatSource {
+            size: Some(vec![600.0, 300.0]),
+            angle: Some(-60.0),
+            height: Some(400.0),
+            ..src(SourceShape::Box, vec![600.0, 1000.0], 0.3)
+        },
+        HeatSource {
+            radius: Some(450.0),
+            vapor: Some(1e-5),
+            ..src(SourceShape::Sphere, vec![1000.0, 1500.0, 50.0], 0.1)
+        },
+        HeatSource {
+            size: Some(vec![800.0, 500.0, 700.0]),
+            angle: Some(20.0),
+            start: 100.0,
+            end: Some(300.0),
+            ramp: 50.0,
+            ..src(SourceShape::Box, vec![1200.0, 2200.0, 800.0], 0.15)
+        },
+        HeatSource {
+            image: Some(map_path.to_string_lossy().into_owned()),
+            height: Some(300.0),
+            vapor: Some(5e-6),
+            ..src(SourceShape::Image, vec![], 0.25)
+        },
+        HeatSource {
+            vapor: Some(3e-5),
+            ..HeatSource::disc(300.0, 1500.0, 300.0, 0.05)
+        },
+    ];
+    cfg.physics.wind = Some(WindConfig {
+        time_constant: 20.0,
+        profile: vec![
+            WindLevel {
+                height: 200.0,
+                speed: 2.0,
+                direction: 350.0,
+            },
+            WindLevel {
+                height: 1200.0,
+                speed: 9.0,
+                direction: 30.0,
+            },
+            WindLevel {
+                height: 2500.0,
+                speed: 12.0,
+                direction: 120.0,
+            },
+        ],
+    });
+    let maps = nimbus::sim::sources::HeatMaps::load(&cfg).unwrap();
+    assert_eq!(maps.values.len(), 40 * 32);
+    let n = 6000;
+    let (mut pos, vel, th) = random_thermo_state(n, 43, &cfg);
+    // half of them inside the heated layers of the ground shapes (up to 400 m)
+    for p in pos.iter_mut().step_by(2) {
+        p[1] = (p[1] as f64 % 450.0) as f32;
+    }
+    let params = ThermoParams::new(&cfg, 2.0, 150.0).with_maps(&maps);
+    let out = gpu_thermo(&ctx, &cfg, &[params], &pos, &vel, &th);
+
+    let pos64: Vec<[f64; 3]> = pos
+        .iter()
+        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
+        .collect();
+    let mut vel64: Vec<[f64; 4]> = vel.iter().map(|v| v.map(|c| c as f64)).collect();
+    let mut th64: Vec<[f64; 4]> = th.iter().map(|t| t.map(|v| v as f64)).collect();
+    thermo_step(&params, &maps.values, &pos64, &mut vel64, &mut th64);
+    for i in 0..n {
+        let (g, m) = (out.thermo[i], th64[i]);
+        assert!(
+            (g[0] as f64 - m[0]).abs() < 2e-3,
+            "T {i}: {} vs {}",
+            g[0],
+            m[0]
+        );
+        assert!(
+            (g[1] as f64 - m[1]).abs() < 1e-8,
+            "v {i}: {} vs {}",
+            g[1],
+            m[1]
+        );
+        assert!(
+            (g[2] as f64 - m[2]).abs() < 1e-8,
+            "w {i}: {} vs {}",
+            g[2],
+            m[2]
+        );
+        for a in 0..3 {
+            assert!(
+                (out.vel[i][a] as f64 - vel64[i][a]).abs() < 1e-5,
+                "u[{a}] {i}: {} vs {}",
+                out.vel[i][a],
+                vel64[i][a]
+            );
+        }
+        assert!(
+            (out.vel[i][0] - vel[i][0]).abs() > 1e-3 || (out.vel[i][2] - vel[i][2]).abs() > 1e-3,
+            "the wind moved nothing at {i}"
+        );
+    }
+    // every source reaches some particles, and some only partly (the falloff is exercised)
+    for (k, s) in params.sources[..params.n_sources as usize]
+        .iter()
+        .enumerate()
+    {
+        let mut one = params;
+        one.sources[0] = *s;
+        one.n_sources = 1;
+        one.heat_noise = 0;
+        let (mut full, mut part) = (0, 0);
+        for q in &pos64 {
+            let r = nimbus::sim::reference::thermo::source_rates(&one, &maps.values, *q)[0];
+            let f = r / s.rate[2] as f64;
+            assert!(f <= 1.0 + 1e-9, "source {k}: fraction {f}");
+            full += (f > 0.999) as usize;
+            part += (f > 0.01 && f < 0.99) as usize;
+        }
+        // a heat map of random grey and alpha is seldom at full strength
+        let image = s.kind[0] == nimbus::sim::sources::KIND_IMAGE;
+        assert!(
+            (full > 10 || image) && part > 10,
+            "source {k}: {full} full, {part} partly"
+        );
+    }
 }
 
 /// Fifty steps on the GPU: v + w per particle kept to f32 rounding, never negative, and the

@@ -76,7 +76,9 @@ fn scaled_config(origin: &str, text: &str, scale: f64) -> Result<ShotConfig> {
             src.center[0] * sx / d.size[0],
             src.center[1] * sz / d.size[2]
         ));
-        overrides.push(format!("physics.sources[{i}].radius={}", src.radius * f));
+        if let Some(r) = src.radius {
+            overrides.push(format!("physics.sources[{i}].radius={}", r * f));
+        }
     }
     // The voxel size only matters for validation (the bench exports nothing); the spacing is a
     // multiple of it in the shots, so every scaled extent stays a whole number of voxels.
@@ -339,7 +341,7 @@ mod tests {
         let (_, origin2, text2) = SCENARIOS[1];
         let b = scaled_config(origin2, text2, 0.25).unwrap();
         assert_eq!(b.physics.sources[0].center, [208.0, 208.0]);
-        assert_eq!(b.physics.sources[0].radius, 104.0);
+        assert_eq!(b.physics.sources[0].radius, Some(104.0));
         let n = non_adaptive(&a).unwrap();
         assert!(!n.adaptive.enabled);
         // Level-3 particles: h = h0 2^-1, so the spacing halves.

@@ -2,12 +2,14 @@
 //!
 //! Every failure is one line: `FILE:LINE:COL: KEY.PATH: what was expected (got what)`. Keys set
 //! by `--set` read `FILE: --set KEY.PATH: ...`; keys left at their default read `FILE: KEY.PATH: ...`.
+mod art;
 mod de;
 mod hash;
 mod node;
 mod schema;
 mod validate;
 
+pub use art::{MAP_ASPECT_TOLERANCE, MAX_WIND_LEVELS};
 pub use hash::{full_hash, sim_hash, sim_key_diff, NON_SIM_KEYS};
 pub use schema::*;
 pub use validate::{
@@ -31,7 +33,7 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<ShotConfig> {
     let bytes = read_bounded(path)
         .map_err(|why| Error::Config(format!("{name}: cannot read config: {why}")))?;
     let text = decode(&name, &bytes)?;
-    load_str(&text, &name, overrides)
+    load_text(&text, &name, overrides, path.parent())
 }
 
 /// The bytes of a regular file of at most [`MAX_CONFIG_BYTES`], or why not.
@@ -78,8 +80,19 @@ fn read_bounded(path: &Path) -> std::result::Result<Vec<u8>, String> {
     Ok(bytes)
 }
 
-/// Like [`load`] for text already in memory; `origin` names it in errors.
+/// Like [`load`] for text already in memory; `origin` names it in errors. Relative file paths
+/// in it (heat maps) are taken from the working directory.
 pub fn load_str(text: &str, origin: &str, overrides: &[String]) -> Result<ShotConfig> {
+    load_text(text, origin, overrides, None)
+}
+
+/// `base`: the directory relative file paths in the config are resolved against.
+fn load_text(
+    text: &str,
+    origin: &str,
+    overrides: &[String],
+    base: Option<&Path>,
+) -> Result<ShotConfig> {
     let ctx = Ctx {
         file: origin,
         sets: overrides,
@@ -128,6 +141,7 @@ pub fn load_str(text: &str, origin: &str, overrides: &[String]) -> Result<ShotCo
         Some((path, pos)) => ctx.at(&path, pos, &e.msg),
         None => ctx.bare(&e.msg),
     })?;
+    resolve_paths(&mut cfg, base);
     if let Some(issue) = validate::issues(&cfg).into_iter().next() {
         let mut positions = HashMap::new();
         collect_positions(&root, "", &mut positions);
@@ -159,6 +173,29 @@ fn normalise(cfg: &mut ShotConfig) {
     // divided, not times the reciprocal (glam's normalize): the stored config stays the same
     if len > 0.0 && len.is_finite() {
         *d = (v / len).to_array();
+    }
+    // Pin each heat map's content, so the manifest and the checkpoints name exactly the map
+    // the run used and a resume refuses a changed one (validation compares it).
+    for src in &mut cfg.physics.sources {
+        if let (Some(path), None) = (&src.image, &src.image_sha256) {
+            src.image_sha256 = crate::io::heat_map::file_sha256(Path::new(path)).ok();
+        }
+    }
+}
+
+/// Heat-map paths become absolute: relative ones are taken from `base` (the config file's
+/// directory) or the working directory, so a resume from the manifest finds the same file.
+fn resolve_paths(cfg: &mut ShotConfig, base: Option<&Path>) {
+    for src in &mut cfg.physics.sources {
+        let Some(image) = &src.image else { continue };
+        let p = Path::new(image);
+        let joined = match base {
+            Some(b) if p.is_relative() => b.join(p),
+            _ => p.to_path_buf(),
+        };
+        if let Ok(abs) = std::path::absolute(&joined) {
+            src.image = Some(abs.to_string_lossy().into_owned());
+        }
     }
 }
 

@@ -266,9 +266,12 @@ pub struct PhysicsConfig {
     pub adiabatic_lapse_rate: f64,
     /// Ground heating Se (K/s), eq. 5, applied below `heat_height`, modulated by noise.
     pub heat_source: f64,
-    /// Whether the noise pattern heats the ground (`heat_source` x noise); the `sources` add to it.
+    /// Whether the noise pattern heats the ground (`heat_source` x noise); the `sources` add to
+    /// it. `on`/`off` are accepted besides `true`/`false`.
+    #[serde(deserialize_with = "on_off")]
     pub heat_noise: bool,
-    /// Heat sources on the ground besides the noise pattern.
+    /// Heat and vapor sources besides the noise pattern (shapes on the ground and in the air,
+    /// a painted heat map).
     pub sources: Vec<HeatSource>,
     pub heat_height: f64,
     /// Feature size of the heating noise over the ground (m) and its change rate (1/s).
@@ -299,6 +302,31 @@ pub struct PhysicsConfig {
     /// Maximum initial speed (m/s), random directions.
     pub initial_speed: f64,
     pub smoothing: SmoothingConfig,
+    /// Horizontal wind profile the air relaxes towards; `None` = no wind. Left out of the
+    /// serialisation when unset, so the hashes of shots without wind are unchanged.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub wind: Option<WindConfig>,
+}
+/// `true`/`false`, or the words `on`/`off` (YAML 1.2 reads those as strings).
+fn on_off<'de, D: serde::Deserializer<'de>>(d: D) -> Result<bool, D::Error> {
+    struct V;
+    impl serde::de::Visitor<'_> for V {
+        type Value = bool;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("true or false (or on / off)")
+        }
+        fn visit_bool<E: serde::de::Error>(self, b: bool) -> Result<bool, E> {
+            Ok(b)
+        }
+        fn visit_str<E: serde::de::Error>(self, s: &str) -> Result<bool, E> {
+            match s {
+                "on" => Ok(true),
+                "off" => Ok(false),
+                _ => Err(E::invalid_value(serde::de::Unexpected::Str(s), &self)),
+            }
+        }
+    }
+    d.deserialize_any(V)
 }
 impl Default for PhysicsConfig {
     fn default() -> Self {
@@ -325,6 +353,7 @@ impl Default for PhysicsConfig {
             bowen_ratio: None,
             initial_speed: 0.5,
             smoothing: SmoothingConfig::default(),
+            wind: None,
         }
     }
 }
@@ -361,18 +390,48 @@ impl Default for EnvironmentConfig {
     }
 }
 
-/// A heat source on the ground, applied like `heat_source` to the particles below
-/// `heat_height`.
+/// A heat and vapor source (docs/CONFIG.md "physics.sources"). Ground shapes (`disc`,
+/// `ellipse`, a `box` with a 2-value centre, `image`) act on the air below `height` over their
+/// footprint; volume shapes (`sphere`, a `box` with a 3-value centre) wherever they are. Keys a
+/// shape does not use must be left out (validation says which). Optional keys are left out of
+/// the serialisation when unset, so the hashes of earlier shots are unchanged.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct HeatSource {
     pub shape: SourceShape,
-    /// Centre (x, z) on the ground (m).
-    pub center: [f64; 2],
-    /// Radius (m): full strength out to 0.7 radius, falling smoothly to 0 at the radius.
-    pub radius: f64,
+    /// Centre (m): (x, z) on the ground, or (x, y, z) for a sphere or a box in the air; none for
+    /// an image (it covers the whole ground).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub center: Vec<f64>,
+    /// Disc and sphere radius (m): full strength out to 0.7 radius, a smoothstep to 0 at it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    /// Ellipse semi-axes (m) along x and z before the rotation by `angle`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radii: Option<[f64; 2]>,
+    /// Box edge lengths (m): (x, z) on the ground or (x, y, z) in the air.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size: Option<Vec<f64>>,
+    /// Rotation of an ellipse or box about the vertical axis (degrees, from +x towards +z).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub angle: Option<f64>,
+    /// Top of the heated layer of a ground shape (m); `None` = `physics.heat_height`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub height: Option<f64>,
+    /// Greyscale heat map (PNG or OpenEXR) over the domain's x/z extent; a relative path is
+    /// resolved against the config file's directory when the config is loaded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image: Option<String>,
+    /// SHA-256 of `image`, filled in when the config is loaded (so the manifest and the
+    /// checkpoints pin the map); a value given in the file must match the image.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image_sha256: Option<String>,
     /// Heating at full strength (K/s).
+    #[serde(default)]
     pub strength: f64,
+    /// Vapor added at full strength (kg/kg per s); `None` = 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vapor: Option<f64>,
     /// Simulated time it switches on (s).
     #[serde(default)]
     pub start: f64,
@@ -388,6 +447,39 @@ pub struct HeatSource {
 #[serde(rename_all = "lowercase")]
 pub enum SourceShape {
     Disc,
+    Ellipse,
+    Box,
+    Sphere,
+    Image,
+}
+
+/// `physics.wind`: a horizontal wind over height that the air relaxes towards.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WindConfig {
+    /// Relaxation time tau (s): each substep of dt moves a particle's horizontal velocity the
+    /// fraction 1 - exp(-dt / tau) of the way to the profile.
+    #[serde(default = "d_wind_time")]
+    pub time_constant: f64,
+    /// Levels by increasing height; linear in speed and direction between them, constant
+    /// below the first and above the last.
+    pub profile: Vec<WindLevel>,
+}
+fn d_wind_time() -> f64 {
+    60.0
+}
+
+/// One level of the wind profile.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WindLevel {
+    /// Height above the ground (m).
+    pub height: f64,
+    /// Wind speed (m/s).
+    pub speed: f64,
+    /// Heading the air moves towards (degrees in the ground plane, 0 = +x, 90 = +z).
+    #[serde(default)]
+    pub direction: f64,
 }
 
 /// The reference eq. 6's force is measured against.
@@ -787,12 +879,46 @@ impl HeatSource {
         on * off
     }
 
-    /// Fraction in [0, 1] of the source's strength at ground point (x, z), with the shortest
+    /// Fraction in [0, 1] of a disc's strength at ground point (x, z), with the shortest
     /// periodic distance `d` (x, z) from the centre: 1 inside 0.7 radius, a smoothstep to 0 at
     /// the radius.
     pub fn falloff(radius: f64, dx: f64, dz: f64) -> f64 {
         let r = (dx * dx + dz * dz).sqrt();
         let t = ((radius - r) / (0.3 * radius)).clamp(0.0, 1.0);
         t * t * (3.0 - 2.0 * t)
+    }
+
+    /// A disc on the ground at (x, z), always on, with no vapor.
+    pub fn disc(x: f64, z: f64, radius: f64, strength: f64) -> Self {
+        Self {
+            shape: SourceShape::Disc,
+            center: vec![x, z],
+            radius: Some(radius),
+            radii: None,
+            size: None,
+            angle: None,
+            height: None,
+            image: None,
+            image_sha256: None,
+            strength,
+            vapor: None,
+            start: 0.0,
+            end: None,
+            ramp: 0.0,
+        }
+    }
+
+    /// Whether the shape lies on the ground (acts below `height`) rather than in the air.
+    pub fn on_ground(&self) -> bool {
+        match self.shape {
+            SourceShape::Disc | SourceShape::Ellipse | SourceShape::Image => true,
+            SourceShape::Sphere => false,
+            SourceShape::Box => self.center.len() != 3,
+        }
+    }
+
+    /// Vapor rate at full strength (kg/kg per s).
+    pub fn vapor_rate(&self) -> f64 {
+        self.vapor.unwrap_or(0.0)
     }
 }

@@ -449,13 +449,10 @@ fn every_key_is_documented() {
 #[test]
 fn heat_source_schedule_ramps_in_and_out() {
     let src = HeatSource {
-        shape: SourceShape::Disc,
-        center: [0.0, 0.0],
-        radius: 100.0,
-        strength: 1.0,
         start: 100.0,
         end: Some(300.0),
         ramp: 50.0,
+        ..HeatSource::disc(0.0, 0.0, 100.0, 1.0)
     };
     assert_eq!(src.envelope(99.0), 0.0);
     assert_eq!(src.envelope(125.0), 0.5);

@@ -96,10 +96,19 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("physics.bowen_ratio", 0.05, 100.0),
     closed("physics.sources[].center", 0.0, 1.0e5),
     above("physics.sources[].radius", 0.0, 1.0e5),
+    above("physics.sources[].radii", 0.0, 1.0e5),
+    above("physics.sources[].size", 0.0, 1.0e5),
+    closed("physics.sources[].angle", -360.0, 360.0),
+    above("physics.sources[].height", 0.0, 1.0e5),
     closed("physics.sources[].strength", 0.0, 10.0),
+    closed("physics.sources[].vapor", 0.0, 0.01),
     closed("physics.sources[].start", 0.0, 1.0e9),
     closed("physics.sources[].end", 0.0, 1.0e9),
     closed("physics.sources[].ramp", 0.0, 1.0e9),
+    above("physics.wind.time_constant", 0.0, 1.0e6),
+    closed("physics.wind.profile[].height", 0.0, 1.0e5),
+    closed("physics.wind.profile[].speed", 0.0, 100.0),
+    closed("physics.wind.profile[].direction", -360.0, 360.0),
     closed("physics.adiabatic_lapse_rate", 0.0, 0.1),
     closed("physics.heat_source", 0.0, 10.0),
     closed("physics.heat_height", 0.0, 1.0e5),
@@ -277,19 +286,58 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         let mut field = |name: &str, key: &'static str, x: f64| {
             v.push((format!("physics.sources[{i}].{name}"), key, x));
         };
-        field("radius", "physics.sources[].radius", src.radius);
         field("strength", "physics.sources[].strength", src.strength);
         field("start", "physics.sources[].start", src.start);
         field("ramp", "physics.sources[].ramp", src.ramp);
-        if let Some(end) = src.end {
-            field("end", "physics.sources[].end", end);
+        for (name, key, x) in [
+            ("radius", "physics.sources[].radius", src.radius),
+            ("angle", "physics.sources[].angle", src.angle),
+            ("height", "physics.sources[].height", src.height),
+            ("vapor", "physics.sources[].vapor", src.vapor),
+            ("end", "physics.sources[].end", src.end),
+        ] {
+            if let Some(x) = x {
+                field(name, key, x);
+            }
         }
-        for (a, c) in src.center.iter().enumerate() {
-            v.push((
-                format!("physics.sources[{i}].center[{a}]"),
-                "physics.sources[].center",
-                *c,
-            ));
+        let lists: [(&str, &'static str, &[f64]); 3] = [
+            ("center", "physics.sources[].center", &src.center),
+            (
+                "radii",
+                "physics.sources[].radii",
+                src.radii.as_ref().map_or(&[], |r| r.as_slice()),
+            ),
+            (
+                "size",
+                "physics.sources[].size",
+                src.size.as_deref().unwrap_or(&[]),
+            ),
+        ];
+        for (name, key, xs) in lists {
+            for (a, x) in xs.iter().enumerate() {
+                v.push((format!("physics.sources[{i}].{name}[{a}]"), key, *x));
+            }
+        }
+    }
+    if let Some(w) = &ph.wind {
+        v.push((
+            "physics.wind.time_constant".into(),
+            "physics.wind.time_constant",
+            w.time_constant,
+        ));
+        for (k, l) in w.profile.iter().enumerate() {
+            for (name, x) in [
+                ("height", l.height),
+                ("speed", l.speed),
+                ("direction", l.direction),
+            ] {
+                let key = match name {
+                    "height" => "physics.wind.profile[].height",
+                    "speed" => "physics.wind.profile[].speed",
+                    _ => "physics.wind.profile[].direction",
+                };
+                v.push((format!("physics.wind.profile[{k}].{name}"), key, x));
+            }
         }
     }
     v
@@ -627,43 +675,8 @@ fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
             ),
         );
     }
-    for (i, src) in p.sources.iter().enumerate() {
-        let key = |f: &str| format!("physics.sources[{i}].{f}");
-        if let Some(end) = src.end {
-            if end.is_finite()
-                && src.start.is_finite()
-                && src.ramp.is_finite()
-                && end < src.start + 2.0 * src.ramp
-            {
-                k.fail(
-                    &[&key("end")],
-                    format!(
-                        "end {} s leaves no room for the ramps: it must be at least start + 2 ramp = {} s",
-                        num(end),
-                        num(src.start + 2.0 * src.ramp)
-                    ),
-                );
-            }
-        }
-        for (a, (&c, &size)) in src
-            .center
-            .iter()
-            .zip([c.domain.size[0], c.domain.size[2]].iter())
-            .enumerate()
-        {
-            if c.is_finite() && !(0.0..=size).contains(&c) {
-                k.fail(
-                    &[&key("center")],
-                    format!(
-                        "centre {} m is outside the domain along {} [0, {}]",
-                        num(c),
-                        ["x", "z"][a],
-                        num(size)
-                    ),
-                );
-            }
-        }
-    }
+    // shapes, schedules, heat maps and the wind profile (config::art)
+    k.issues.extend(super::art::issues(p, c));
     if p.bowen_ratio.is_some() && p.latent_heat <= 0.0 {
         k.fail(
             &["physics.bowen_ratio"],
@@ -1029,6 +1042,35 @@ mod tests {
                 _ => {}
             }
         }
+        // every optional number of a source and the wind, too
+        c.physics.sources = vec![
+            HeatSource {
+                shape: SourceShape::Ellipse,
+                radius: None,
+                radii: Some([30.0, 20.0]),
+                angle: Some(10.0),
+                height: Some(20.0),
+                vapor: Some(1e-6),
+                end: Some(100.0),
+                ..HeatSource::disc(50.0, 50.0, 1.0, 0.1)
+            },
+            HeatSource {
+                shape: SourceShape::Box,
+                center: vec![50.0, 20.0, 50.0],
+                radius: None,
+                size: Some(vec![10.0, 10.0, 10.0]),
+                ..HeatSource::disc(0.0, 0.0, 1.0, 0.1)
+            },
+        ];
+        c.physics.wind = Some(WindConfig {
+            time_constant: 30.0,
+            profile: vec![WindLevel {
+                height: 10.0,
+                speed: 2.0,
+                direction: 45.0,
+            }],
+        });
+        assert_eq!(issues(&c), vec![]);
         let mut want = Vec::new();
         floats(&serde_json::to_value(&c).unwrap(), "", &mut want);
         let mut have: Vec<String> = float_values(&c).into_iter().map(|(k, _, _)| k).collect();

@@ -47,6 +47,10 @@ pub struct Manifest {
     /// absent in manifests written before it existed (then: metres, y-up, simulated m/s).
     #[serde(default)]
     pub export: Option<crate::export::ExportSpace>,
+    /// Every `physics.sources` entry: shape, bounds in metres, rates, schedule and heat map
+    /// (`sim::sources::records`); left out when the shot has none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sources: Vec<crate::sim::sources::SourceRecord>,
     /// The command line that resumes this run.
     pub resume_command: String,
     pub frames: Vec<FrameRecord>,
@@ -192,6 +196,7 @@ mod tests {
             voxel_size: 1.0,
             grid_origin: [0.0; 3],
             export: None,
+            sources: vec![],
             resume_command: String::new(),
             frames: vec![],
             complete: false,

@@ -100,6 +100,7 @@ impl FrameWriter {
             voxel_size: self.space.transform(&self.transform).voxel_size,
             grid_origin: self.space.transform(&self.transform).origin,
             export: Some(self.space.clone()),
+            sources: crate::sim::sources::records(cfg),
             resume_command: super::naming::resume_command(&self.run_dir),
             frames: Vec::new(),
             complete: false,

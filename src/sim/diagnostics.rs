@@ -213,14 +213,16 @@ fn cloud_quantile(pts: &mut [(f64, f64)], total: f64, q: f64) -> f64 {
 ///   one frame to the next is the heat that stayed in the air;
 /// - `heat_input_mean` (K): the mass-weighted mean heating of this frame, estimated as the
 ///   heating rate of eq. 5 (with the sources) at the frame-end state times frame_seconds;
-/// - `water_input` (kg): the vapor a moist ground (`physics.bowen_ratio`) evaporated this
-///   frame, estimated the same way (0 over a dry ground): the expected rise of `total_water`;
+/// - `water_input` (kg): the vapor a moist ground (`physics.bowen_ratio`) evaporated and the
+///   vapor sources added this frame, estimated the same way (0 over a dry ground without vapor
+///   sources): the expected rise of `total_water`;
 /// - `clamped_particles`: particles at the speed clamp (|v| >= 0.999 solver.max_speed).
 pub fn atmosphere_diagnostics(
     state: &ParticleState,
     cfg: &ShotConfig,
     initial_layers: &[f64],
     time: f64,
+    maps: &crate::sim::sources::HeatMaps,
 ) -> BTreeMap<String, f64> {
     let p = &cfg.physics;
     let size = cfg.domain.size;
@@ -229,10 +231,10 @@ pub fn atmosphere_diagnostics(
         cfg.domain.periodic.contains(&crate::config::Axis::X),
         cfg.domain.periodic.contains(&crate::config::Axis::Z),
     ];
-    let heat = crate::sim::thermo::ThermoParams::new(cfg, 1.0, time);
+    let heat = crate::sim::thermo::ThermoParams::new(cfg, 1.0, time).with_maps(maps);
     let max_speed = cfg.solver.max_speed;
     let (mut cloud, mut ceiling, mut top10, mut face) = (0.0, 0.0, 0.0, 0.0);
-    let (mut mass, mut energy, mut heating) = (0.0, 0.0, 0.0);
+    let (mut mass, mut energy, mut heating, mut moisture) = (0.0, 0.0, 0.0, 0.0);
     let mut clamped = 0usize;
     let mut cloud_pts = Vec::new();
     for i in 0..state.len() {
@@ -242,7 +244,10 @@ pub fn atmosphere_diagnostics(
         let v = Vec4::from(state.vel[i]).truncate().as_dvec3();
         mass += m;
         energy += m * (th[0] + p.adiabatic_lapse_rate * q[1] - p.latent_heat * th[2]);
-        heating += m * crate::sim::reference::thermo::heating_rate(&heat, q);
+        let [rate, vapor] =
+            crate::sim::reference::thermo::source_rates(&heat, &maps.values, q.to_array());
+        heating += m * rate;
+        moisture += m * vapor;
         if v.length() >= 0.999 * max_speed {
             clamped += 1;
         }
@@ -296,7 +301,9 @@ pub fn atmosphere_diagnostics(
     );
     out.insert(
         "water_input".into(),
-        heating * heat.ground_vapor as f64 * particle_mass0(cfg) * cfg.output.frame_seconds,
+        (heating * heat.ground_vapor as f64 + moisture)
+            * particle_mass0(cfg)
+            * cfg.output.frame_seconds,
     );
     out.insert("clamped_particles".into(), clamped as f64);
     out

@@ -26,8 +26,10 @@ pub mod reference;
 pub mod rest;
 mod simulation;
 pub mod smoothing;
+pub mod sources;
 mod step;
 pub mod thermo;
+pub mod wind;
 
 pub use phase::{Phase, PhaseTimes, Timing};
 pub use simulation::{

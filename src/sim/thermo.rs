@@ -6,8 +6,11 @@
 //! 1. ground heating, eq. 5: `T += dt Se n(x, z, t)` for particles below `heat_height`, where
 //!    `n` in [0, 1] is the hash value noise of [`crate::sim::noise`] over the ground, drifting in
 //!    time at `heat_noise_speed` lattice cells per second and stretched by `heat_noise_contrast`;
+//!    plus every `physics.sources` entry's heating and vapor ([`crate::sim::sources`]: shapes
+//!    on the ground and in the air, heat maps in a storage buffer at binding 4);
 //! 2. buoyancy and cloud weight, eq. 6: `u_y += dt (kb (T - T0(y)) / T0(y) - kg w)` with the
-//!    environment `T0(y)` of `physics.environment` (with its optional capping inversion);
+//!    environment `T0(y)` of `physics.environment` (with its optional capping inversion); and
+//!    the wind, `u_h += f (U(y) - u_h)` with `f = 1 - exp(-dt / tau)` ([`crate::sim::wind`]);
 //! 3. adiabatic cooling, eq. 7: `T -= Gamma_d dy` over the height `dy` the substep's move gained
 //!    (`vel.w`, written by pbf.wgsl's `update_velocity`);
 //! 4. phase transition, eqs. 8-10: `w* = clamp(w + f (v - gamma), 0, v + w)`, `v* = (v + w) - w*`
@@ -17,8 +20,9 @@
 //!    rounding and neither goes negative;
 //! 5. latent heat, eq. 11: `T += Q (w* - w)` (eq. 11 integrated the same way as eq. 9).
 //!
-//! Usage: `let stage = ThermoStage::new(&ctx, &cfg, &buffers)?;` once, then per substep
-//! `stage.step(&mut recorder, &live, dt, time)`. Initial state (section 5): [`initial_thermo`].
+//! Usage: `let stage = ThermoStage::new(&ctx, &cfg, &buffers)?;` once (it reads the heat maps),
+//! then per substep `stage.step(&mut recorder, &live, dt, time)`. Initial state (section 5):
+//! [`initial_thermo`].
 use crate::config::{PhysicsConfig, ShotConfig};
 use crate::error::Result;
 use crate::gpu::buffers::ParamSlots;
@@ -79,20 +83,27 @@ pub struct ThermoParams {
     /// Layers of the horizontal-mean buoyancy profile (`physics.buoyancy_reference:
     /// layer_mean`); 0 = none.
     pub n_layers: u32,
-    /// Heat sources: (centre x, centre z, radius, strength K/s).
-    pub sources: [[f32; 4]; MAX_SOURCES],
     /// Thickness of a layer (m); the profile's values sit at the layer centres.
     pub layer_height: f32,
     /// Vapor the ground evaporates per kelvin of heating, 1 / (Bowen ratio Q) (kg/kg per K;
     /// 0 = dry ground, `physics.bowen_ratio`).
     pub ground_vapor: f32,
-    pub _pad: [u32; 2],
+    /// Levels of `wind` in use (0 = no wind) and the relaxation fraction of a substep,
+    /// 1 - exp(-dt / tau) ([`crate::sim::wind`]).
+    pub n_wind: u32,
+    pub wind_fraction: f32,
     /// The profile (m/s^2), four layers a row: [`LayerBuoyancy`].
     pub layers: [[f32; 4]; MAX_LAYERS / 4],
+    // --- art direction (issue 18): wind and sources, after everything else ---
+    /// Wind levels (height m, speed m/s, heading rad, 0) ([`crate::sim::wind::rows`]).
+    pub wind: [[f32; 4]; MAX_WIND_LEVELS],
+    /// `physics.sources` with this substep's schedule ([`crate::sim::sources::pack`]); the
+    /// heat-map entries of image sources come from [`ThermoParams::with_maps`].
+    pub sources: [SourceGpu; MAX_SOURCES],
 }
 
-/// Most entries of `physics.sources`.
-pub const MAX_SOURCES: usize = 8;
+pub use crate::sim::sources::{HeatMaps, SourceGpu, MAX_SOURCES};
+pub use crate::sim::wind::MAX_WIND_LEVELS;
 /// Most layers of the horizontal-mean buoyancy profile.
 pub const MAX_LAYERS: usize = 32;
 
@@ -102,6 +113,7 @@ impl ThermoParams {
         let p = &cfg.physics;
         let (cell_x, period_x) = noise::lattice_for_extent(cfg.domain.size[0], p.heat_noise_scale);
         let (cell_z, period_z) = noise::lattice_for_extent(cfg.domain.size[2], p.heat_noise_scale);
+        let (wind_levels, wind) = crate::sim::wind::rows(cfg);
         Self {
             dt: dt as f32,
             time: time as f32,
@@ -135,22 +147,21 @@ impl ThermoParams {
             size_z: cfg.domain.size[2] as f32,
             periodic: crate::sim::grid_params::GridParams::for_shot(cfg).periodic,
             n_layers: 0,
-            sources: std::array::from_fn(|k| {
-                p.sources.get(k).map_or([0.0; 4], |s| {
-                    [
-                        s.center[0] as f32,
-                        s.center[1] as f32,
-                        s.radius as f32,
-                        // the schedule at the substep's midpoint, computed here in f64
-                        (s.strength * s.envelope(time + 0.5 * dt)) as f32,
-                    ]
-                })
-            }),
             layer_height: 0.0,
             ground_vapor: p.bowen_ratio.map_or(0.0, |b| 1.0 / (b * p.latent_heat)) as f32,
-            _pad: [0; 2],
+            n_wind: wind_levels,
+            wind_fraction: crate::sim::wind::fraction(cfg, dt),
+            wind,
+            sources: crate::sim::sources::pack(cfg, dt, time),
             layers: [[0.0; 4]; MAX_LAYERS / 4],
         }
+    }
+
+    /// These parameters with the heat-map entries of the image sources (where each map starts
+    /// in the stage's map buffer, and its size).
+    pub fn with_maps(mut self, maps: &HeatMaps) -> Self {
+        self.sources = maps.with_maps(self.sources);
+        self
     }
 
     /// These parameters with the horizontal-mean buoyancy profile subtracted in eq. 6.
@@ -250,20 +261,36 @@ pub struct ThermoStage {
     cfg: ShotConfig,
     /// Subtracted in eq. 6 (empty unless `physics.buoyancy_reference` is `layer_mean`).
     layers: LayerBuoyancy,
+    /// The image sources' heat maps ([`HeatMaps`]) and their device copy (`heat_maps`).
+    maps: HeatMaps,
+    map_buffer: wgpu::Buffer,
 }
 
 impl ThermoStage {
     pub fn new(ctx: &Context, cfg: &ShotConfig, b: &ParticleBuffers) -> Result<Self> {
         let stage = Stage::new(ctx, SHADER, &[ENTRY])?;
         let params = ParamSlots::single(ctx, "thermo params", &ThermoParams::new(cfg, 0.0, 0.0));
-        let bind = stage.bind(ctx, &[&[("P", params.slot(0))], b])?;
+        let maps = HeatMaps::load(cfg)?;
+        let map_buffer = crate::gpu::buffers::storage_init(&ctx.device, "heat maps", &maps.values);
+        let own = [
+            ("P", params.slot(0)),
+            ("heat_maps", map_buffer.as_entire_binding()),
+        ];
+        let bind = stage.bind(ctx, &[&own, b])?;
         Ok(Self {
             stage,
             params,
             bind,
             cfg: cfg.clone(),
             layers: LayerBuoyancy::default(),
+            maps,
+            map_buffer,
         })
+    }
+
+    /// The heat maps this stage samples (what the mirror needs besides the parameters).
+    pub fn maps(&self) -> &HeatMaps {
+        &self.maps
     }
 
     /// The horizontal-mean buoyancy profile the next substeps subtract (set at frame starts).
@@ -273,7 +300,9 @@ impl ThermoStage {
 
     /// Records one substep of length `dt` (s) at simulated time `time` (s).
     pub fn step(&self, rec: &mut Recorder, live: &LiveBuffer, dt: f64, time: f64) -> Result<()> {
-        let params = ThermoParams::new(&self.cfg, dt, time).with_layers(&self.layers);
+        let params = ThermoParams::new(&self.cfg, dt, time)
+            .with_layers(&self.layers)
+            .with_maps(&self.maps);
         self.step_with(rec, live, &params)
     }
 
@@ -296,7 +325,7 @@ impl ThermoStage {
     }
 
     pub fn device_bytes(&self) -> u64 {
-        self.params.size()
+        self.params.size() + self.map_buffer.size()
     }
 }
 
@@ -306,7 +335,7 @@ mod tests {
 
     #[test]
     fn params_layout_matches_wgsl() {
-        assert_eq!(std::mem::size_of::<ThermoParams>(), 400);
+        assert_eq!(std::mem::size_of::<ThermoParams>(), 1040);
     }
 
     /// A force that depends on height alone is the whole profile: eq. 6 less the profile is

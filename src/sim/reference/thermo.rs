@@ -1,9 +1,11 @@
-//! f64 mirror of shaders/thermo.wgsl (`thermo_step`): heating, buoyancy, adiabatic cooling,
-//! phase transition and latent heat of one substep (eqs. 5-11). The constants come from the
+//! f64 mirror of shaders/thermo.wgsl (`thermo_step`): heating and sources, buoyancy, wind,
+//! adiabatic cooling, phase transition and latent heat of one substep (eqs. 5-11). The constants come from the
 //! same [`ThermoParams`] the GPU gets, widened to f64.
 use crate::sim::noise::value_noise3;
+use crate::sim::sources::{
+    SourceGpu, KIND_AIR_BOX, KIND_DISC, KIND_ELLIPSE, KIND_GROUND_BOX, KIND_IMAGE, KIND_SPHERE,
+};
 use crate::sim::thermo::ThermoParams;
-use glam::DVec3;
 
 /// Saturation limit gamma of eq. 10: `min(A exp(B / (T + C)), v + w)`.
 pub fn saturation_limit(p: &ThermoParams, temperature: f64, vapor: f64, cloud: f64) -> f64 {
@@ -36,23 +38,123 @@ fn wrap_delta(d: f64, s: f64, periodic: bool) -> f64 {
     }
 }
 
-/// Ground heating rate of eq. 5 (K/s) at a position, at the time in `p`: the noise pattern
-/// and the disc sources (mirror of `heating_rate`, below `heat_height` only).
-pub fn heating_rate(p: &ThermoParams, pos: DVec3) -> f64 {
-    if pos.y >= p.heat_height as f64 {
+/// Smoothstep from 0 at q = 1 to 1 at q = 0.7 and inside (mirror of `edge`).
+fn edge(q: f64) -> f64 {
+    let t = ((1.0 - q) / 0.3).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// Pixel index of a map n wide: wrapped or clamped (mirror of `map_pixel`).
+fn map_pixel(i: i64, n: u32, periodic: bool) -> usize {
+    if periodic {
+        i.rem_euclid(n as i64) as usize
+    } else {
+        i.clamp(0, n as i64 - 1) as usize
+    }
+}
+
+/// A heat map at ground point (x, z), bilinear between pixel centres (mirror of `heat_map`);
+/// `e` = (kind, offset, width, height), `maps` the stage's map values.
+pub fn heat_map(p: &ThermoParams, maps: &[f32], e: [u32; 4], x: f64, z: f64) -> f64 {
+    if e[2] == 0 {
         return 0.0;
     }
+    let (px, pz) = (p.periodic & 1 != 0, p.periodic & 4 != 0);
+    let u = x / p.size_x as f64 * e[2] as f64 - 0.5;
+    let w = z / p.size_z as f64 * e[3] as f64 - 0.5;
+    let (fu, fw) = (u.floor(), w.floor());
+    let i0 = map_pixel(fu as i64, e[2], px);
+    let i1 = map_pixel(fu as i64 + 1, e[2], px);
+    let r0 = e[1] as usize + map_pixel(fw as i64, e[3], pz) * e[2] as usize;
+    let r1 = e[1] as usize + map_pixel(fw as i64 + 1, e[3], pz) * e[2] as usize;
+    let m = |k: usize| maps[k] as f64;
+    let lerp = |a: f64, b: f64, t: f64| a + (b - a) * t;
+    let a = lerp(m(r0 + i0), m(r0 + i1), u - fu);
+    let b = lerp(m(r1 + i0), m(r1 + i1), u - fu);
+    lerp(a, b, w - fw)
+}
+
+/// Strength fraction of a source other than a disc at `pos`, with the wrapped offsets (dx, dz)
+/// from its centre (mirror of `shape_factor`).
+pub fn shape_factor(
+    p: &ThermoParams,
+    maps: &[f32],
+    s: &SourceGpu,
+    pos: [f64; 3],
+    dx: f64,
+    dz: f64,
+) -> f64 {
+    let (c, sn) = (s.rate[0] as f64, s.rate[1] as f64);
+    let e = s.extent.map(|v| v as f64);
+    let lx = c * dx + sn * dz;
+    let lz = c * dz - sn * dx;
+    let dy = pos[1] - s.center[1] as f64;
+    match s.kind[0] {
+        KIND_ELLIPSE => edge(((lx / e[0]).powi(2) + (lz / e[1]).powi(2)).sqrt()),
+        KIND_GROUND_BOX => edge(lx.abs() / e[0]) * edge(lz.abs() / e[1]),
+        KIND_SPHERE => edge((dx * dx + dy * dy + dz * dz).sqrt() / e[0]),
+        KIND_AIR_BOX => edge(lx.abs() / e[0]) * edge(dy.abs() / e[1]) * edge(lz.abs() / e[2]),
+        KIND_IMAGE => heat_map(p, maps, s.kind, pos[0], pos[2]),
+        _ => 0.0,
+    }
+}
+
+/// (heating K/s, vapor kg/kg/s) at a position at the time in `p`: the noise pattern below
+/// `heat_height` and every source (mirror of `source_rates`); `maps`: the heat-map values
+/// the stage holds ([`crate::sim::thermo::HeatMaps`]).
+pub fn source_rates(p: &ThermoParams, maps: &[f32], pos: [f64; 3]) -> [f64; 2] {
     let mut rate = 0.0;
-    if p.heat_noise != 0 {
-        rate = p.heat_source as f64 * heat_factor(p, pos.x, pos.z, p.time as f64);
+    let mut vapor = 0.0;
+    if p.heat_noise != 0 && pos[1] < p.heat_height as f64 {
+        rate = p.heat_source as f64 * heat_factor(p, pos[0], pos[2], p.time as f64);
     }
-    for src in &p.sources[..p.n_sources as usize] {
-        let s = src.map(|v| v as f64);
-        let dx = wrap_delta(pos.x - s[0], p.size_x as f64, p.periodic & 1 != 0);
-        let dz = wrap_delta(pos.z - s[1], p.size_z as f64, p.periodic & 4 != 0);
-        rate += s[3] * crate::config::HeatSource::falloff(s[2], dx, dz);
+    for s in &p.sources[..p.n_sources as usize] {
+        if pos[1] >= s.center[3] as f64 {
+            continue;
+        }
+        let dx = wrap_delta(
+            pos[0] - s.center[0] as f64,
+            p.size_x as f64,
+            p.periodic & 1 != 0,
+        );
+        let dz = wrap_delta(
+            pos[2] - s.center[2] as f64,
+            p.size_z as f64,
+            p.periodic & 4 != 0,
+        );
+        let f = if s.kind[0] == KIND_DISC {
+            crate::config::HeatSource::falloff(s.extent[0] as f64, dx, dz)
+        } else {
+            shape_factor(p, maps, s, pos, dx, dz)
+        };
+        rate += s.rate[2] as f64 * f;
+        vapor += s.rate[3] as f64 * f;
     }
-    rate
+    [rate, vapor]
+}
+
+/// The wind (u_x, u_z) at height y (mirror of `wind_at`); (0, 0) without wind.
+pub fn wind_at(p: &ThermoParams, y: f64) -> [f64; 2] {
+    if p.n_wind == 0 {
+        return [0.0; 2];
+    }
+    let row = |k: usize| p.wind[k].map(|v| v as f64);
+    let (mut a, mut b) = (row(0), row(0));
+    for k in 1..p.n_wind as usize {
+        b = row(k);
+        if y < b[0] {
+            break;
+        }
+        a = b;
+    }
+    let t = if b[0] > a[0] {
+        ((y - a[0]) / (b[0] - a[0])).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let speed = a[1] + (b[1] - a[1]) * t;
+    let heading = a[2] + (b[2] - a[2]) * t;
+    [speed * heading.cos(), speed * heading.sin()]
 }
 
 /// Environment temperature T0(y) of the parameters (mirror of `environment_temperature`).
@@ -85,18 +187,32 @@ pub fn layer_mean(p: &ThermoParams, y: f64) -> f64 {
 }
 
 /// One particle: `pos` read, `vel` (xyz, w = the height gained by this substep's move) and
-/// `thermo` = (T, v, w, E) updated in place.
-pub fn thermo_step_particle(p: &ThermoParams, pos: DVec3, vel: &mut [f64; 4], th: &mut [f64; 4]) {
+/// `thermo` = (T, v, w, E) updated in place; `maps`: the stage's heat-map values.
+pub fn thermo_step_particle(
+    p: &ThermoParams,
+    maps: &[f32],
+    pos: [f64; 3],
+    vel: &mut [f64; 4],
+    th: &mut [f64; 4],
+) {
     let dt = p.dt as f64;
     let mut temp = th[0];
-    // eq. 5, and the ground's evaporation
-    let heat = dt * heating_rate(p, pos);
+    // eq. 5 and the sources, and the ground's evaporation
+    let [rate, vapor] = source_rates(p, maps, pos);
+    let heat = dt * rate;
     temp += heat;
-    th[1] += heat * p.ground_vapor as f64;
+    th[1] += heat * p.ground_vapor as f64 + dt * vapor;
     // eq. 6
-    let t0 = environment_temperature(p, pos.y);
+    let t0 = environment_temperature(p, pos[1]);
     let force = p.buoyancy as f64 * (temp - t0) / t0 - p.cloud_weight as f64 * th[2];
-    vel[1] += dt * (force - layer_mean(p, pos.y));
+    vel[1] += dt * (force - layer_mean(p, pos[1]));
+    // wind: exact relaxation of the horizontal velocity over dt
+    if p.n_wind > 0 {
+        let f = p.wind_fraction as f64;
+        let air = wind_at(p, pos[1]);
+        vel[0] += f * (air[0] - vel[0]);
+        vel[2] += f * (air[1] - vel[2]);
+    }
     // eq. 7, over the height gained by the move
     temp -= p.adiabatic_lapse_rate as f64 * vel[3];
     // eqs. 8-10
@@ -113,6 +229,7 @@ pub fn thermo_step_particle(p: &ThermoParams, pos: DVec3, vel: &mut [f64; 4], th
 /// Mirror of the `thermo_step` entry: every particle of `pos` (the live ones).
 pub fn thermo_step(
     p: &ThermoParams,
+    maps: &[f32],
     pos: &[[f64; 3]],
     vel: &mut [[f64; 4]],
     thermo: &mut [[f64; 4]],
@@ -124,7 +241,7 @@ pub fn thermo_step(
         .zip(thermo.iter_mut())
         .take(n)
     {
-        thermo_step_particle(p, DVec3::from(*q), u, th);
+        thermo_step_particle(p, maps, *q, u, th);
     }
 }
 
@@ -193,7 +310,7 @@ mod tests {
             let mut p = p;
             p.time = step as f32 * 2.0;
             let before = th.clone();
-            thermo_step(&p, &pos, &mut vel, &mut th);
+            thermo_step(&p, &[], &pos, &mut vel, &mut th);
             for (a, b) in before.iter().zip(&th) {
                 let (s0, s1) = (a[1] + a[2], b[1] + b[2]);
                 assert!(
@@ -239,7 +356,7 @@ mod tests {
             .collect();
         let start = th.clone();
         for _ in 0..1000 {
-            thermo_step(&p, &pos, &mut vel, &mut th);
+            thermo_step(&p, &[], &pos, &mut vel, &mut th);
         }
         for (a, b) in start.iter().zip(&th) {
             assert_eq!(b[2], 0.0);
@@ -364,24 +481,24 @@ mod tests {
         let y0 = 0.25 * cfg.physics.heat_height;
         let init = initial_thermo(&cfg.physics, y0);
         let mut th = [init[0] as f64, init[1] as f64, 0.0, 0.0];
-        let mut pos = DVec3::new(best.0, y0, best.1);
+        let mut pos = [best.0, y0, best.1];
         let mut vel = [0.0; 4];
         let mut trace = Vec::new();
         let mut base = None;
         for step in 0..steps {
             // the move, then the thermodynamics of the height it gained (the substep's order)
-            pos.y += vel[1] * dt;
+            pos[1] += vel[1] * dt;
             vel[3] = vel[1] * dt;
             let p = ThermoParams::new(cfg, dt, step as f64 * dt);
-            thermo_step_particle(&p, pos, &mut vel, &mut th);
+            thermo_step_particle(&p, &[], pos, &mut vel, &mut th);
             if th[2] > 0.0 && base.is_none() {
                 base = Some(step);
             }
             trace.push(ParcelRow {
                 time: (step + 1) as f64 * dt,
-                y: pos.y,
+                y: pos[1],
                 t: th[0],
-                t0: environment_temperature(&cfg.physics, pos.y),
+                t0: environment_temperature(&cfg.physics, pos[1]),
                 v: th[1],
                 w: th[2],
             });

@@ -1,0 +1,302 @@
+//! Checks of the art-direction keys: `physics.sources` (which keys each shape takes, where it
+//! sits, its heat map) and `physics.wind` (levels, and no wind into a wall). Ranges are in
+//! `validate::FLOAT_RANGES`; these are the rules between keys. Each issue names its key.
+use super::schema::*;
+use super::validate::Issue;
+
+/// Most levels of `physics.wind.profile` (the uniform's table, `sim::thermo::MAX_WIND_LEVELS`).
+pub const MAX_WIND_LEVELS: usize = 16;
+/// How far a heat map's pixel aspect may be from square (fraction).
+pub const MAP_ASPECT_TOLERANCE: f64 = 0.01;
+
+fn num(x: f64) -> String {
+    super::node::fmt_float(x)
+}
+
+struct Out(Vec<Issue>);
+
+impl Out {
+    fn fail(&mut self, keys: &[&str], msg: String) {
+        self.0.push(Issue {
+            keys: keys.iter().map(|k| k.to_string()).collect(),
+            msg,
+        });
+    }
+}
+
+pub(crate) fn issues(p: &PhysicsConfig, c: &ShotConfig) -> Vec<Issue> {
+    let mut out = Out(Vec::new());
+    for (i, src) in p.sources.iter().enumerate() {
+        check_source(&mut out, i, src, c);
+    }
+    if let Some(w) = &p.wind {
+        check_wind(&mut out, w, c);
+    }
+    out.0
+}
+
+fn shape_name(s: SourceShape) -> &'static str {
+    match s {
+        SourceShape::Disc => "disc",
+        SourceShape::Ellipse => "ellipse",
+        SourceShape::Box => "box",
+        SourceShape::Sphere => "sphere",
+        SourceShape::Image => "image",
+    }
+}
+
+fn check_source(out: &mut Out, i: usize, src: &HeatSource, c: &ShotConfig) {
+    let key = |f: &str| format!("physics.sources[{i}].{f}");
+    let name = shape_name(src.shape);
+    if let Some(end) = src.end {
+        if end < src.start + 2.0 * src.ramp {
+            out.fail(
+                &[&key("end")],
+                format!(
+                    "end {} s leaves no room for the ramps: it must be at least start + 2 ramp = {} s",
+                    num(end),
+                    num(src.start + 2.0 * src.ramp)
+                ),
+            );
+        }
+    }
+    // which keys the shape takes: (key, set, needed)
+    let ground = src.on_ground();
+    let center_len: &[usize] = match src.shape {
+        SourceShape::Disc | SourceShape::Ellipse => &[2],
+        SourceShape::Sphere => &[3],
+        SourceShape::Box => &[2, 3],
+        SourceShape::Image => &[0],
+    };
+    let keys: [(&str, bool, bool); 7] = [
+        (
+            "radius",
+            src.radius.is_some(),
+            matches!(src.shape, SourceShape::Disc | SourceShape::Sphere),
+        ),
+        (
+            "radii",
+            src.radii.is_some(),
+            src.shape == SourceShape::Ellipse,
+        ),
+        ("size", src.size.is_some(), src.shape == SourceShape::Box),
+        (
+            "image",
+            src.image.is_some(),
+            src.shape == SourceShape::Image,
+        ),
+        (
+            "image_sha256",
+            src.image_sha256.is_some(),
+            src.shape == SourceShape::Image,
+        ),
+        (
+            "angle",
+            src.angle.is_some(),
+            matches!(src.shape, SourceShape::Ellipse | SourceShape::Box),
+        ),
+        ("height", src.height.is_some(), ground),
+    ];
+    for (k, set, allowed) in keys {
+        if set && !allowed {
+            let why = if k == "height" {
+                format!(
+                    "a {name} in the air has no heated layer (height is for shapes on the ground)"
+                )
+            } else {
+                format!("a {name} source does not take {k}")
+            };
+            out.fail(&[&key(k)], why);
+        }
+    }
+    for (k, set) in [
+        ("radius", src.radius.is_some()),
+        ("radii", src.radii.is_some()),
+        ("size", src.size.is_some()),
+        ("image", src.image.is_some()),
+    ] {
+        let needed = match k {
+            "radius" => matches!(src.shape, SourceShape::Disc | SourceShape::Sphere),
+            "radii" => src.shape == SourceShape::Ellipse,
+            "size" => src.shape == SourceShape::Box,
+            _ => src.shape == SourceShape::Image,
+        };
+        if needed && !set {
+            out.fail(
+                &[&key("shape")],
+                format!("a {name} source needs {k} (docs/CONFIG.md \"physics.sources\")"),
+            );
+        }
+    }
+    if !center_len.contains(&src.center.len()) {
+        let want = match src.shape {
+            SourceShape::Image => "no centre (a heat map covers the whole ground)".to_string(),
+            SourceShape::Box => {
+                "a centre of 2 values (x, z) on the ground or 3 (x, y, z) in the air".to_string()
+            }
+            _ if center_len[0] == 2 => "a centre of 2 values (x, z)".to_string(),
+            _ => "a centre of 3 values (x, y, z)".to_string(),
+        };
+        let at = if src.center.is_empty() {
+            key("shape")
+        } else {
+            key("center")
+        };
+        out.fail(
+            &[&at],
+            format!(
+                "a {name} source takes {want}, got {} values",
+                src.center.len()
+            ),
+        );
+        return;
+    }
+    if let Some(size) = &src.size {
+        if size.len() != src.center.len() {
+            out.fail(
+                &[&key("size")],
+                format!(
+                    "a box with a centre of {} values takes {} edge lengths, got {}",
+                    src.center.len(),
+                    src.center.len(),
+                    size.len()
+                ),
+            );
+        }
+    }
+    // The centre must lie in the domain (along y too, for shapes in the air).
+    let s = c.domain.size;
+    let axes: Vec<(&str, f64)> = if src.center.len() == 3 {
+        vec![("x", s[0]), ("y", s[1]), ("z", s[2])]
+    } else {
+        vec![("x", s[0]), ("z", s[2])]
+    };
+    for (&x, (axis, size)) in src.center.iter().zip(axes) {
+        if !(0.0..=size).contains(&x) {
+            out.fail(
+                &[&key("center")],
+                format!(
+                    "centre {} m is outside the domain along {axis} [0, {}]",
+                    num(x),
+                    num(size)
+                ),
+            );
+        }
+    }
+    if let Some(h) = src.height {
+        if h > s[1] {
+            out.fail(
+                &[&key("height")],
+                format!(
+                    "the heated layer's top {} m is above the domain ({} m)",
+                    num(h),
+                    num(s[1])
+                ),
+            );
+        }
+    }
+    if let Some(path) = &src.image {
+        check_image(out, &key, path, src.image_sha256.as_deref(), c);
+    }
+}
+
+fn check_image(
+    out: &mut Out,
+    key: &dyn Fn(&str) -> String,
+    path: &str,
+    sha: Option<&str>,
+    c: &ShotConfig,
+) {
+    let map = match crate::io::heat_map::read(std::path::Path::new(path)) {
+        Ok(m) => m,
+        Err(why) => {
+            out.fail(&[&key("image")], format!("{path}: {why}"));
+            return;
+        }
+    };
+    if let Some(sha) = sha {
+        if sha != map.sha256 {
+            out.fail(
+                &[&key("image_sha256"), &key("image")],
+                format!(
+                    "{path} has changed since this config was resolved (SHA-256 {}, recorded {sha}); restore the image or start a new run",
+                    map.sha256
+                ),
+            );
+        }
+    }
+    let (sx, sz) = (c.domain.size[0], c.domain.size[2]);
+    let px = (sx / map.width as f64) / (sz / map.height as f64);
+    if (px - 1.0).abs() > MAP_ASPECT_TOLERANCE {
+        out.fail(
+            &[&key("image")],
+            format!(
+                "{path}: {} x {} pixels over a {} x {} m ground makes pixels of {} x {} m; the map must have the ground's aspect (square pixels within 1%)",
+                map.width,
+                map.height,
+                num(sx),
+                num(sz),
+                num(sx / map.width as f64),
+                num(sz / map.height as f64)
+            ),
+        );
+    }
+}
+
+fn check_wind(out: &mut Out, w: &WindConfig, c: &ShotConfig) {
+    if w.profile.is_empty() {
+        out.fail(
+            &["physics.wind.profile"],
+            "expected at least one level ({height, speed, direction})".into(),
+        );
+        return;
+    }
+    if w.profile.len() > MAX_WIND_LEVELS {
+        out.fail(
+            &["physics.wind.profile"],
+            format!(
+                "{} levels; at most {MAX_WIND_LEVELS} are supported",
+                w.profile.len()
+            ),
+        );
+    }
+    for (k, pair) in w.profile.windows(2).enumerate() {
+        if pair[1].height <= pair[0].height {
+            out.fail(
+                &[&format!("physics.wind.profile[{}].height", k + 1)],
+                format!(
+                    "heights must increase: {} m is not above the level before it ({} m)",
+                    num(pair[1].height),
+                    num(pair[0].height)
+                ),
+            );
+        }
+    }
+    let periodic = |a: Axis| c.domain.periodic.contains(&a);
+    for (k, l) in w.profile.iter().enumerate() {
+        let at = |f: &str| format!("physics.wind.profile[{k}].{f}");
+        if l.speed > c.solver.max_speed {
+            out.fail(
+                &[&at("speed"), "solver.max_speed"],
+                format!(
+                    "wind speed {} m/s is above solver.max_speed {} m/s",
+                    num(l.speed),
+                    num(c.solver.max_speed)
+                ),
+            );
+        }
+        let a = l.direction.to_radians();
+        let (ux, uz) = (l.speed * a.cos(), l.speed * a.sin());
+        for (axis, u, name) in [(Axis::X, ux, "x"), (Axis::Z, uz, "z")] {
+            if !periodic(axis) && u.abs() > 1e-6 * l.speed.max(1e-300) {
+                out.fail(
+                    &[&at("direction"), "domain.periodic"],
+                    format!(
+                        "direction {} degrees blows along {name}, which is walled (domain.periodic); wind needs periodic faces to pass through",
+                        num(l.direction)
+                    ),
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,90 @@
+//! `physics.wind` for the thermo stage: the profile as rows (height m, speed m/s, heading rad)
+//! and the relaxation fraction of a substep.
+//!
+//! Each substep of dt moves a particle's horizontal velocity u_h the fraction
+//! f = 1 - exp(-dt / tau) of the way to the profile's U(y): the exact solution of
+//! du_h/dt = (U(y) - u_h) / tau over dt with U held, so any number of substeps relaxes the same
+//! (as eq. 9's phase transition). The headings are unwrapped along the profile (each differs
+//! from the one below by at most 180 degrees), so the direction turns the short way between
+//! two levels. The momentum this adds in a substep is sum_i m_i f (U(y_i) - u_h,i): the nudging
+//! term; nothing else changes the total (docs/PHYSICS.md "Wind").
+use crate::config::ShotConfig;
+
+/// Most levels of `physics.wind.profile`.
+pub const MAX_WIND_LEVELS: usize = crate::config::MAX_WIND_LEVELS;
+
+/// (levels in use, rows) of a shot's wind; (0, zeros) without wind.
+pub fn rows(cfg: &ShotConfig) -> (u32, [[f32; 4]; MAX_WIND_LEVELS]) {
+    let mut out = [[0.0f32; 4]; MAX_WIND_LEVELS];
+    let Some(w) = &cfg.physics.wind else {
+        return (0, out);
+    };
+    let mut heading = 0.0f64;
+    let mut prev: Option<f64> = None;
+    for (row, l) in out.iter_mut().zip(&w.profile) {
+        let a = l.direction.to_radians();
+        heading = match prev {
+            None => a,
+            // the turn from the level below, taken the short way
+            Some(p) => {
+                let d: f64 = a - p;
+                heading + (d - std::f64::consts::TAU * (d / std::f64::consts::TAU).round())
+            }
+        };
+        prev = Some(a);
+        *row = [l.height as f32, l.speed as f32, heading as f32, 0.0];
+    }
+    (w.profile.len().min(MAX_WIND_LEVELS) as u32, out)
+}
+
+/// 1 - exp(-dt / tau) of a substep of `dt` (s); 0 without wind.
+pub fn fraction(cfg: &ShotConfig, dt: f64) -> f32 {
+    cfg.physics
+        .wind
+        .as_ref()
+        .map_or(0.0, |w| -(-dt / w.time_constant).exp_m1()) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shot(wind: &str) -> ShotConfig {
+        crate::config::load_str(
+            &format!(
+                "shot: t\noutput: {{frames: {{start: 1, end: 2}}}}\n\
+                 domain: {{size: [400, 400, 400], spacing: 50}}\nphysics: {{wind: {wind}}}\n"
+            ),
+            "t.yaml",
+            &[],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn headings_turn_the_short_way() {
+        let cfg = shot(
+            "{profile: [{height: 0, speed: 2, direction: 350}, {height: 500, speed: 5, direction: 10}, \
+             {height: 900, speed: 5, direction: -170}]}",
+        );
+        let (n, r) = rows(&cfg);
+        assert_eq!(n, 3);
+        let deg = |x: f32| (x as f64).to_degrees();
+        assert!((deg(r[0][2]) - 350.0).abs() < 1e-4);
+        // 350 -> 10 is a turn of +20, not -340
+        assert!((deg(r[1][2]) - 370.0).abs() < 1e-4, "{}", deg(r[1][2]));
+        // 10 -> -170 is 180 either way; the rounding takes one of them
+        assert!(((deg(r[2][2]) - deg(r[1][2])).abs() - 180.0).abs() < 1e-3);
+        assert_eq!([r[1][0], r[1][1]], [500.0, 5.0]);
+    }
+
+    #[test]
+    fn fraction_is_exact_over_any_substeps() {
+        let cfg = shot("{time_constant: 30, profile: [{height: 0, speed: 1}]}");
+        let one = fraction(&cfg, 8.0) as f64;
+        let four = 1.0 - (1.0 - fraction(&cfg, 2.0) as f64).powi(4);
+        assert!((one - (1.0 - (-8.0f64 / 30.0).exp())).abs() < 1e-7);
+        assert!((one - four).abs() < 1e-6, "{one} vs {four}");
+        assert_eq!(fraction(&shot("null"), 8.0), 0.0);
+    }
+}
