@@ -89,16 +89,24 @@ pub fn for_each_neighbor(
 mod tests {
     use super::*;
 
-    /// `cell_table` of sorted keys: entry e holds the number of keys below e.
+    /// Counting, scanning and scattering unsorted keys gives the stable sort's order and a table
+    /// whose entry e holds the number of keys below e.
     #[test]
-    fn cell_table_counts_the_keys_below_each_entry() {
+    fn cell_scatter_gives_the_stable_order_and_the_table() {
         let grid = GridParams::new([1.0, 0.5, 0.7], 0.1, true, false);
         let entries = grid.table_len() as u32;
-        let mut keys: Vec<u32> = (0..3000u32)
+        let keys: Vec<u32> = (0..3000u32)
             .map(|i| (i.wrapping_mul(2654435761) >> 9) % (entries - 1))
             .collect();
-        keys.sort();
-        let table = cell_table(&grid, &keys);
+        let mut counts = vec![0u32; grid.table_len()];
+        for &k in &keys {
+            counts[k as usize + 1] += 1;
+        }
+        let scanned = super::super::scan::exclusive_scan(&counts, counts.len(), 0);
+        let (order, table) = cell_scatter(&keys, scanned);
+        let mut stable: Vec<u32> = (0..keys.len() as u32).collect();
+        stable.sort_by_key(|&i| keys[i as usize]);
+        assert_eq!(order, stable);
         for (e, &start) in table.iter().enumerate() {
             let below = keys.iter().filter(|&&k| k < e as u32).count() as u32;
             assert_eq!(start, below, "entry {e}");
