@@ -5,7 +5,7 @@ fn main() {
     let n = a.get(1).and_then(|s| s.parse().ok()).unwrap_or(100_000);
     let steps = a.get(2).and_then(|s| s.parse().ok()).unwrap_or(5);
     let warmup = a.get(3).and_then(|s| s.parse().ok()).unwrap_or(1);
-    match nimbus::bench::pbf::bench_pbf(n, steps, warmup) {
+    match nimbus::bench::pbf::bench_pbf(&nimbus::bench::pbf::PbfBench::new(n, steps, warmup)) {
         Ok(v) => println!("{}", serde_json::to_string_pretty(&v).unwrap()),
         Err(e) => {
             eprintln!("{e}");

@@ -1,9 +1,19 @@
 // Position Based Fluids (Macklin & Mueller 2013) per substep, with per-particle radii and masses
 // (level l: h = h0 2^(-l/3), m = m0 2^(-l)) through the symmetric kernels of eq. 19, and the
 // floor/ceiling boundary particles counting in the density with the fluid particle's mass (eq. 18).
-// Entry points, in order: predict, then per iteration compute_lambda (pred -> scratch) and
+// Entry points, in order: predict, then per iteration compute_lambda (pred -> scratch; the
+// first iteration's also builds the neighbour mask, later ones are compute_lambda_masked) and
 // compute_delta (scratch -> pred), then update_velocity, vorticity (when enabled),
-// viscosity_confine (+ copy).
+// viscosity_confine, finish_positions (x = p*).
+//
+// Neighbour mask: like Macklin's PBF and SPlisHSPlasH, a substep's density iterations use the
+// neighbour set of its first compute_lambda (pairs closer than h0 then; pairs that come closer
+// later are not added, pairs that leave get zero kernels). The first compute_lambda walks the
+// candidates of 9 rows of slices clipped around the particle's sub-cell (integer geometry, so
+// every pass enumerates the same candidates in the same order) and sets one bit per candidate
+// in range; the later passes visit only the set bits. The mask lives in memory that is dead
+// between predict and update_velocity: vel (128 bits), pred.w (32) and pos.w (17 bits of
+// anchor, 15 of mask). Candidates past the mask's 175 bits are tested as before, in every pass.
 // Mirror: src/sim/reference/pbf.rs (same names).
 //!include shared/common.wgsl
 
@@ -191,18 +201,19 @@ fn w0(r2: f32) -> f32 {
 fn gw0(xij: vec3<f32>, r: f32) -> vec3<f32> {
     return gw_lv(xij, r, prm.lv[0]);
 }
-fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) {
+// Adds candidate j; returns whether it is closer than h0 (a neighbour for the mask).
+fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) -> bool {
     let xij = min_image_r(me.p - pred[j].xyz, me.inv);
     let r2 = dot(xij, xij);
     if (live.single_level != 0u) {
-        if (r2 < prm.h0 * prm.h0) {
-            let m = prm.lv[0].w;
-            (*a).rho += m * w0(r2);
-            let g = gw0(xij, sqrt(r2)) * (m / prm.rest_density);
-            (*a).grad += g;
-            (*a).g2 += dot(g, g);
-        }
-        return;
+        // no branch: both kernels are exactly 0 beyond h0 (adding 0 changes no sum), and on SIMD
+        // CPUs a branch costs lane-mask bookkeeping for every pair
+        let m = prm.lv[0].w;
+        (*a).rho += m * w0(r2);
+        let g = gw0(xij, sqrt(r2)) * (m / prm.rest_density);
+        (*a).grad += g;
+        (*a).g2 += dot(g, g);
+        return r2 < prm.h0 * prm.h0;
     }
     // every radius is <= h0: farther pairs are rejected before their level is loaded
     if (r2 < prm.h0 * prm.h0) {
@@ -216,7 +227,9 @@ fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) {
             (*a).grad += g;
             (*a).g2 += dot(g, g);
         }
+        return true;
     }
+    return false;
 }
 // Wall particles continue the level-0 lattice and weigh m0 whatever the fluid particle's level
 // (eq. 18 with the fluid's own mass starved split particles: a level-3 particle got 0.07 rho0
@@ -233,12 +246,14 @@ fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
     }
 }
 
-@compute @workgroup_size(WG_PARTICLES)
-fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = linear_id(gid, nwg);
-    if (i >= live.count) { return; }
-    let me = me_of(i, vec4<f32>(pred[i].xyz, 0.0));
-    var a = LamAcc(vec3<f32>(0.0), 0.0, 0.0, false);
+// Rows of cells a wall particle can be in (walls are binned into the first and last y cells).
+fn wall_row(ny: i32) -> bool {
+    return ny == 0 || ny == i32(grid.dims.y) - 1;
+}
+
+// The old search around the current position (no mask): particles whose substep moved them more
+// than a cell from their start (no anchor).
+fn lam_scan(a: ptr<function, LamAcc>, me: Me) {
     let c = cell_coord(me.p, grid);
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
@@ -247,12 +262,261 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
                 let e = select(rows.xy, rows.zw, s == 1u);
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
-                for (var j = cell_start[e.x]; j < j_end; j++) { lam_fluid(&a, me, j); }
+                for (var j = cell_start[e.x]; j < j_end; j++) { _ = lam_fluid(a, me, j); }
+                if (!wall_row(c.y + dy)) { continue; }
                 let k_end = bcell_start[e.y];
-                for (var k = bcell_start[e.x]; k < k_end; k++) { lam_wall(&a, me, k); }
+                for (var k = bcell_start[e.x]; k < k_end; k++) { lam_wall(a, me, k); }
             }
         }
     }
+}
+
+// ---- neighbour mask ----
+// Sub-cell units per cell edge; cells are >= h0, so boxes at least SUB units apart (per-axis
+// units) are at least h0 apart.
+const SUB: i32 = 16;
+const META_BITS: u32 = 17u;
+const NO_ANCHOR: u32 = 31u;
+// 128 bits in vel, 32 in pred.w, 15 in pos.w above the anchor
+const MASK_BITS: u32 = 175u;
+
+struct Anchor {
+    c: vec3<i32>,
+    s: vec3<i32>,
+    ok: bool,
+}
+struct Mask {
+    w: vec4<u32>,
+    // pred.w
+    w4: u32,
+    // pos.w >> META_BITS
+    w5: u32,
+}
+
+// The anchor of p* (its cell as an offset -1..1 from the cell of x, the position at the start of
+// the substep, which does not change during the iterations; and its 1/16-cell sub-cell):
+// code (dx + 1) + 3 (dy + 1) + 9 (dz + 1) in bits 0-4 (31: more than a cell away), sub-cell
+// x, y, z in bits 5-8, 9-12, 13-16.
+fn anchor_meta(x: vec3<f32>, p: vec3<f32>) -> u32 {
+    let cx = cell_coord(x, grid);
+    let cp = cell_coord(p, grid);
+    var dc = cp - cx;
+    let d = vec3<i32>(grid.dims);
+    if ((grid.periodic & 1u) != 0u) { dc.x = (dc.x + 1 + d.x) % d.x - 1; }
+    if ((grid.periodic & 4u) != 0u) { dc.z = (dc.z + 1 + d.z) % d.z - 1; }
+    if (any(abs(dc) > vec3<i32>(1))) { return NO_ANCHOR; }
+    let f = (p - grid.domain_min - vec3<f32>(cp) * grid.cell_size) / grid.cell_size;
+    let s = clamp(vec3<i32>(floor(f * f32(SUB))), vec3<i32>(0), vec3<i32>(SUB - 1));
+    let code = u32((dc.x + 1) + 3 * (dc.y + 1) + 9 * (dc.z + 1));
+    return code | (u32(s.x) << 5u) | (u32(s.y) << 9u) | (u32(s.z) << 13u);
+}
+fn anchor_of(x: vec3<f32>, tag: u32) -> Anchor {
+    let code = tag & 31u;
+    if (code == NO_ANCHOR) { return Anchor(vec3<i32>(0), vec3<i32>(0), false); }
+    let dc = vec3<i32>(i32(code % 3u), i32((code / 3u) % 3u), i32(code / 9u)) - vec3<i32>(1);
+    var c = cell_coord(x, grid) + dc;
+    let d = vec3<i32>(grid.dims);
+    if ((grid.periodic & 1u) != 0u) { c.x = wrap(c.x, d.x); }
+    if ((grid.periodic & 4u) != 0u) { c.z = wrap(c.z, d.z); }
+    let s = vec3<i32>(i32((tag >> 5u) & 15u), i32((tag >> 9u) & 15u), i32((tag >> 13u) & 15u));
+    return Anchor(c, s, true);
+}
+
+// n in -1..=d into 0..d (no integer division: a scalar loop over the lanes on SIMD CPUs)
+fn wrap(n: i32, d: i32) -> i32 {
+    return select(select(n, n - d, n >= d), n + d, n < 0);
+}
+
+// Row (dy, dz) around the anchor, clipped to the slices within SUB units of its sub-cell (all
+// integers: every pass gets the same entries); the entry ranges as `row_entries`.
+fn anchor_row(an: Anchor, dy: i32, dz: i32) -> vec4<u32> {
+    let none = vec4<u32>(0u);
+    let d = vec3<i32>(grid.dims);
+    let ny = an.c.y + dy;
+    if (ny < 0 || ny >= d.y) { return none; }
+    var nz = an.c.z + dz;
+    if ((grid.periodic & 4u) != 0u) { nz = wrap(nz, d.z); } else if (nz < 0 || nz >= d.z) { return none; }
+    // gaps in units between the sub-cell [s, s + 1] and the row's cell [k SUB, (k + 1) SUB]
+    let gy = max(max(dy * SUB - (an.s.y + 1), an.s.y - (dy + 1) * SUB), 0);
+    let gz = max(max(dz * SUB - (an.s.z + 1), an.s.z - (dz + 1) * SUB), 0);
+    let rem = SUB * SUB - gy * gy - gz * gz;
+    if (rem <= 0) { return none; }
+    // slices k (units [k wu, (k + 1) wu] from the row's first cell) with gap gx^2 < rem, i.e.
+    // gx <= r = isqrt(rem - 1) (f32 sqrt, corrected to the exact integer)
+    var r = i32(sqrt(f32(rem - 1)));
+    if ((r + 1) * (r + 1) <= rem - 1) { r += 1; }
+    if (r * r > rem - 1) { r -= 1; }
+    let xs = i32(grid.x_slices);
+    // slice width SUB / x_slices, a power of two
+    let sh = u32(firstTrailingBit(u32(SUB) / grid.x_slices));
+    let sx = an.s.x + SUB;
+    let a = max(((sx - r + (1 << sh) - 1) >> sh) - 1, 0);
+    let b = min((sx + 1 + r) >> sh, 3 * xs - 1);
+    let x0 = (an.c.x - 1) * xs;
+    return row_span(nz, ny, x0 + a, x0 + b, grid);
+}
+
+fn low_bits(n: u32) -> u32 {
+    return select((1u << n) - 1u, 0xffffffffu, n >= 32u);
+}
+// Word k of a mask by selects (a per-lane indexed read is a scalar loop on SIMD CPUs).
+fn mask_word(m: Mask, k: u32) -> u32 {
+    var r = select(0u, m.w.x, k == 0u);
+    r = select(r, m.w.y, k == 1u);
+    r = select(r, m.w.z, k == 2u);
+    r = select(r, m.w.w, k == 3u);
+    r = select(r, m.w4, k == 4u);
+    return select(r, m.w5, k == 5u);
+}
+// nb (<= 64) bits of the mask from bit `off`
+fn mask_get(m: Mask, off: u32, nb: u32) -> vec2<u32> {
+    if (nb == 0u) { return vec2<u32>(0u); }
+    let wi = off >> 5u;
+    let sh = off & 31u;
+    let b = mask_word(m, wi + 1u);
+    var lo = mask_word(m, wi) >> sh;
+    var hi = b >> sh;
+    if (sh != 0u) {
+        lo |= b << (32u - sh);
+        hi |= mask_word(m, wi + 2u) << (32u - sh);
+    }
+    return vec2<u32>(lo & low_bits(min(nb, 32u)), hi & low_bits(max(nb, 32u) - 32u));
+}
+fn mask_put(m: ptr<function, Mask>, off: u32, bits: vec2<u32>, nb: u32) {
+    let lo = bits.x & low_bits(min(nb, 32u));
+    let hi = bits.y & low_bits(max(nb, 32u) - 32u);
+    let wi = off >> 5u;
+    let sh = off & 31u;
+    let va = lo << sh;
+    var vb = hi << sh;
+    var vc = 0u;
+    if (sh != 0u) {
+        vb |= lo >> (32u - sh);
+        vc = hi >> (32u - sh);
+    }
+    let k = vec4<u32>(0u, 1u, 2u, 3u);
+    let z = vec4<u32>(0u);
+    (*m).w |= select(z, vec4<u32>(va), k == vec4<u32>(wi)) | select(z, vec4<u32>(vb), k == vec4<u32>(wi + 1u))
+        | select(z, vec4<u32>(vc), k == vec4<u32>(wi + 2u));
+    (*m).w4 |= select(0u, va, wi == 4u) | select(0u, vb, wi + 1u == 4u) | select(0u, vc, wi + 2u == 4u);
+    (*m).w5 |= select(0u, va, wi == 5u) | select(0u, vb, wi + 1u == 5u) | select(0u, vc, wi + 2u == 5u);
+}
+// Mask bits a segment of n candidates starting at bit `off` has (the rest are tested each pass).
+fn seg_bits(off: u32, n: u32) -> u32 {
+    return min(min(n, 64u), MASK_BITS - min(off, MASK_BITS));
+}
+
+// Takes the lowest set bit of a row's 64-bit mask: (candidate offset, whether there was one).
+fn pop_bit(bits: ptr<function, vec2<u32>>) -> vec2<u32> {
+    let b = *bits;
+    let lo = b.x != 0u;
+    let w = select(b.y, b.x, lo);
+    *bits = select(vec2<u32>(b.x, w & (w - 1u)), vec2<u32>(w & (w - 1u), b.y), lo);
+    return vec2<u32>(select(32u, 0u, lo) + firstTrailingBit(w), u32(w != 0u));
+}
+
+// First iteration: lambda over the anchor's candidates, recording the neighbours.
+fn lam_build(a: ptr<function, LamAcc>, me: Me, an: Anchor) -> Mask {
+    var m = Mask(vec4<u32>(0u), 0u, 0u);
+    var off = 0u;
+    for (var dz = -1; dz <= 1; dz++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            let rows = anchor_row(an, dy, dz);
+            for (var s = 0u; s < 2u; s++) {
+                let e = select(rows.xy, rows.zw, s == 1u);
+                if (e.x == e.y) { continue; }
+                let j0 = cell_start[e.x];
+                let j1 = cell_start[e.y];
+                var bits = vec2<u32>(0u);
+                for (var j = j0; j < j1; j++) {
+                    if (lam_fluid(a, me, j)) {
+                        let k = j - j0;
+                        bits.x |= select(0u, 1u << (k & 31u), k < 32u);
+                        bits.y |= select(0u, 1u << (k & 31u), k >= 32u && k < 64u);
+                    }
+                }
+                mask_put(&m, off, bits, seg_bits(off, j1 - j0));
+                off += j1 - j0;
+                if (!wall_row(an.c.y + dy)) { continue; }
+                let k_end = bcell_start[e.y];
+                for (var k = bcell_start[e.x]; k < k_end; k++) { lam_wall(a, me, k); }
+            }
+        }
+    }
+    return m;
+}
+fn lam_masked(a: ptr<function, LamAcc>, me: Me, an: Anchor, m: Mask) {
+    var off = 0u;
+    for (var dz = -1; dz <= 1; dz++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            let rows = anchor_row(an, dy, dz);
+            for (var s = 0u; s < 2u; s++) {
+                let e = select(rows.xy, rows.zw, s == 1u);
+                if (e.x == e.y) { continue; }
+                let j0 = cell_start[e.x];
+                let j1 = cell_start[e.y];
+                let nb = seg_bits(off, j1 - j0);
+                var bits = mask_get(m, off, nb);
+                off += j1 - j0;
+                // one loop over both words, two neighbours per trip (each trip costs lane-mask bookkeeping)
+                while (any(bits != vec2<u32>(0u))) {
+                    let k1 = pop_bit(&bits);
+                    let k2 = pop_bit(&bits);
+                    _ = lam_fluid(a, me, j0 + k1.x);
+                    if (k2.y != 0u) { _ = lam_fluid(a, me, j0 + k2.x); }
+                }
+                for (var j = j0 + nb; j < j1; j++) { _ = lam_fluid(a, me, j); }
+                if (!wall_row(an.c.y + dy)) { continue; }
+                let k_end = bcell_start[e.y];
+                for (var k = bcell_start[e.x]; k < k_end; k++) { lam_wall(a, me, k); }
+            }
+        }
+    }
+}
+
+// The first iteration's lambda: builds the neighbour mask (vel, pred.w, pos.w; pred.w alone,
+// the other threads read only pred's xyz).
+@compute @workgroup_size(WG_PARTICLES)
+fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    if (i >= live.count) { return; }
+    let me = me_of(i, vec4<f32>(pred[i].xyz, 0.0));
+    var a = LamAcc(vec3<f32>(0.0), 0.0, 0.0, false);
+    let x = pos[i].xyz;
+    let tag = anchor_meta(x, me.p);
+    let an = anchor_of(x, tag);
+    var m = Mask(vec4<u32>(0u), 0u, 0u);
+    if (an.ok) {
+        m = lam_build(&a, me, an);
+    } else {
+        lam_scan(&a, me);
+    }
+    vel[i] = bitcast<vec4<f32>>(m.w);
+    pred[i].w = bitcast<f32>(m.w4);
+    pos[i] = vec4<f32>(x, bitcast<f32>(tag | (m.w5 << META_BITS)));
+    lambda_out(i, me, a);
+}
+
+// Later iterations' lambda (and the density pass after them): the mask's neighbours.
+@compute @workgroup_size(WG_PARTICLES)
+fn compute_lambda_masked(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    if (i >= live.count) { return; }
+    let pi = pred[i];
+    let me = me_of(i, vec4<f32>(pi.xyz, 0.0));
+    var a = LamAcc(vec3<f32>(0.0), 0.0, 0.0, false);
+    let xm = pos[i];
+    let tag = bitcast<u32>(xm.w);
+    let an = anchor_of(xm.xyz, tag);
+    if (an.ok) {
+        lam_masked(&a, me, an, Mask(bitcast<vec4<u32>>(vel[i]), bitcast<u32>(pi.w), tag >> META_BITS));
+    } else {
+        lam_scan(&a, me);
+    }
+    lambda_out(i, me, a);
+}
+
+fn lambda_out(i: u32, me: Me, a: LamAcc) {
     // Unilateral density constraint (compression only). With C < 0 allowed, an under-dense
     // neighbourhood gives lambda > 0, which pulls pairs together hardest where the spiky gradient
     // is largest, at small r: pairs collapse and accelerate into each other (measured: a box at
@@ -286,16 +550,15 @@ fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
     let xij = min_image_r(me.p - pj.xyz, me.inv);
     let r2 = dot(xij, xij);
     if (live.single_level != 0u) {
-        if (r2 < prm.h0 * prm.h0) {
-            let m = prm.lv[0].w;
-            var sc = 0.0;
-            if (prm.scorr_k != 0.0) {
-                let x = w0(r2) / me.wdq;
-                sc = -prm.scorr_k * pow_n(x) * me.hi * me.hi;
-            }
-            let s = me.lam * m + pj.w * me.mi + sc * m;
-            *dp += s * gw0(xij, sqrt(r2));
+        // no branch (see lam_fluid): gw0 is exactly 0 beyond h0
+        let m = prm.lv[0].w;
+        var sc = 0.0;
+        if (prm.scorr_k != 0.0) {
+            let x = w0(r2) / me.wdq;
+            sc = -prm.scorr_k * pow_n(x) * me.hi * me.hi;
         }
+        let s = me.lam * m + pj.w * me.mi + sc * m;
+        *dp += s * gw0(xij, sqrt(r2));
         return;
     }
     if (r2 < prm.h0 * prm.h0) {
@@ -319,12 +582,7 @@ fn delta_wall(dp: ptr<function, vec3<f32>>, me: Me, k: u32) {
     }
 }
 
-@compute @workgroup_size(WG_PARTICLES)
-fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = linear_id(gid, nwg);
-    if (i >= live.count) { return; }
-    let me = me_of(i, scratch[i]);
-    var dp = vec3<f32>(0.0);
+fn delta_scan(dp: ptr<function, vec3<f32>>, me: Me) {
     let c = cell_coord(me.p, grid);
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
@@ -333,22 +591,73 @@ fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
                 let e = select(rows.xy, rows.zw, s == 1u);
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
-                for (var j = cell_start[e.x]; j < j_end; j++) { delta_fluid(&dp, me, j); }
+                for (var j = cell_start[e.x]; j < j_end; j++) { delta_fluid(dp, me, j); }
+                if (!wall_row(c.y + dy)) { continue; }
                 let k_end = bcell_start[e.y];
-                for (var k = bcell_start[e.x]; k < k_end; k++) { delta_wall(&dp, me, k); }
+                for (var k = bcell_start[e.x]; k < k_end; k++) { delta_wall(dp, me, k); }
             }
         }
     }
-    pred[i] = vec4<f32>(confine(me.p + dp / prm.rest_density), 0.0);
+}
+fn delta_masked(dp: ptr<function, vec3<f32>>, me: Me, an: Anchor, m: Mask) {
+    var off = 0u;
+    for (var dz = -1; dz <= 1; dz++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            let rows = anchor_row(an, dy, dz);
+            for (var s = 0u; s < 2u; s++) {
+                let e = select(rows.xy, rows.zw, s == 1u);
+                if (e.x == e.y) { continue; }
+                let j0 = cell_start[e.x];
+                let j1 = cell_start[e.y];
+                let nb = seg_bits(off, j1 - j0);
+                var bits = mask_get(m, off, nb);
+                off += j1 - j0;
+                // one loop over both words, two neighbours per trip (each trip costs lane-mask bookkeeping)
+                while (any(bits != vec2<u32>(0u))) {
+                    let k1 = pop_bit(&bits);
+                    let k2 = pop_bit(&bits);
+                    delta_fluid(dp, me, j0 + k1.x);
+                    if (k2.y != 0u) { delta_fluid(dp, me, j0 + k2.x); }
+                }
+                for (var j = j0 + nb; j < j1; j++) { delta_fluid(dp, me, j); }
+                if (!wall_row(an.c.y + dy)) { continue; }
+                let k_end = bcell_start[e.y];
+                for (var k = bcell_start[e.x]; k < k_end; k++) { delta_wall(dp, me, k); }
+            }
+        }
+    }
+}
+
+// Position correction over the mask's neighbours (every compute_delta follows a compute_lambda
+// of the same substep).
+@compute @workgroup_size(WG_PARTICLES)
+fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    if (i >= live.count) { return; }
+    let me = me_of(i, scratch[i]);
+    var dp = vec3<f32>(0.0);
+    let xm = pos[i];
+    let tag = bitcast<u32>(xm.w);
+    let an = anchor_of(xm.xyz, tag);
+    let w4 = pred[i].w;
+    if (an.ok) {
+        delta_masked(&dp, me, an, Mask(bitcast<vec4<u32>>(vel[i]), bitcast<u32>(w4), tag >> META_BITS));
+    } else {
+        delta_scan(&dp, me);
+    }
+    // pred.w: the mask's word 4, kept
+    pred[i] = vec4<f32>(confine(me.p + dp / prm.rest_density), w4);
 }
 
 @compute @workgroup_size(WG_PARTICLES)
 fn update_velocity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= live.count) { return; }
-    // w: the height gained in this substep, for the adiabatic cooling of eq. 7 (thermo.wgsl)
+    // w: the height gained in this substep, for the adiabatic cooling of eq. 7 (thermo.wgsl).
+    // Into the scratch (free after the last compute_lambda): vel still holds the mask, which
+    // viscosity_confine reads before it writes the final velocity there.
     let d = min_image(pred[i].xyz - pos[i].xyz, grid);
-    vel[i] = vec4<f32>(d * prm.inv_dt, d.y);
+    scratch[i] = vec4<f32>(d * prm.inv_dt, d.y);
 }
 
 // Pair terms of the velocity passes for a candidate j with r2 < h0^2: j's level constants and
@@ -379,7 +688,7 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let i = linear_id(gid, nwg);
     if (i >= live.count) { return; }
     let p = pred[i].xyz;
-    let vi = vel[i].xyz;
+    let vi = scratch[i].xyz;
     let lvi = lv_of(level_of(i));
     let hi = lvi.x;
     var w = vec3<f32>(0.0);
@@ -403,7 +712,7 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
                     let lvj = pk.lvj;
                     let rho_j = density[j];
                     let vj = lvj.w / rho_j;
-                    w += vj * cross(vi - vel[j].xyz, pair_g(xij, r2, lvi, pk.lvj));
+                    w += vj * cross(vi - scratch[j].xyz, pair_g(xij, r2, lvi, pk.lvj));
                 }
             }
         }
@@ -413,55 +722,132 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
 
 // XSPH viscosity v_i += c sum_j 2 m_j / (rho_i + rho_j) (v_j - v_i) W_ij and vorticity confinement
 // a = eps (N x omega_i), N = eta / |eta|, eta = sum_j V_j (|omega_j| - |omega_i|) grad_i W_ij;
-// then the speed clamp. Writes the new velocity to scratch.
-@compute @workgroup_size(WG_PARTICLES)
-fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = linear_id(gid, nwg);
-    if (i >= live.count) { return; }
-    let p = pred[i].xyz;
-    let vi = vel[i].xyz;
-    let lvi = lv_of(level_of(i));
-    let hi = lvi.x;
-    let use_vort = prm.vorticity > 0.0;
-    let rho_i = density[i];
-    var wi = 0.0;
-    if (use_vort) { wi = pos[i].w; }
-    var acc = vec3<f32>(0.0);
-    var eta = vec3<f32>(0.0);
-    let c = cell_coord(p, grid);
-    let inv = 1.0 / grid.domain_size;
+// then the speed clamp. Reads v from the scratch (update_velocity), writes the new v to vel, and
+// sums the density at the corrected positions over the same pairs and the walls (what one more
+// compute_lambda would measure: the frame's density, the splat's m / rho).
+// Without vorticity the pairs are the mask's (vorticity writes omega over pos, and the anchor).
+struct Visc {
+    acc: vec3<f32>,
+    eta: vec3<f32>,
+    // the density at the corrected positions (compute_lambda's sum over the same pairs)
+    rho: f32,
+}
+struct Vi {
+    p: vec3<f32>,
+    v: vec3<f32>,
+    lv: vec4<f32>,
+    rho: f32,
+    w: f32,
+    inv: vec3<f32>,
+    vort: bool,
+}
+fn visc_pair(a: ptr<function, Visc>, me: Vi, j: u32) {
+    let xij = min_image_r(me.p - pred[j].xyz, me.inv);
+    let r2 = dot(xij, xij);
     // every radius is <= h0: pairs beyond it are rejected before their level is loaded
-    let h02 = prm.h0 * prm.h0;
+    if (r2 >= prm.h0 * prm.h0) { return; }
+    let pk = pair_of(r2, me.lv.x, j);
+    if (!pk.inside) { return; }
+    let lvj = pk.lvj;
+    let rho_j = density[j];
+    // 2 m_j / (rho_i + rho_j): pairwise symmetric, so XSPH conserves momentum
+    let vs = 2.0 * lvj.w / (me.rho + rho_j);
+    let w = pair_w(r2, me.lv, lvj);
+    (*a).acc += vs * w * (scratch[j].xyz - me.v);
+    (*a).rho += lvj.w * w;
+    if (me.vort) {
+        (*a).eta += (lvj.w / rho_j) * (pos[j].w - me.w) * pair_g(xij, r2, me.lv, lvj);
+    }
+}
+// A wall particle's share of the density (lam_wall's).
+fn visc_wall(a: ptr<function, Visc>, me: Vi, k: u32) {
+    let xik = min_image_r(me.p - bpos[k].xyz, me.inv);
+    let r2 = dot(xik, xik);
+    let hm = max(me.lv.x, prm.h0);
+    if (r2 < hm * hm) {
+        (*a).rho += prm.lv[0].w * wsym(r2, me.lv, prm.lv[0]);
+    }
+}
+fn visc_scan(a: ptr<function, Visc>, me: Vi) {
+    let c = cell_coord(me.p, grid);
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
-            let rows = row_entries(p, c, dy, dz, grid);
+            let rows = row_entries(me.p, c, dy, dz, grid);
             for (var s = 0u; s < 2u; s++) {
                 let e = select(rows.xy, rows.zw, s == 1u);
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
-                for (var j = cell_start[e.x]; j < j_end; j++) {
-                    let xij = min_image_r(p - pred[j].xyz, inv);
-                    let r2 = dot(xij, xij);
-                    if (r2 >= h02) { continue; }
-                    let pk = pair_of(r2, hi, j);
-                    if (!pk.inside) { continue; }
-                    let lvj = pk.lvj;
-                    let rho_j = density[j];
-                    let vj = lvj.w / rho_j;
-                    // 2 m_j / (rho_i + rho_j): pairwise symmetric, so XSPH conserves momentum
-                    let vs = 2.0 * lvj.w / (rho_i + rho_j);
-                    acc += vs * pair_w(r2, lvi, pk.lvj) * (vel[j].xyz - vi);
-                    if (use_vort) {
-                        eta += vj * (pos[j].w - wi) * pair_g(xij, r2, lvi, pk.lvj);
-                    }
-                }
+                for (var j = cell_start[e.x]; j < j_end; j++) { visc_pair(a, me, j); }
+                if (!wall_row(c.y + dy)) { continue; }
+                let k_end = bcell_start[e.y];
+                for (var k = bcell_start[e.x]; k < k_end; k++) { visc_wall(a, me, k); }
             }
         }
     }
-    var v = vi + prm.xsph * acc;
-    let le = length(eta);
-    if (use_vort && le > 0.0) {
-        v += prm.dt * prm.vorticity * cross(eta / le, pos[i].xyz);
+}
+fn visc_masked(a: ptr<function, Visc>, me: Vi, an: Anchor, m: Mask) {
+    var off = 0u;
+    for (var dz = -1; dz <= 1; dz++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            let rows = anchor_row(an, dy, dz);
+            for (var s = 0u; s < 2u; s++) {
+                let e = select(rows.xy, rows.zw, s == 1u);
+                if (e.x == e.y) { continue; }
+                let j0 = cell_start[e.x];
+                let j1 = cell_start[e.y];
+                let nb = seg_bits(off, j1 - j0);
+                var bits = mask_get(m, off, nb);
+                off += j1 - j0;
+                // one loop over both words, two neighbours per trip (each trip costs lane-mask bookkeeping)
+                while (any(bits != vec2<u32>(0u))) {
+                    let k1 = pop_bit(&bits);
+                    let k2 = pop_bit(&bits);
+                    visc_pair(a, me, j0 + k1.x);
+                    if (k2.y != 0u) { visc_pair(a, me, j0 + k2.x); }
+                }
+                for (var j = j0 + nb; j < j1; j++) { visc_pair(a, me, j); }
+                if (!wall_row(an.c.y + dy)) { continue; }
+                let k_end = bcell_start[e.y];
+                for (var k = bcell_start[e.x]; k < k_end; k++) { visc_wall(a, me, k); }
+            }
+        }
     }
-    scratch[i] = vec4<f32>(clamp_speed(v), vel[i].w);
+}
+@compute @workgroup_size(WG_PARTICLES)
+fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    if (i >= live.count) { return; }
+    let use_vort = prm.vorticity > 0.0;
+    let vw = scratch[i];
+    let xm = pos[i];
+    let me = Vi(pred[i].xyz, vw.xyz, lv_of(level_of(i)), density[i], select(0.0, xm.w, use_vort),
+        1.0 / grid.domain_size, use_vort);
+    var a = Visc(vec3<f32>(0.0), vec3<f32>(0.0), 0.0);
+    var an = Anchor(vec3<i32>(0), vec3<i32>(0), false);
+    if (!use_vort) { an = anchor_of(xm.xyz, bitcast<u32>(xm.w)); }
+    if (an.ok) {
+        let m = Mask(bitcast<vec4<u32>>(vel[i]), bitcast<u32>(pred[i].w), bitcast<u32>(xm.w) >> META_BITS);
+        visc_masked(&a, me, an, m);
+    } else {
+        visc_scan(&a, me);
+    }
+    var v = me.v + prm.xsph * a.acc;
+    let le = length(a.eta);
+    if (use_vort && le > 0.0) {
+        v += prm.dt * prm.vorticity * cross(a.eta / le, xm.xyz);
+    }
+    vel[i] = vec4<f32>(clamp_speed(v), vw.w);
+    // the new density waits in the scratch's w (the neighbours read density[j] and the scratch's
+    // xyz) until finish_positions
+    scratch[i].w = a.rho;
+}
+
+// x = p* at the end of the substep (w = 0: pred.w held the neighbour mask), and the density
+// at x that viscosity_confine summed.
+@compute @workgroup_size(WG_PARTICLES)
+fn finish_positions(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    if (i >= live.count) { return; }
+    pos[i] = vec4<f32>(pred[i].xyz, 0.0);
+    density[i] = scratch[i].w;
 }

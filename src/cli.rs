@@ -111,6 +111,22 @@ pub enum BenchTopic {
         /// gravity and random initial velocities disorder it as a running shot is).
         #[arg(long, default_value_t = 1)]
         warmup: u32,
+        /// periodic: the box filled, x/z periodic; block: a block of liquid at rest in a closed
+        /// box, SPlisHSPlasH's scene (tools/bench_pbf_vs_splishsplash.py).
+        #[arg(long, value_enum, default_value = "periodic")]
+        scene: nimbus::bench::pbf::PbfScene,
+        /// Particle spacing d in metres (default: periodic 1, block 0.05).
+        #[arg(long)]
+        spacing: Option<f64>,
+        /// Kernel radius over spacing, h0 / d.
+        #[arg(long, default_value_t = 2.0)]
+        kernel_ratio: f64,
+        /// Density iterations per substep.
+        #[arg(long, default_value_t = 4)]
+        iterations: u32,
+        /// Fixed substep in seconds (default: periodic 0.02, block 0.002).
+        #[arg(long)]
+        dt: Option<f64>,
     },
     /// VDB write speed and size, nimbus against OpenVDB (pyopenvdb) on the same grid.
     Vdb {

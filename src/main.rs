@@ -110,7 +110,19 @@ fn bench(topic: BenchTopic) -> Result<()> {
             particles,
             steps,
             warmup,
-        } => bench::pbf::bench_pbf(particles, steps, warmup)?,
+            scene,
+            spacing,
+            kernel_ratio,
+            iterations,
+            dt,
+        } => bench::pbf::bench_pbf(&bench::pbf::PbfBench {
+            scene,
+            spacing,
+            kernel_ratio,
+            iterations,
+            dt,
+            ..bench::pbf::PbfBench::new(particles, steps, warmup)
+        })?,
         BenchTopic::Vdb {
             active_voxels,
             compression,

@@ -189,7 +189,13 @@ fn kernels_match_the_mirror(levels: u32) {
     sim.write(Buf::Pred, &pred_sorted);
     sim.run_step(Step::UpdateVelocity).unwrap();
     let x: Vec<[f64; 3]> = nimbus::sim::reference::permute::permute(&order, &pos0);
-    let gvel: Vec<[f64; 3]> = sim.read_vec4(Buf::Vel).unwrap().iter().map(v3).collect();
+    // v goes into the scratch (vel holds the neighbour mask until viscosity_confine)
+    let gvel: Vec<[f64; 3]> = sim
+        .read_vec4(Buf::Scratch)
+        .unwrap()
+        .iter()
+        .map(v3)
+        .collect();
     let e = rel_err(&gvel, &mirror::update_velocity(&grid, &prm, &x, &pred));
     assert!(e < 1e-4, "update_velocity: {e}");
 
@@ -208,12 +214,7 @@ fn kernels_match_the_mirror(levels: u32) {
     assert!(e < TOL, "vorticity: {e}");
 
     sim.run_step(Step::ViscosityConfine).unwrap();
-    let gv: Vec<[f64; 3]> = sim
-        .read_vec4(Buf::Scratch)
-        .unwrap()
-        .iter()
-        .map(v3)
-        .collect();
+    let gv: Vec<[f64; 3]> = sim.read_vec4(Buf::Vel).unwrap().iter().map(v3).collect();
     let cv = mirror::viscosity_confine(&sc, &pred, &gvel, &gden, &gw);
     let dv = |a: &[[f64; 3]]| {
         a.iter()
@@ -224,6 +225,155 @@ fn kernels_match_the_mirror(levels: u32) {
     let e = rel_err(&dv(&gv), &dv(&cv));
     assert!(e < 1e-3, "viscosity_confine (velocity change): {e}");
     assert_eq!(gv.len(), n);
+    // viscosity_confine also summed the density at p* (here the p* of compute_lambda), which
+    // finish_positions stores
+    sim.run_step(Step::Finish).unwrap();
+    let fden: Vec<f64> = sim
+        .read_f32(Buf::Density)
+        .unwrap()
+        .iter()
+        .map(|&v| v as f64)
+        .collect();
+    let e = rel_err(&as3(&fden), &as3(&den));
+    assert!(e < TOL, "viscosity_confine density: {e}");
+}
+
+/// The passes after a substep's first compute_lambda visit the neighbours that one found (its
+/// mask), not the pairs closer than h0 now: the particles are moved by up to 0.15 h0 after it,
+/// and compute_lambda_masked, compute_delta and viscosity_confine must match the mirror over the
+/// first lambda's sets, and must differ from it over fresh sets (the test can tell them apart).
+/// kernel_ratio 1.6: at most ~100 candidates per particle, all within the mask's 175 bits (the
+/// candidates past it are tested against the current positions; every_kernel_matches... covers
+/// them unmoved).
+#[test]
+fn later_passes_keep_the_first_lambdas_neighbours() {
+    const TOL: f64 = 1e-4;
+    let cfg: ShotConfig = serde_saphyr::from_str(&format!(
+        "shot: t\n{OUTPUT}domain: {{size: [8, 8, 16], spacing: 1.0, kernel_ratio: 1.6}}\n\
+         solver: {{gravity: 9.81, scorr_k: 0.001, xsph: 0.1}}\n"
+    ))
+    .unwrap();
+    let seed = fresh_seed();
+    let state = random_state(&cfg, seed, 0);
+    let mut sim = Simulation::from_state(ctx(), &cfg, &state, SimClock::default()).unwrap();
+    let (grid, prm) = (*sim.grid(), *sim.params());
+    sim.run_step(Step::Predict).unwrap();
+    sim.run_step(Step::Grid).unwrap();
+    let pred: Vec<[f64; 3]> = sim.read_vec4(Buf::Pred).unwrap().iter().map(v3).collect();
+    let cell_start = sim.read_u32(Buf::CellStart, grid.table_len()).unwrap();
+    let level = vec![0u32; pred.len()];
+    let (bpos4, bcs) = sim.boundary();
+    let bpos: Vec<[f64; 3]> = bpos4.iter().map(v3).collect();
+    let bcs = bcs.to_vec();
+    let sc = mirror::Scene {
+        grid: &grid,
+        prm: &prm,
+        cell_start: &cell_start,
+        level: &level,
+        bpos: &bpos,
+        bcell_start: &bcs,
+    };
+    let sets = mirror::neighbour_sets(&sc, &pred);
+    sim.run_step(Step::Lambda).unwrap();
+
+    // move every particle by up to 0.15 h0 (inside the box)
+    let h0 = prm.h0 as f64;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5eed);
+    let moved: Vec<[f64; 3]> = pred
+        .iter()
+        .map(|p| {
+            std::array::from_fn(|a| {
+                let x = p[a] + rng.random_range(-0.15..0.15) * h0 / 3f64.sqrt();
+                x.clamp(0.0, cfg.domain.size[a] - 1e-3)
+            })
+        })
+        .collect();
+    let moved4: Vec<[f32; 4]> = moved
+        .iter()
+        .map(|p| [p[0] as f32, p[1] as f32, p[2] as f32, 0.0])
+        .collect();
+    let moved: Vec<[f64; 3]> = moved4.iter().map(v3).collect();
+    // xyz only: pred.w holds a word of the mask
+    let mut pred4 = sim.read_vec4(Buf::Pred).unwrap();
+    for (p, m) in pred4.iter_mut().zip(&moved4) {
+        p[..3].copy_from_slice(&m[..3]);
+    }
+    sim.write(Buf::Pred, &pred4);
+    let as3 = |v: &[f64]| v.iter().map(|&x| [x, 0.0, 0.0]).collect::<Vec<_>>();
+
+    sim.run_step(Step::LambdaMasked).unwrap();
+    let scratch = sim.read_vec4(Buf::Scratch).unwrap();
+    let glam: Vec<f64> = scratch.iter().map(|v| v[3] as f64).collect();
+    let gden: Vec<f64> = sim
+        .read_f32(Buf::Density)
+        .unwrap()
+        .iter()
+        .map(|&v| v as f64)
+        .collect();
+    let (lam, den) = mirror::compute_lambda_in(&sc, &moved, Some(&sets));
+    let e = rel_err(&as3(&gden), &as3(&den));
+    assert!(e < TOL, "compute_lambda_masked density: {e}");
+    // the mirror over fresh sets is 10x farther off (the test tells the two apart)
+    let (_, fresh) = mirror::compute_lambda(&sc, &moved);
+    let ef = rel_err(&as3(&gden), &as3(&fresh));
+    assert!(
+        ef > 10.0 * e,
+        "fresh neighbour sets: density off by {ef}, fixed {e}"
+    );
+    let e = rel_err(&as3(&glam), &as3(&lam));
+    assert!(e < TOL, "compute_lambda_masked lambda: {e}");
+
+    sim.run_step(Step::Delta).unwrap();
+    let gnew: Vec<[f64; 3]> = sim.read_vec4(Buf::Pred).unwrap().iter().map(v3).collect();
+    let disp = |a: &[[f64; 3]]| {
+        a.iter()
+            .zip(&moved)
+            .map(|(x, p)| [x[0] - p[0], x[1] - p[1], x[2] - p[2]])
+            .collect::<Vec<_>>()
+    };
+    let fixed = mirror::compute_delta_in(&sc, &moved, &glam, Some(&sets));
+    let e = rel_err(&disp(&gnew), &disp(&fixed));
+    assert!(e < 1e-3, "compute_delta: {e}");
+    let ef = rel_err(
+        &disp(&gnew),
+        &disp(&mirror::compute_delta(&sc, &moved, &glam)),
+    );
+    eprintln!("compute_delta off by {e} (fixed sets), {ef} (fresh sets)");
+    assert!(
+        ef > 10.0 * e,
+        "fresh neighbour sets: delta off by {ef}, fixed {e}"
+    );
+
+    // the velocity passes on the moved positions
+    sim.write(Buf::Pred, &pred4);
+    sim.run_step(Step::UpdateVelocity).unwrap();
+    let gvel: Vec<[f64; 3]> = sim
+        .read_vec4(Buf::Scratch)
+        .unwrap()
+        .iter()
+        .map(v3)
+        .collect();
+    sim.run_step(Step::ViscosityConfine).unwrap();
+    let gv: Vec<[f64; 3]> = sim.read_vec4(Buf::Vel).unwrap().iter().map(v3).collect();
+    let dv = |a: &[[f64; 3]]| {
+        a.iter()
+            .zip(&gvel)
+            .map(|(x, p)| [x[0] - p[0], x[1] - p[1], x[2] - p[2]])
+            .collect::<Vec<_>>()
+    };
+    let cv = mirror::viscosity_confine_in(&sc, &moved, &gvel, &gden, &[], Some(&sets));
+    let e = rel_err(&dv(&gv), &dv(&cv));
+    assert!(e < 1e-3, "viscosity_confine (velocity change): {e}");
+    // and the density at the moved positions over the same sets (compute_lambda_masked's)
+    sim.run_step(Step::Finish).unwrap();
+    let fden: Vec<f64> = sim
+        .read_f32(Buf::Density)
+        .unwrap()
+        .iter()
+        .map(|&v| v as f64)
+        .collect();
+    let e = rel_err(&as3(&fden), &as3(&den));
+    assert!(e < TOL, "viscosity_confine density: {e}");
 }
 
 /// The solver alone (heating and buoyancy off) on a box filled at rest density, walls top and
@@ -306,8 +456,11 @@ fn a_stirred_box_without_gravity_calms_down() {
 
 /// The stirred box with the default solver settings at the shots' ratio of kernel radius to time
 /// step (h/dt = 25 m/s; quickstart: 100 m / 4 s), with `solver.reference_step` scaled the same
-/// way (0.08 s for h = 2 m, as 4 s is for h0 = 100 m): it must calm down. Measured: max speed
-/// 0.50 -> 0.29 m/s in 16 s, mean density error <= 0.49%.
+/// way (0.08 s for h = 2 m, as 4 s is for h0 = 100 m): it must calm down. One frame's max speed
+/// swings by 2x from frame to frame (seeds 1-3 at frame 40: 0.33, 0.32, 0.45 m/s), so the test
+/// takes the RMS speed, and the max speed's mean over the last 10 frames. Measured (the config's
+/// seed; before / after the neighbour mask of shaders/pbf.wgsl): max 0.50 -> mean 0.39 / 0.38
+/// m/s, RMS (after) 0.29 -> 0.09 m/s, mean density error <= 0.49%.
 #[test]
 fn a_stirred_box_at_the_shots_time_step_stays_calm() {
     let cfg = config(
@@ -318,15 +471,39 @@ fn a_stirred_box_at_the_shots_time_step_stays_calm() {
     );
     let mut sim = Simulation::new(ctx(), &cfg).unwrap();
     let v0 = max_speed(&sim);
+    let rms0 = rms_speed(&sim);
     let mut worst_error = 0.0f64;
-    for _ in 0..40 {
+    let mut late_max = 0.0;
+    for f in 0..40 {
         let d = sim.step_frame().unwrap().diagnostics;
         worst_error = worst_error.max(d["density_error_mean"]);
+        if f >= 30 {
+            late_max += max_speed(&sim) / 10.0;
+        }
     }
-    let v1 = max_speed(&sim);
-    eprintln!("max speed {v0} m/s -> {v1} m/s after 16 s; mean density error <= {worst_error}");
-    assert!(v1 < 0.8 * v0, "the box did not calm down: {v0} -> {v1} m/s");
+    let rms1 = rms_speed(&sim);
+    eprintln!(
+        "max speed {v0} m/s -> mean {late_max} m/s over frames 30-39, RMS {rms0} -> {rms1} m/s \
+         after 16 s; mean density error <= {worst_error}"
+    );
+    assert!(
+        late_max < 0.85 * v0,
+        "the box did not calm down: {v0} -> {late_max} m/s"
+    );
+    assert!(
+        rms1 < 0.5 * rms0,
+        "the box did not calm down: RMS {rms0} -> {rms1} m/s"
+    );
     assert!(worst_error < 0.01, "mean density error {worst_error}");
+}
+
+fn rms_speed(sim: &Simulation) -> f32 {
+    let v = sim.state().unwrap().vel;
+    let s: f32 = v
+        .iter()
+        .map(|v| v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        .sum();
+    (s / v.len() as f32).sqrt()
 }
 
 #[test]

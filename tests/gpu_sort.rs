@@ -1,52 +1,69 @@
-//! The GPU radix sort is a stable sort (equal keys keep input order) and matches its mirror; the
-//! one prefix scan matches its mirror in both its modes (values, live flag bits).
+//! The grid build's counting sort is a stable sort by cell (equal keys keep input order) and
+//! matches its mirror; the one prefix scan matches its mirror in both its modes (values, live
+//! flag bits).
 mod harness;
 
 use nimbus::gpu::buffers::{read_back, storage_init, Span};
 use nimbus::gpu::live::{Live, LiveBuffer};
 use nimbus::gpu::scan::{PrefixScan, ScanOf};
-use nimbus::gpu::sort::{key_bits, RadixSort};
+use nimbus::sim::grid::GridStage;
+use nimbus::sim::grid_params::GridParams;
 use nimbus::sim::phase::{Phase, Recorder};
+use nimbus::sim::reference::grid::build_cell_table;
+use nimbus::sim::ParticleState;
 use rand::{Rng, SeedableRng};
 
+/// The grid build's counting sort is the stable sort by (cell, x slice) key of the mirror, with
+/// its cell table: on a clump (hundreds of particles in one slice), one particle, a table larger
+/// than an array of the pairs buffer (the counts' own buffer), and a walled, non-periodic box.
 #[test]
-fn radix_sort_is_a_stable_sort() {
+fn the_grid_build_is_a_stable_sort_by_cell() {
     let ctx = harness::context();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(harness::fresh_seed());
-    for (n, max_key, spare) in [
-        (1usize, 5u32, 0usize),
-        (255, 3, 700),
-        (10_007, 1000, 64),
-        (70_001, (1 << 20) - 1, 0),
+    for (size, periodic, n, clump) in [
+        ([8.0, 8.0, 8.0], true, 600usize, 500usize),
+        ([8.0, 8.0, 8.0], true, 1, 0),
+        ([40.0, 40.0, 40.0], true, 64, 0),
+        ([12.0, 8.0, 12.0], false, 5000, 0),
     ] {
-        // spare capacity: the histogram columns past the live count must not take part
-        let cap = (n + spare).next_multiple_of(64);
-        let keys: Vec<u32> = (0..n).map(|_| rng.random_range(0..=max_key)).collect();
-        let vals: Vec<u32> = (0..n as u32).collect();
-        let mut init = vec![0u32; 4 * cap];
-        init[..n].copy_from_slice(&keys);
-        init[cap..cap + n].copy_from_slice(&vals);
-        // stale keys past the live count
-        for k in init[n..cap].iter_mut() {
-            *k = rng.random_range(0..=max_key);
-        }
-        let buf = storage_init(&ctx.device, "pairs", &init);
-        let live = LiveBuffer::new(&ctx, &Live::new(&ctx, n as u32, 0, true));
-        let sort = RadixSort::new(&ctx, &buf, cap as u32, key_bits(max_key), &live).unwrap();
-        let mut rec = Recorder::new(&ctx, None, None);
-        sort.encode(&mut rec.pass(Phase::Grid), &live);
-        rec.submit();
-        let all: Vec<u32> = read_back(&ctx, &buf, 4 * cap).unwrap();
-        let (ko, vo) = sort.result_offsets();
-        let gk = &all[ko as usize / 4..ko as usize / 4 + n];
-        let gv = &all[vo as usize / 4..vo as usize / 4 + n];
-        let mut expect = vals.clone();
-        expect.sort_by_key(|&i| keys[i as usize]);
-        assert_eq!(gv, &expect[..], "n = {n}");
-        let (mk, mv) =
-            nimbus::sim::reference::radix_sort::radix_sort(&keys, &vals, key_bits(max_key));
-        assert_eq!(gk, &mk[..]);
-        assert_eq!(gv, &mv[..]);
+        let grid = GridParams::new(size, 2.0, periodic, periodic);
+        let pos: Vec<[f32; 4]> = (0..n)
+            .map(|i| {
+                if i < clump {
+                    // one x slice of one cell
+                    [2.1, 3.1, 5.1].map(|c| c + rng.random_range(0.0..0.3f32))
+                } else {
+                    size.map(|s| rng.random_range(0.0..s as f32))
+                }
+            })
+            .map(|p| [p[0], p[1], p[2], 0.0])
+            .collect();
+        let state = ParticleState {
+            pos: pos.clone(),
+            vel: vec![[0.0; 4]; n],
+            thermo: vec![[290.0, 0.0, 0.0, 0.0]; n],
+            info: (0..n as u32).map(|i| [i, 0]).collect(),
+            density: vec![1.0; n],
+        };
+        let scene = harness::Scene::as_given(grid, state, n);
+        let b = scene.upload(&ctx);
+        // the keys are those of the predicted positions
+        ctx.queue
+            .write_buffer(&b.pred, 0, bytemuck::cast_slice(&pos));
+        let stage = GridStage::new(&ctx, &grid, &b).unwrap();
+        let (got, _) = harness::run_gpu(&ctx, &b, |rec, live| stage.build(rec, live));
+        let p64: Vec<[f64; 3]> = pos.iter().map(harness::v3).collect();
+        let (order, cell_start) = build_cell_table(&grid, &p64);
+        let ids: Vec<u32> = got.info.iter().map(|i| i[0]).collect();
+        assert_eq!(ids, order, "order, {n} particles in {size:?}");
+        let want: Vec<[f32; 4]> = order.iter().map(|&o| pos[o as usize]).collect();
+        assert_eq!(read_back::<[f32; 4]>(&ctx, &b.pred, n).unwrap(), want);
+        let gpu_cs: Vec<u32> = read_back(&ctx, &b.cell_start, grid.table_len()).unwrap();
+        assert_eq!(gpu_cs, cell_start, "cell table, {n} particles in {size:?}");
+        // and the stable sort it stands for
+        let mut stable: Vec<u32> = (0..n as u32).collect();
+        stable.sort_by_key(|&i| grid.slice_key(p64[i as usize].into()));
+        assert_eq!(order, stable);
     }
 }
 

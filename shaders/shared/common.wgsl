@@ -130,11 +130,18 @@ fn row_entries(p: vec3<f32>, c: vec3<i32>, dy: i32, dz: i32, g: GridParams) -> v
     let ext = sqrt(r2) + 1e-5 * g.cell_size.x;
     let w = g.cell_size.x / f32(g.x_slices);
     let xs = i32(g.x_slices);
-    let nx = d.x * xs;
     let x = p.x - g.domain_min.x;
     let a = max(i32(floor((x - ext) / w)), (c.x - 1) * xs);
     let b = min(i32(floor((x + ext) / w)), (c.x + 2) * xs - 1);
-    let base = u32((nz * d.y + ny) * nx);
+    return row_span(nz, ny, a, b, g);
+}
+
+// Table entry ranges of the slices a..=b of row (ny, nz) (slice indices along the whole row,
+// a may be < 0 or b past the end on a periodic x axis: then two segments; clipped at x walls).
+fn row_span(nz: i32, ny: i32, a: i32, b: i32, g: GridParams) -> vec4<u32> {
+    let none = vec4<u32>(0u);
+    let nx = i32(g.dims.x) * i32(g.x_slices);
+    let base = u32((nz * i32(g.dims.y) + ny) * nx);
     if ((g.periodic & 1u) == 0u) {
         let a0 = max(a, 0);
         let b0 = min(b, nx - 1);

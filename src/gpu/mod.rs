@@ -1,11 +1,10 @@
 //! wgpu context (headless adapter choice, features, limits, the one host wait), the compute
 //! [`stage::Stage`] every GPU stage is declared with, buffer helpers, shader loading, and the
-//! generic passes (prefix scan, radix sort, timestamps).
+//! generic passes (prefix scan, timestamps).
 pub mod buffers;
 pub mod live;
 pub mod scan;
 pub mod shaders;
-pub mod sort;
 pub mod stage;
 pub mod timing;
 

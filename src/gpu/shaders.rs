@@ -6,7 +6,7 @@ use crate::error::{Error, Result};
 
 /// Threads per workgroup of the per-particle kernels (`WG_PARTICLES` in WGSL).
 pub const WG_PARTICLES: u32 = 64;
-/// Threads per workgroup of the block kernels: a prefix-scan block, a radix-sort tile, the
+/// Threads per workgroup of the block kernels: a prefix-scan block, the
 /// adaptive stage's per-particle kernels (`WG_BLOCK` in WGSL).
 pub const WG_BLOCK: u32 = 256;
 

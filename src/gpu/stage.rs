@@ -11,7 +11,7 @@
 //! Conventions:
 //! - group 0 holds the stage's buffers; one bind group per buffer set, made once;
 //! - groups 1.. hold per-dispatch parameters: one uniform each, bound with a dynamic offset into
-//!   a [`crate::gpu::buffers::ParamSlots`] buffer (a merge colour, a radix pass, a scan level);
+//!   a [`crate::gpu::buffers::ParamSlots`] buffer (a merge colour, a scan level);
 //! - every entry point of a file shares the file's layouts, so one bind group serves them all.
 //!
 //! Declaring a stage: `Stage::new(ctx, "thermo.wgsl", &["thermo_step"])?`; binding:

@@ -3,8 +3,10 @@
 //!
 //! Every array is `capacity` long and the first `live.count` entries are live. Between
 //! `predict` and `update_velocity` the velocity array is dead (PBF recomputes v from the
-//! positions), so the neighbour grid's permutation gathers into it; the radix sort's (key,
-//! value) arrays and the PBF solve's vec4 scratch share `pairs`. The later stages take their
+//! positions), so the neighbour grid's permutation gathers into it and then, with `pred.w` and
+//! the upper bits of `pos.w`, it holds the substep's neighbour mask (from the first
+//! compute_lambda to viscosity_confine, shaders/pbf.wgsl); the grid build's sort arrays
+//! and the PBF solve's vec4 scratch share `pairs`. The later stages take their
 //! scratch from arrays dead while they run: smoothing the whole of `pairs` (and its vapor limiter
 //! a quarter of `pred`), split and merge their flags and holes from `pred` and their ranks from
 //! `pairs` (`quarter`). That keeps the particle set at 92 bytes per particle plus the cell
@@ -22,7 +24,7 @@ pub struct ParticleBuffers {
     /// Elements allocated per array: the capacity rounded up to 64, so that a quarter of a
     /// 16-byte array starts on a 256-byte binding boundary (`quarter`).
     pub slots: u32,
-    /// `vec4<f32>`: xyz position (w unused)
+    /// `vec4<f32>`: xyz position (w: 0; during the PBF solve the neighbour mask's anchor and bits)
     pub pos: wgpu::Buffer,
     /// `vec4<f32>`: xyz velocity (w: the height gained in the substep, for eq. 7)
     pub vel: wgpu::Buffer,
@@ -32,7 +34,7 @@ pub struct ParticleBuffers {
     pub info: wgpu::Buffer,
     /// `vec4<f32>`: the predicted position p*
     pub pred: wgpu::Buffer,
-    /// Four u32 arrays of `capacity` for the radix sort, or one `vec4<f32>` array of scratch.
+    /// Four u32 arrays of `slots` for the grid build's sort, or one `vec4<f32>` array of scratch.
     pub pairs: wgpu::Buffer,
     /// `f32`: SPH density of the last solve
     pub density: wgpu::Buffer,
@@ -47,7 +49,7 @@ pub struct ParticleBuffers {
 
 impl ParticleBuffers {
     /// Uploads `state` into arrays of `capacity` (at least the state's length; the simulation
-    /// rounds it up to a multiple of 64, which the radix sort's array offsets need).
+    /// rounds it up to a multiple of 64, which the sort's array offsets need).
     pub fn new(
         ctx: &Context,
         state: &ParticleState,

@@ -1,12 +1,13 @@
-//! The neighbour grid build of a substep (shaders/grid.wgsl, gpu::sort, shared/permute.wgsl;
+//! The neighbour grid build of a substep (shaders/grid.wgsl, gpu::scan, shared/permute.wgsl;
 //! f64 mirror `sim::reference::grid`): (cell, x slice) keys of the predicted positions, a
-//! stable radix sort, the cell table, and every particle array (x, p*, thermo, info) gathered
-//! into cell order. The permutation gathers into the velocity array, dead between prediction and
-//! velocity update, and copies back.
+//! counting sort by key (counts, their scan into the cell table, a scatter, each entry's
+//! particles in index order: the order of a stable sort), and every particle array (x, p*, thermo,
+//! info) gathered into cell order. The permutation gathers into the velocity array, dead
+//! between prediction and velocity update, and copies back.
 use crate::error::Result;
-use crate::gpu::buffers::range;
+use crate::gpu::buffers::{range, storage_zeroed, Span};
 use crate::gpu::live::LiveBuffer;
-use crate::gpu::sort::{key_bits, RadixSort};
+use crate::gpu::scan::{PrefixScan, ScanOf};
 use crate::gpu::stage::{Dispatch, Stage};
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
@@ -17,35 +18,57 @@ pub struct GridStage {
     keys: Stage,
     perm4: Stage,
     perm2: Stage,
-    sort: RadixSort,
+    /// counts -> cell_start
+    scan: PrefixScan,
     keys_bind: wgpu::BindGroup,
-    table_bind: wgpu::BindGroup,
     /// (gather into vel, copy back) for pos, pred, thermo; the same for info.
     perm4_binds: Vec<(wgpu::BindGroup, wgpu::BindGroup)>,
     perm2_binds: (wgpu::BindGroup, wgpu::BindGroup),
+    /// The counts' own buffer, where the table does not fit an array of the pairs buffer.
+    counts_own: Option<wgpu::Buffer>,
+    table_len: u32,
 }
 
 impl GridStage {
     pub fn new(ctx: &Context, grid: &GridParams, b: &ParticleBuffers) -> Result<Self> {
-        let keys = Stage::new(ctx, "grid.wgsl", &["cell_keys", "cell_table"])?;
+        let keys = Stage::new(
+            ctx,
+            "grid.wgsl",
+            &["cell_clear", "cell_keys", "cell_scatter", "cell_order"],
+        )?;
         let perm4 = Stage::new(ctx, "permute4.wgsl", &["permute4", "copy4"])?;
         let perm2 = Stage::new(ctx, "permute2.wgsl", &["permute2", "copy2"])?;
-        let bits = key_bits(grid.table_len() as u32 - 2);
-        let sort = RadixSort::new(ctx, &b.pairs, b.capacity, bits, &b.live)?;
-        let arr = b.capacity as u64 * 4;
-        let (ko, vo) = sort.result_offsets();
-        // the keys of the predicted positions, sorted in the pairs buffer's arrays
-        let grid_bind = |keys_at: u64, vals_at: u64| {
-            let own = [
-                ("pos_in", b.pred.as_entire_binding()),
-                ("keys", range(&b.pairs, keys_at, arr)),
-                ("vals", range(&b.pairs, vals_at, arr)),
-            ];
-            keys.bind(ctx, &[&own, b])
+        let table_len = grid.table_len() as u32;
+        // the pairs buffer (dead outside the solve): keys, order, the counts where the table
+        // fits one of its arrays (every filled box: ~0.25 entries per particle), the scatter
+        let arr = b.slots as u64 * 4;
+        let counts_bytes = table_len as u64 * 4;
+        let counts_own = (counts_bytes > arr)
+            .then(|| storage_zeroed::<u32>(&ctx.device, "cell counts", table_len as usize));
+        let counts = match &counts_own {
+            Some(buf) => Span::new(buf, 0, counts_bytes),
+            None => Span::new(&b.pairs, 2 * arr, counts_bytes),
         };
+        let scan = PrefixScan::new(
+            ctx,
+            &counts,
+            Some(Span::new(&b.cell_start, 0, counts_bytes)),
+            table_len,
+            &b.live,
+            &[ScanOf::Values],
+        )?;
+        let order = || range(&b.pairs, arr, arr);
+        let own = [
+            ("pos_in", b.pred.as_entire_binding()),
+            ("keys", range(&b.pairs, 0, arr)),
+            ("order", order()),
+            ("counts", counts.binding()),
+            ("scattered", range(&b.pairs, 3 * arr, arr)),
+        ];
+        let keys_bind = keys.bind(ctx, &[&own, b])?;
         let perm = |stage: &Stage, src: &wgpu::Buffer, dst: &wgpu::Buffer| {
             let own = [
-                ("order", range(&b.pairs, vo, arr)),
+                ("order", order()),
                 ("src", src.as_entire_binding()),
                 ("dst", dst.as_entire_binding()),
             ];
@@ -60,14 +83,15 @@ impl GridStage {
             perm(&perm2, &b.vel, &b.info)?,
         );
         Ok(Self {
-            keys_bind: grid_bind(0, arr)?,
-            table_bind: grid_bind(ko, vo)?,
+            keys_bind,
             perm4_binds,
             perm2_binds,
             keys,
             perm4,
             perm2,
-            sort,
+            scan,
+            counts_own,
+            table_len,
         })
     }
 
@@ -77,11 +101,13 @@ impl GridStage {
             let mut pass = rec.pass(Phase::Grid);
             let p = &mut pass;
             let live_n = Dispatch::Live(live);
-            self.keys
-                .dispatch(p, "cell_keys", &[(&self.keys_bind, 0)], live_n);
-            self.sort.encode(p, live);
-            self.keys
-                .dispatch(p, "cell_table", &[(&self.table_bind, 0)], live_n);
+            let bind = [(&self.keys_bind, 0)];
+            let entries = Dispatch::Threads(self.table_len);
+            self.keys.dispatch(p, "cell_clear", &bind, entries);
+            self.keys.dispatch(p, "cell_keys", &bind, live_n);
+            self.scan.encode(p, 0);
+            self.keys.dispatch(p, "cell_scatter", &bind, live_n);
+            self.keys.dispatch(p, "cell_order", &bind, live_n);
             for (gather, back) in &self.perm4_binds {
                 self.perm4.dispatch(p, "permute4", &[(gather, 0)], live_n);
                 self.perm4.dispatch(p, "copy4", &[(back, 0)], live_n);
@@ -94,6 +120,6 @@ impl GridStage {
     }
 
     pub fn device_bytes(&self) -> u64 {
-        self.sort.device_bytes()
+        self.scan.device_bytes() + self.counts_own.as_ref().map_or(0, |c| c.size())
     }
 }

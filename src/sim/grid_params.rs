@@ -100,7 +100,7 @@ impl GridParams {
             .expect("clamped cell is inside")
     }
 
-    /// Entries of a cell table: one per slice, plus the end (mirror of `cell_table`).
+    /// Entries of a cell table: one per slice, plus the end.
     pub fn table_len(&self) -> usize {
         (self.num_cells * self.x_slices) as usize + 1
     }

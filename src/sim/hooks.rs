@@ -14,12 +14,15 @@ use std::sync::Arc;
 pub enum Step {
     Predict,
     Grid,
+    /// compute_lambda of a substep's first iteration (builds the neighbour mask)
     Lambda,
+    /// compute_lambda of the later iterations (the mask's neighbours)
+    LambdaMasked,
     Delta,
     UpdateVelocity,
     Vorticity,
     ViscosityConfine,
-    /// the rest of the substep after `ViscosityConfine`: v = scratch, x = p*
+    /// the rest of the substep after `ViscosityConfine`: x = p*, the density at it
     Finish,
 }
 
@@ -29,7 +32,7 @@ pub enum Buf {
     Pos,
     Vel,
     Pred,
-    /// (p*, lambda) after `Step::Lambda`, the new v after `Step::ViscosityConfine`
+    /// (p*, lambda) after `Step::Lambda`, v after `Step::UpdateVelocity`
     Scratch,
     Density,
     CellStart,
@@ -45,6 +48,7 @@ impl Simulation {
         let entry = match step {
             Step::Predict => "predict",
             Step::Lambda => "compute_lambda",
+            Step::LambdaMasked => "compute_lambda_masked",
             Step::Delta => "compute_delta",
             Step::UpdateVelocity => "update_velocity",
             Step::Vorticity => "vorticity",

@@ -96,48 +96,33 @@ impl PbfParams {
 /// buffers. The neighbour grid between prediction and solve is [`crate::sim::grid`].
 pub struct PbfStage {
     stage: Stage,
-    /// `copy4` of permute4.wgsl: the closing copies v = scratch, x = p*.
-    copy: Stage,
     params: ParamSlots<PbfParams>,
     bind: wgpu::BindGroup,
-    scratch_to_vel: wgpu::BindGroup,
-    pred_to_pos: wgpu::BindGroup,
 }
 
 /// The entry points of shaders/pbf.wgsl in the order of a substep.
-pub const ENTRIES: [&str; 6] = [
+pub const ENTRIES: [&str; 8] = [
     "predict",
     "compute_lambda",
+    "compute_lambda_masked",
     "compute_delta",
     "update_velocity",
     "vorticity",
     "viscosity_confine",
+    "finish_positions",
 ];
 
 impl PbfStage {
     pub fn new(ctx: &Context, params: &PbfParams, b: &ParticleBuffers) -> Result<Self> {
         let stage = Stage::new(ctx, "pbf.wgsl", &ENTRIES)?;
-        let copy = Stage::new(ctx, "permute4.wgsl", &["copy4"])?;
         let params = ParamSlots::single(ctx, "pbf params", params);
         let own = [
             ("prm", params.slot(0)),
             ("scratch", b.pairs.as_entire_binding()),
         ];
         let bind = stage.bind(ctx, &[&own, b])?;
-        // copies do not read `order`; bind an unrelated buffer there so nothing aliases
-        let copy_bind = |src: &wgpu::Buffer, dst: &wgpu::Buffer| {
-            let own = [
-                ("order", b.density.as_entire_binding()),
-                ("src", src.as_entire_binding()),
-                ("dst", dst.as_entire_binding()),
-            ];
-            copy.bind(ctx, &[&own, b])
-        };
         Ok(Self {
-            scratch_to_vel: copy_bind(&b.pairs, &b.vel)?,
-            pred_to_pos: copy_bind(&b.pred, &b.pos)?,
             stage,
-            copy,
             params,
             bind,
         })
@@ -159,29 +144,27 @@ impl PbfStage {
         rec.end_phase(Phase::Predict)
     }
 
-    /// `iterations` Jacobi iterations of the density constraint (eqs. 1-4); with `measure`, one
-    /// more density pass so the frame reports the density of the corrected positions.
-    pub fn solve(
-        &self,
-        rec: &mut Recorder,
-        live: &LiveBuffer,
-        iterations: u32,
-        measure: bool,
-    ) -> Result<()> {
+    /// `iterations` Jacobi iterations of the density constraint (eqs. 1-4). The first
+    /// compute_lambda records each particle's neighbours (shaders/pbf.wgsl "Neighbour mask"),
+    /// the later passes of the substep visit only those.
+    pub fn solve(&self, rec: &mut Recorder, live: &LiveBuffer, iterations: u32) -> Result<()> {
         {
             let mut pass = rec.pass(Phase::Solve);
-            for _ in 0..iterations {
-                self.run(&mut pass, "compute_lambda", live);
+            for it in 0..iterations {
+                let lambda = if it == 0 {
+                    "compute_lambda"
+                } else {
+                    "compute_lambda_masked"
+                };
+                self.run(&mut pass, lambda, live);
                 self.run(&mut pass, "compute_delta", live);
-            }
-            if measure {
-                self.run(&mut pass, "compute_lambda", live);
             }
         }
         rec.end_phase(Phase::Solve)
     }
 
-    /// v = (p* - x) / dt (w = the height gained), vorticity confinement (if on), XSPH, x = p*.
+    /// v = (p* - x) / dt (w = the height gained) into the scratch, vorticity confinement (if
+    /// on), XSPH (the final v into vel, and the density at p*), x = p*.
     pub fn update_velocity(
         &self,
         rec: &mut Recorder,
@@ -200,12 +183,10 @@ impl PbfStage {
         rec.end_phase(Phase::Velocity)
     }
 
-    /// The closing copies of a substep: v = the new velocity (scratch), x = p*.
+    /// The close of a substep: x = p* (w = 0: pred.w and pos.w held the neighbour mask), the
+    /// density viscosity_confine summed.
     pub fn finish(&self, pass: &mut wgpu::ComputePass, live: &LiveBuffer) {
-        for bind in [&self.scratch_to_vel, &self.pred_to_pos] {
-            self.copy
-                .dispatch(pass, "copy4", &[(bind, 0)], Dispatch::Live(live));
-        }
+        self.run(pass, "finish_positions", live);
     }
 
     /// Runs one entry point alone (test hooks compare it with the f64 mirror).

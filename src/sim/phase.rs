@@ -11,7 +11,7 @@
 pub enum Phase {
     /// Prediction of the positions (gravity, speed clamp, p* = x + v dt).
     Predict,
-    /// Neighbour grid: cell keys, radix sort, cell table, arrays into cell order.
+    /// Neighbour grid: cell keys, counting sort, cell table, arrays into cell order.
     Grid,
     /// Density constraint iterations (eqs. 1-4).
     Solve,

@@ -265,11 +265,10 @@ impl Simulation {
         let host_timing = self.timing == Timing::HostWaits;
         let mut host_times = PhaseTimes::default();
         let mut timer = self.timer.take();
-        for sub in 0..substeps {
-            let last = sub + 1 == substeps;
+        for _ in 0..substeps {
             let mut rec =
                 Recorder::new(&ctx, timer.as_mut(), host_timing.then_some(&mut host_times));
-            let recorded = self.record_substep(&mut rec, dt, last);
+            let recorded = self.record_substep(&mut rec, dt);
             rec.submit();
             if let Err(e) = recorded {
                 self.timer = timer;

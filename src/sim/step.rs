@@ -5,9 +5,8 @@ use crate::sim::phase::Recorder;
 use crate::sim::Simulation;
 
 impl Simulation {
-    /// Records one substep of `dt`; `last`: the frame's last substep, whose density the frame
-    /// reports.
-    pub(super) fn record_substep(&self, rec: &mut Recorder, dt: f64, last: bool) -> Result<()> {
+    /// Records one substep of `dt`.
+    pub(super) fn record_substep(&self, rec: &mut Recorder, dt: f64) -> Result<()> {
         let (s, live) = (&self.s, &self.b.live);
         // the stages take the substep as the PBF parameters hold it (f32), as they always have
         let dt_f32 = self.params.dt as f64;
@@ -16,7 +15,7 @@ impl Simulation {
         // 3. Position Based Fluids: predict, find neighbours, enforce the density, update v.
         s.pbf.predict(rec, live)?;
         s.grid.build(rec, live)?;
-        s.pbf.solve(rec, live, self.iterations, last)?;
+        s.pbf.solve(rec, live, self.iterations)?;
         s.pbf
             .update_velocity(rec, live, self.params.vorticity > 0.0)?;
 

@@ -1,5 +1,6 @@
-//! f64 mirror of shaders/grid.wgsl (`cell_keys`, `cell_table`), the neighbour-grid build they
-//! compose with the stable sort, and the 27-cell neighbour walks of the other mirrors.
+//! f64 mirror of shaders/grid.wgsl (`cell_keys`, `cell_scatter` and `cell_order`), the
+//! neighbour-grid build they compose with the scan, and the 27-cell neighbour walks of the other
+//! mirrors.
 //!
 //! As in every mirror, arrays of particles are `[f64; 3]`/`[f64; 4]` like the GPU's storage
 //! buffers, and the maths on one particle is `DVec3`, loaded from and stored to them.
@@ -7,28 +8,29 @@ use super::common::min_image;
 use crate::sim::grid_params::GridParams;
 use glam::DVec3;
 
-/// Mirror of `cell_keys`: the (cell, x slice) key of each position.
-pub fn cell_keys(grid: &GridParams, pos: &[[f64; 3]]) -> Vec<u32> {
-    pos.iter().map(|&p| grid.slice_key(p.into())).collect()
+/// Mirror of `cell_keys`: the (cell, x slice) key of each position, and the count of each key
+/// at entry key + 1 (`GridParams::table_len` entries).
+pub fn cell_keys(grid: &GridParams, pos: &[[f64; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let keys: Vec<u32> = pos.iter().map(|&p| grid.slice_key(p.into())).collect();
+    let mut counts = vec![0u32; grid.table_len()];
+    for &k in &keys {
+        counts[k as usize + 1] += 1;
+    }
+    (keys, counts)
 }
 
-/// Mirror of `cell_table`: from the sorted keys, the first sorted index of every table entry
-/// (`GridParams::table_len` entries, the last one the particle count).
-pub fn cell_table(grid: &GridParams, sorted_keys: &[u32]) -> Vec<u32> {
-    let mut cell_start = vec![0u32; grid.table_len()];
-    let n = sorted_keys.len();
-    for (i, &k) in sorted_keys.iter().enumerate() {
-        let first = if i > 0 { sorted_keys[i - 1] + 1 } else { 0 };
-        for c in first..=k {
-            cell_start[c as usize] = i as u32;
-        }
-        if i == n - 1 {
-            for s in &mut cell_start[k as usize + 1..] {
-                *s = n as u32;
-            }
-        }
+/// Mirror of `cell_scatter` followed by `cell_order`: from the scanned counts (entry key + 1 the
+/// first slot of key), each particle's slot, in index order within a key (what `cell_order`
+/// makes of the scatter's slots); returns the order and the cell table (entry e the first slot
+/// of e, the last the particle count).
+pub fn cell_scatter(keys: &[u32], mut cell_start: Vec<u32>) -> (Vec<u32>, Vec<u32>) {
+    let mut order = vec![0u32; keys.len()];
+    for (i, &k) in keys.iter().enumerate() {
+        let slot = &mut cell_start[k as usize + 1];
+        order[*slot as usize] = i as u32;
+        *slot += 1;
     }
-    cell_start
+    (order, cell_start)
 }
 
 /// The whole grid build: returns `(order, cell_start)`, `order[k]` the original index of the
@@ -36,12 +38,9 @@ pub fn cell_table(grid: &GridParams, sorted_keys: &[u32]) -> Vec<u32> {
 /// particles of slice e are `order[cell_start[e]..cell_start[e + 1]]` (cell c is slices
 /// `c * x_slices .. (c + 1) * x_slices`).
 pub fn build_cell_table(grid: &GridParams, pos: &[[f64; 3]]) -> (Vec<u32>, Vec<u32>) {
-    let keys = cell_keys(grid, pos);
-    let mut order: Vec<u32> = (0..pos.len() as u32).collect();
-    // any stable sort gives the radix sort's order (`radix_sort::radix_sort`)
-    order.sort_by_key(|&i| keys[i as usize]);
-    let sorted: Vec<u32> = order.iter().map(|&i| keys[i as usize]).collect();
-    (order, cell_table(grid, &sorted))
+    let (keys, counts) = cell_keys(grid, pos);
+    let scanned = super::scan::exclusive_scan(&counts, counts.len(), 0);
+    cell_scatter(&keys, scanned)
 }
 
 /// Calls `f(k)` for every slot of the 27 cells around cell `c`, in the shaders' order, until
@@ -90,16 +89,24 @@ pub fn for_each_neighbor(
 mod tests {
     use super::*;
 
-    /// `cell_table` of sorted keys: entry e holds the number of keys below e.
+    /// Counting, scanning and scattering unsorted keys gives the stable sort's order and a table
+    /// whose entry e holds the number of keys below e.
     #[test]
-    fn cell_table_counts_the_keys_below_each_entry() {
+    fn cell_scatter_gives_the_stable_order_and_the_table() {
         let grid = GridParams::new([1.0, 0.5, 0.7], 0.1, true, false);
         let entries = grid.table_len() as u32;
-        let mut keys: Vec<u32> = (0..3000u32)
+        let keys: Vec<u32> = (0..3000u32)
             .map(|i| (i.wrapping_mul(2654435761) >> 9) % (entries - 1))
             .collect();
-        keys.sort();
-        let table = cell_table(&grid, &keys);
+        let mut counts = vec![0u32; grid.table_len()];
+        for &k in &keys {
+            counts[k as usize + 1] += 1;
+        }
+        let scanned = super::super::scan::exclusive_scan(&counts, counts.len(), 0);
+        let (order, table) = cell_scatter(&keys, scanned);
+        let mut stable: Vec<u32> = (0..keys.len() as u32).collect();
+        stable.sort_by_key(|&i| keys[i as usize]);
+        assert_eq!(order, stable);
         for (e, &start) in table.iter().enumerate() {
             let below = keys.iter().filter(|&&k| k < e as u32).count() as u32;
             assert_eq!(start, below, "entry {e}");

@@ -13,7 +13,6 @@ pub mod common;
 pub mod grid;
 pub mod pbf;
 pub mod permute;
-pub mod radix_sort;
 pub mod scan;
 pub mod smoothing;
 pub mod thermo;

@@ -79,8 +79,56 @@ pub fn predict(grid: &GridParams, prm: &PbfParams, pos: &[V3], vel: &[V3]) -> Ve
         .collect()
 }
 
+/// The fluid neighbours of each particle (closer than h0 at `pred`): the set the first
+/// compute_lambda of a substep records in its mask and the later passes of the substep visit
+/// (shaders/pbf.wgsl "Neighbour mask"; pairs that come closer later are not added).
+pub fn neighbour_sets(sc: &Scene, pred: &[V3]) -> Vec<Vec<usize>> {
+    let h2 = (sc.prm.h0 as f64).powi(2);
+    pred.iter()
+        .map(|&p| {
+            let mut set = Vec::new();
+            for_each_neighbor(sc.grid, sc.cell_start, pred, p, |j, xij| {
+                if xij.dot(xij) < h2 {
+                    set.push(j);
+                }
+            });
+            set
+        })
+        .collect()
+}
+
+/// Calls `f(j, x_ij)` for the fluid pairs of particle i: the 27 cells' particles, or i's set.
+fn fluid_pairs(
+    sc: &Scene,
+    pred: &[V3],
+    sets: Option<&[Vec<usize>]>,
+    i: usize,
+    mut f: impl FnMut(usize, DVec3),
+) {
+    let Some(sets) = sets else {
+        return for_each_neighbor(sc.grid, sc.cell_start, pred, pred[i], f);
+    };
+    let size = domain_size(sc.grid);
+    let per = [sc.grid.periodic_x(), sc.grid.periodic_z()];
+    for &j in &sets[i] {
+        f(
+            j,
+            min_image(DVec3::from(pred[i]) - DVec3::from(pred[j]), size, per),
+        );
+    }
+}
+
 /// Returns (lambda, density).
 pub fn compute_lambda(sc: &Scene, pred: &[V3]) -> (Vec<f64>, Vec<f64>) {
+    compute_lambda_in(sc, pred, None)
+}
+
+/// compute_lambda over fixed neighbour sets (`compute_lambda_masked`; None: all pairs).
+pub fn compute_lambda_in(
+    sc: &Scene,
+    pred: &[V3],
+    sets: Option<&[Vec<usize>]>,
+) -> (Vec<f64>, Vec<f64>) {
     let rho0 = sc.prm.rest_density as f64;
     let h0 = sc.prm.h0 as f64;
     let mut lam = Vec::with_capacity(pred.len());
@@ -92,7 +140,7 @@ pub fn compute_lambda(sc: &Scene, pred: &[V3]) -> (Vec<f64>, Vec<f64>) {
         let mut grad_i = DVec3::ZERO;
         let mut sum2 = 0.0;
         let mut near_wall = false;
-        for_each_neighbor(sc.grid, sc.cell_start, pred, p, |j, xij| {
+        fluid_pairs(sc, pred, sets, i, |j, xij| {
             let r2 = xij.dot(xij);
             let hj = sc.h(j);
             if r2 >= hi.max(hj).powi(2) {
@@ -135,6 +183,16 @@ pub fn compute_lambda(sc: &Scene, pred: &[V3]) -> (Vec<f64>, Vec<f64>) {
 
 /// Returns the corrected predicted positions p* + delta p (confined).
 pub fn compute_delta(sc: &Scene, pred: &[V3], lambda: &[f64]) -> Vec<V3> {
+    compute_delta_in(sc, pred, lambda, None)
+}
+
+/// compute_delta over fixed neighbour sets (the shader's; None: all pairs).
+pub fn compute_delta_in(
+    sc: &Scene,
+    pred: &[V3],
+    lambda: &[f64],
+    sets: Option<&[Vec<usize>]>,
+) -> Vec<V3> {
     let rho0 = sc.prm.rest_density as f64;
     let h0 = sc.prm.h0 as f64;
     pred.iter()
@@ -142,7 +200,7 @@ pub fn compute_delta(sc: &Scene, pred: &[V3], lambda: &[f64]) -> Vec<V3> {
         .map(|(i, &p)| {
             let (hi, mi, li) = (sc.h(i), sc.m(i), lambda[i]);
             let mut dp = DVec3::ZERO;
-            for_each_neighbor(sc.grid, sc.cell_start, pred, p, |j, xij| {
+            fluid_pairs(sc, pred, sets, i, |j, xij| {
                 let r2 = xij.dot(xij);
                 let hj = sc.h(j);
                 if r2 >= hi.max(hj).powi(2) {
@@ -198,7 +256,8 @@ pub fn vorticity(sc: &Scene, pred: &[V3], vel: &[V3], density: &[f64]) -> Vec<[f
         .collect()
 }
 
-/// XSPH + vorticity confinement + speed clamp; `omega` is ignored when vorticity is 0.
+/// XSPH + vorticity confinement + speed clamp; `omega` is ignored when vorticity is 0. (The
+/// shader also sums the density over the same pairs and the walls: `compute_lambda_in`'s.)
 pub fn viscosity_confine(
     sc: &Scene,
     pred: &[V3],
@@ -206,15 +265,27 @@ pub fn viscosity_confine(
     density: &[f64],
     omega: &[[f64; 4]],
 ) -> Vec<V3> {
+    viscosity_confine_in(sc, pred, vel, density, omega, None)
+}
+
+/// viscosity_confine over fixed neighbour sets (the shader's without vorticity; None: all).
+pub fn viscosity_confine_in(
+    sc: &Scene,
+    pred: &[V3],
+    vel: &[V3],
+    density: &[f64],
+    omega: &[[f64; 4]],
+    sets: Option<&[Vec<usize>]>,
+) -> Vec<V3> {
     let use_vort = sc.prm.vorticity > 0.0;
     pred.iter()
         .enumerate()
-        .map(|(i, &p)| {
+        .map(|(i, _)| {
             let hi = sc.h(i);
             let wi = if use_vort { omega[i][3] } else { 0.0 };
             let mut acc = DVec3::ZERO;
             let mut eta = DVec3::ZERO;
-            for_each_neighbor(sc.grid, sc.cell_start, pred, p, |j, xij| {
+            fluid_pairs(sc, pred, sets, i, |j, xij| {
                 let r2 = xij.dot(xij);
                 let hj = sc.h(j);
                 if r2 >= hi.max(hj).powi(2) {
