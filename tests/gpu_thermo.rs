@@ -59,7 +59,7 @@ fn gpu_thermo(
     };
     let scene = harness::Scene::as_given(GridParams::for_shot(cfg), state, pos.len());
     let b = scene.upload(ctx);
-    let stage = ThermoStage::new(ctx, cfg, &b).unwrap();
+    let stage = ThermoStage::new(ctx, cfg, &b, None).unwrap();
     for p in params {
         harness::submit(ctx, &b, |rec, live| stage.step_with(rec, live, p));
     }
