@@ -306,8 +306,11 @@ fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     u.y = u.y + P.dt * (force - layer_mean(p.y));
 
     // target-shape control (not in the paper): cloud near the target is pulled into it
-    let pull = target_pull(p, th.z);
-    u = vec4<f32>(u.xyz + P.dt * pull, u.w);
+    // (only where it acts, so a shot without control keeps every bit, signed zeros included)
+    if (P.control.x != 0u) {
+        let pull = target_pull(p, th.z);
+        u = vec4<f32>(u.xyz + P.dt * pull, u.w);
+    }
 
     // wind (not in the paper): the horizontal velocity relaxes towards the profile at this
     // height, exactly over dt (1 - exp(-dt / tau)), so the substeps do not change it.

@@ -252,9 +252,11 @@ pub fn thermo_step_particle(
         vel[2] += f * (air[1] - vel[2]);
     }
     // target-shape control: the pull into the target
-    let pull = target_pull(p, maps, pos, th[2]);
-    for a in 0..3 {
-        vel[a] += dt * pull[a];
+    if p.control[0] != 0 {
+        let pull = target_pull(p, maps, pos, th[2]);
+        for a in 0..3 {
+            vel[a] += dt * pull[a];
+        }
     }
     // eq. 7, over the height gained by the move
     temp -= p.adiabatic_lapse_rate as f64 * vel[3];
