@@ -709,6 +709,7 @@ fn gpu_smoothing_lowers_laplacian_norm_and_is_deterministic() {
 /// The target-shape control (supply map, footprint mask on the noise heating, pull towards the
 /// target) on the GPU against the mirror, with a supply map that varies column by column.
 #[test]
+#[allow(clippy::needless_range_loop)] // parallel arrays indexed together
 fn target_control_matches_mirror() {
     let ctx = context();
     let dir = tempfile::tempdir().unwrap();
