@@ -6,6 +6,8 @@ use super::validate::Issue;
 
 /// Most levels of `physics.wind.profile` (the uniform's table, `sim::thermo::MAX_WIND_LEVELS`).
 pub const MAX_WIND_LEVELS: usize = 16;
+/// Most triangle-column tests of a target's voxelisation (a few seconds).
+pub const MAX_TARGET_WORK: u64 = 1 << 31;
 /// How far a heat map's pixel aspect may be from square (fraction).
 pub const MAP_ASPECT_TOLERANCE: f64 = 0.01;
 
@@ -340,6 +342,22 @@ pub(crate) fn target_issues(c: &ShotConfig) -> Vec<Issue> {
             return out.0;
         }
     };
+    // the voxelisation tests every triangle against every column
+    let work = (grid.columns() as u64).saturating_mul(mesh.triangles.len() as u64);
+    if work > MAX_TARGET_WORK {
+        out.fail(
+            &["control.target.voxel_size", "control.target.mesh"],
+            format!(
+                "{} triangles over {} x {} columns of voxels is too much to voxelise ({} tests; at most {}): use larger voxels or a coarser mesh",
+                mesh.triangles.len(),
+                grid.n[0],
+                grid.n[2],
+                work,
+                MAX_TARGET_WORK
+            ),
+        );
+        return out.0;
+    }
     let placed = crate::sim::control::place(&mesh, t);
     let (lo, hi) = placed.bounds();
     let size = c.domain.size;

@@ -35,7 +35,9 @@ pub const MAX_VOXELS: usize = 1 << 24;
 impl VoxelGrid {
     /// Cells of about `voxel` m over a domain of `size` m (at least one per axis).
     pub fn new(size: [f64; 3], voxel: f64) -> Self {
-        let n = size.map(|s| ((s / voxel).round() as usize).max(1));
+        // at most MAX_VOXELS per axis, so the products below cannot overflow (validation
+        // refuses grids of more than MAX_VOXELS voxels in all)
+        let n = size.map(|s| ((s / voxel).round() as usize).clamp(1, MAX_VOXELS));
         Self {
             n,
             cell: [0, 1, 2].map(|a| size[a] / n[a] as f64),
@@ -351,46 +353,73 @@ fn nearest_field(grid: &VoxelGrid, inside: &[bool]) -> Vec<[f32; 4]> {
         .collect()
 }
 
-/// 1 within `margin` of a footprint column (centre to centre, wrapping on periodic axes), a
-/// smoothstep to 0 at twice `margin`; all 1 when there is no footprint.
+/// 1 within `margin` of a footprint column, a smoothstep to 0 at twice `margin`; all 1 when
+/// there is no footprint. The distance is centre to centre from each column to the footprint
+/// column a breadth-first search over the columns reaches first (4-connected steps, wrapping on
+/// periodic axes): exact along the axes, within a column of the nearest elsewhere, in time
+/// linear in the columns.
 fn footprint_mask(grid: &VoxelGrid, top: &[f64], margin: f64, cfg: &ShotConfig) -> Vec<f32> {
     let [nx, _, nz] = grid.n;
     let periodic = [
         cfg.domain.periodic.contains(&crate::config::Axis::X),
         cfg.domain.periodic.contains(&crate::config::Axis::Z),
     ];
-    let foot: Vec<(usize, usize)> = (0..nz)
-        .flat_map(|k| (0..nx).map(move |i| (i, k)))
-        .filter(|(i, k)| top[k * nx + i] > 0.0)
-        .collect();
-    if foot.is_empty() {
+    let mut source = vec![usize::MAX; nx * nz];
+    let mut queue = std::collections::VecDeque::new();
+    for (c, t) in top.iter().enumerate() {
+        if *t > 0.0 {
+            source[c] = c;
+            queue.push_back(c);
+        }
+    }
+    if queue.is_empty() {
         return vec![1.0; nx * nz];
+    }
+    let step = |i: usize, d: isize, n: usize, per: bool| -> Option<usize> {
+        let j = i as isize + d;
+        if (0..n as isize).contains(&j) {
+            Some(j as usize)
+        } else if per && n > 1 {
+            Some(j.rem_euclid(n as isize) as usize)
+        } else {
+            None
+        }
+    };
+    while let Some(c) = queue.pop_front() {
+        let (i, k) = (c % nx, c / nx);
+        let next = [
+            step(i, -1, nx, periodic[0]).map(|i| k * nx + i),
+            step(i, 1, nx, periodic[0]).map(|i| k * nx + i),
+            step(k, -1, nz, periodic[1]).map(|k| k * nx + i),
+            step(k, 1, nz, periodic[1]).map(|k| k * nx + i),
+        ];
+        for w in next.into_iter().flatten() {
+            if source[w] == usize::MAX {
+                source[w] = source[c];
+                queue.push_back(w);
+            }
+        }
     }
     let delta = |a: usize, b: usize, n: usize, per: bool, cell: f64| {
         let d = a.abs_diff(b);
         let d = if per { d.min(n - d) } else { d };
         d as f64 * cell
     };
-    let mut mask = vec![0.0f32; nx * nz];
-    for k in 0..nz {
-        for i in 0..nx {
-            let d = foot
-                .iter()
-                .map(|(fi, fk)| {
-                    let dx = delta(i, *fi, nx, periodic[0], grid.cell[0]);
-                    let dz = delta(k, *fk, nz, periodic[1], grid.cell[2]);
-                    (dx * dx + dz * dz).sqrt()
-                })
-                .fold(f64::INFINITY, f64::min);
+    source
+        .iter()
+        .enumerate()
+        .map(|(c, s)| {
+            let dx = delta(c % nx, s % nx, nx, periodic[0], grid.cell[0]);
+            let dz = delta(c / nx, s / nx, nz, periodic[1], grid.cell[2]);
+            let d = (dx * dx + dz * dz).sqrt();
             let t = if margin > 0.0 {
                 (2.0 - d / margin).clamp(0.0, 1.0)
             } else {
                 (d == 0.0) as u8 as f64
             };
-            mask[k * nx + i] = (t * t * (3.0 - 2.0 * t)) as f32;
-        }
-    }
-    mask
+            (t * t * (3.0 - 2.0 * t)) as f32
+        })
+        .collect()
 }
 
 #[cfg(test)]
