@@ -98,6 +98,13 @@ fn bad_targets_are_refused_with_their_key_and_nothing_is_written() {
             "holds no voxel centre",
         ),
         (
+            "control:\n  target: {mesh: cube.obj, scale: [300], voxel_size: 2}\n",
+            2,
+            "voxel_size",
+            "control.target.voxel_size",
+            "400 x 400 x 400 voxels",
+        ),
+        (
             "control:\n  target: {mesh: cube.obj, scale: [300], gain: -1}\n",
             2,
             "gain",
