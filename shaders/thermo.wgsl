@@ -55,6 +55,16 @@ struct ThermoParams {
     // (height m, speed m/s, heading rad unwrapped along the profile, -) by increasing height
     wind: array<vec4<f32>, 16>,
     sources: array<Source, 8>,
+    // --- target-shape control (sim::control) ---
+    // (1 when on, offset of the supply map in heat_maps, columns along x, along z); the
+    // footprint mask follows the supply map
+    control: vec4<u32>,
+    // (heating K/s, vapor kg/kg/s at a supply factor of 1, top of the supplied layer m,
+    // voxels along y)
+    control_rate: vec4<f32>,
+    // (pull m/s^2, reach m, cloud threshold kg/kg, voxel height m); the pull field follows the
+    // mask, four values per voxel (x fastest, then z, then y)
+    control_pull: vec4<f32>,
 }
 
 // Mirror of sim::sources::SourceGpu.
@@ -196,7 +206,37 @@ fn source_rates(p: vec3<f32>, time: f32) -> vec2<f32> {
             vapor += s.rate.w * f;
         }
     }
+    // target-shape control: the heating above times the footprint mask, plus the column's
+    // supply below the supplied layer's top (both maps bilinear between column centres)
+    if (P.control.x != 0u) {
+        let n = P.control.z * P.control.w;
+        let mask = heat_map(vec4<u32>(5u, P.control.y + n, P.control.z, P.control.w), p.x, p.z);
+        rate *= mask;
+        vapor *= mask;
+        if (p.y < P.control_rate.z) {
+            let f = heat_map(vec4<u32>(5u, P.control.y, P.control.z, P.control.w), p.x, p.z);
+            rate += f * P.control_rate.x;
+            vapor += f * P.control_rate.y;
+        }
+    }
     return vec2<f32>(rate, vapor);
+}
+
+// The pull of the target-shape control on a particle with cloud water w at p (m/s^2): towards
+// the nearest target voxel, from the voxel holding p, within the reach (mirror:
+// sim::reference::thermo::target_pull).
+fn target_pull(p: vec3<f32>, w: f32) -> vec3<f32> {
+    if (P.control.x == 0u || P.control_pull.x <= 0.0 || w <= P.control_pull.z) { return vec3<f32>(0.0); }
+    let nx = P.control.z;
+    let nz = P.control.w;
+    let ny = u32(P.control_rate.w);
+    let i = min(u32(max(floor(p.x / (P.size_x / f32(nx))), 0.0)), nx - 1u);
+    let j = min(u32(max(floor(p.y / P.control_pull.w), 0.0)), ny - 1u);
+    let k = min(u32(max(floor(p.z / (P.size_z / f32(nz))), 0.0)), nz - 1u);
+    let at = P.control.y + 2u * nx * nz + 4u * ((j * nz + k) * nx + i);
+    let d = heat_maps[at + 3u];
+    if (d <= 0.0 || d > P.control_pull.y) { return vec3<f32>(0.0); }
+    return P.control_pull.x / d * vec3<f32>(heat_maps[at], heat_maps[at + 1u], heat_maps[at + 2u]);
 }
 
 // The wind (u_x, u_z) at height y: speed and heading linear between levels, constant
@@ -264,6 +304,13 @@ fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     let t0 = environment_temperature(p.y);
     let force = P.buoyancy * (temp - t0) / t0 - P.cloud_weight * th.z;
     u.y = u.y + P.dt * (force - layer_mean(p.y));
+
+    // target-shape control (not in the paper): cloud near the target is pulled into it
+    // (only where it acts, so a shot without control keeps every bit, signed zeros included)
+    if (P.control.x != 0u) {
+        let pull = target_pull(p, th.z);
+        u = vec4<f32>(u.xyz + P.dt * pull, u.w);
+    }
 
     // wind (not in the paper): the horizontal velocity relaxes towards the profile at this
     // height, exactly over dt (1 - exp(-dt / tau)), so the substeps do not change it.

@@ -8,6 +8,7 @@ mod harness;
 
 use nimbus::config::ShotConfig;
 use nimbus::gpu::Context;
+use nimbus::sim::control::Target;
 use nimbus::sim::grid_params::GridParams;
 use nimbus::sim::reference::grid::build_cell_table;
 use nimbus::sim::reference::smoothing::{
@@ -50,6 +51,19 @@ fn gpu_thermo(
     vel: &[[f32; 4]],
     thermo: &[[f32; 4]],
 ) -> ThermoRun {
+    gpu_thermo_with(ctx, cfg, None, params, pos, vel, thermo)
+}
+
+/// [`gpu_thermo`] with a target-shape controller and its supply map.
+fn gpu_thermo_with(
+    ctx: &Context,
+    cfg: &ShotConfig,
+    target: Option<(&Target, &[f32])>,
+    params: &[ThermoParams],
+    pos: &[[f32; 4]],
+    vel: &[[f32; 4]],
+    thermo: &[[f32; 4]],
+) -> ThermoRun {
     let state = ParticleState {
         pos: pos.to_vec(),
         vel: vel.to_vec(),
@@ -59,7 +73,10 @@ fn gpu_thermo(
     };
     let scene = harness::Scene::as_given(GridParams::for_shot(cfg), state, pos.len());
     let b = scene.upload(ctx);
-    let stage = ThermoStage::new(ctx, cfg, &b).unwrap();
+    let mut stage = ThermoStage::new(ctx, cfg, &b, target.map(|t| t.0)).unwrap();
+    if let Some((_, supply)) = target {
+        stage.set_supply(ctx, supply);
+    }
     for p in params {
         harness::submit(ctx, &b, |rec, live| stage.step_with(rec, live, p));
     }
@@ -687,4 +704,120 @@ fn gpu_smoothing_lowers_laplacian_norm_and_is_deterministic() {
         bytemuck::cast_slice::<_, u8>(&a),
         bytemuck::cast_slice::<_, u8>(&b)
     );
+}
+
+/// The target-shape control (supply map, footprint mask on the noise heating, pull towards the
+/// target) on the GPU against the mirror, with a supply map that varies column by column.
+#[test]
+#[allow(clippy::needless_range_loop)] // parallel arrays indexed together
+fn target_control_matches_mirror() {
+    let ctx = context();
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = dir.path().join("cube.obj");
+    std::fs::write(
+        &mesh,
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
+         f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n",
+    )
+    .unwrap();
+    let cfg = nimbus::config::load_str(
+        &format!(
+            "shot: t\noutput: {{frames: {{start: 1, end: 2}}}}\n\
+             domain: {{size: [2000.0, 3000.0, 1600.0], spacing: 40.0}}\n\
+             control:\n  target: {{mesh: {}, scale: [800, 1200, 600], rotate_y: 20, translate: [700, 500, 400], \
+             heat: 0.4, vapor: 2.0e-5, supply_height: 150, pull: 0.5, reach: 500, margin: 200}}\n",
+            mesh.display()
+        ),
+        "t.yaml",
+        &[],
+    )
+    .unwrap();
+    let target = Target::load(&cfg).unwrap().unwrap();
+    let supply: Vec<f32> = (0..target.grid.columns())
+        .map(|c| {
+            if target.top[c] > 0.0 {
+                (c % 5) as f32 / 4.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let mut maps = nimbus::sim::sources::HeatMaps::load(&cfg)
+        .unwrap()
+        .with_target(Some(&target));
+    assert!(maps.set_supply(&supply).is_some());
+    let n = 6000;
+    let (mut pos, vel, mut th) = random_thermo_state(n, 44, &cfg);
+    // a third in the supplied layer, a third around the target with cloud
+    for (i, p) in pos.iter_mut().enumerate() {
+        match i % 3 {
+            0 => p[1] = (p[1] as f64 % 150.0) as f32,
+            1 => {
+                p[0] = 400.0 + (p[0] % 1400.0);
+                p[1] = 300.0 + (p[1] % 1600.0);
+                p[2] = 200.0 + (p[2] % 1000.0);
+                th[i][2] = th[i][2].max(1.0e-4);
+            }
+            _ => {}
+        }
+    }
+    let params = ThermoParams::new(&cfg, 2.0, 150.0).with_maps(&maps);
+    assert_eq!(params.control[0], 1);
+    let out = gpu_thermo_with(
+        &ctx,
+        &cfg,
+        Some((&target, &supply)),
+        &[params],
+        &pos,
+        &vel,
+        &th,
+    );
+    let pos64: Vec<[f64; 3]> = pos
+        .iter()
+        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
+        .collect();
+    let mut vel64: Vec<[f64; 4]> = vel.iter().map(|v| v.map(|c| c as f64)).collect();
+    let mut th64: Vec<[f64; 4]> = th.iter().map(|t| t.map(|v| v as f64)).collect();
+    thermo_step(&params, &maps.values, &pos64, &mut vel64, &mut th64);
+    let (mut pulled, mut supplied) = (0, 0);
+    for i in 0..n {
+        let (g, m) = (out.thermo[i], th64[i]);
+        assert!(
+            (g[0] as f64 - m[0]).abs() < 2e-3,
+            "T {i}: {} vs {}",
+            g[0],
+            m[0]
+        );
+        assert!(
+            (g[1] as f64 - m[1]).abs() < 1e-8,
+            "v {i}: {} vs {}",
+            g[1],
+            m[1]
+        );
+        assert!(
+            (g[2] as f64 - m[2]).abs() < 1e-8,
+            "w {i}: {} vs {}",
+            g[2],
+            m[2]
+        );
+        for a in 0..3 {
+            assert!(
+                (out.vel[i][a] as f64 - vel64[i][a]).abs() < 1e-5,
+                "u[{a}] {i}: {} vs {}",
+                out.vel[i][a],
+                vel64[i][a]
+            );
+        }
+        let p = nimbus::sim::reference::thermo::target_pull(
+            &params,
+            &maps.values,
+            pos64[i],
+            th[i][2] as f64,
+        );
+        pulled += (p.iter().map(|x| x * x).sum::<f64>() > 0.0) as usize;
+        let r = nimbus::sim::reference::thermo::source_rates(&params, &maps.values, pos64[i]);
+        supplied += (r[1] > 0.0) as usize;
+    }
+    assert!(pulled > 100, "{pulled} particles pulled");
+    assert!(supplied > 100, "{supplied} particles supplied with vapor");
 }

@@ -6,6 +6,8 @@ use super::validate::Issue;
 
 /// Most levels of `physics.wind.profile` (the uniform's table, `sim::thermo::MAX_WIND_LEVELS`).
 pub const MAX_WIND_LEVELS: usize = 16;
+/// Most triangle-column tests of a target's voxelisation (a few seconds).
+pub const MAX_TARGET_WORK: u64 = 1 << 31;
 /// How far a heat map's pixel aspect may be from square (fraction).
 pub const MAP_ASPECT_TOLERANCE: f64 = 0.01;
 
@@ -299,4 +301,93 @@ fn check_wind(out: &mut Out, w: &WindConfig, c: &ShotConfig) {
             }
         }
     }
+}
+
+/// `control.target`: the scale's form, the voxel grid's size, the mesh (read, closed, SHA-256)
+/// and where it lands (inside the domain, covering at least one voxel).
+pub(crate) fn target_issues(c: &ShotConfig) -> Vec<Issue> {
+    let mut out = Out(Vec::new());
+    let Some(t) = &c.control.target else {
+        return out.0;
+    };
+    if !matches!(t.scale.len(), 1 | 3) {
+        out.fail(
+            &["control.target.scale"],
+            format!(
+                "expected one value (uniform) or three (x, y, z), got {}",
+                t.scale.len()
+            ),
+        );
+        return out.0;
+    }
+    let grid = crate::sim::control::VoxelGrid::for_target(c, t);
+    if grid.len() > crate::sim::control::MAX_VOXELS {
+        out.fail(
+            &["control.target.voxel_size", "control.target"],
+            format!(
+                "voxels of {} m make {} x {} x {} voxels over the domain; at most {} (use larger voxels)",
+                num(crate::sim::control::voxel_size(c, t)),
+                grid.n[0],
+                grid.n[1],
+                grid.n[2],
+                crate::sim::control::MAX_VOXELS
+            ),
+        );
+        return out.0;
+    }
+    let mesh = match crate::sim::control::load_mesh(t) {
+        Ok(m) => m,
+        Err(why) => {
+            out.fail(&["control.target.mesh"], why);
+            return out.0;
+        }
+    };
+    // the voxelisation tests every triangle against every column
+    let work = (grid.columns() as u64).saturating_mul(mesh.triangles.len() as u64);
+    if work > MAX_TARGET_WORK {
+        out.fail(
+            &["control.target.voxel_size", "control.target.mesh"],
+            format!(
+                "{} triangles over {} x {} columns of voxels is too much to voxelise ({} tests; at most {}): use larger voxels or a coarser mesh",
+                mesh.triangles.len(),
+                grid.n[0],
+                grid.n[2],
+                work,
+                MAX_TARGET_WORK
+            ),
+        );
+        return out.0;
+    }
+    let placed = crate::sim::control::place(&mesh, t);
+    let (lo, hi) = placed.bounds();
+    let size = c.domain.size;
+    for (a, axis) in ["x", "y", "z"].iter().enumerate() {
+        if lo[a] < 0.0 || hi[a] > size[a] {
+            out.fail(
+                &[
+                    "control.target.translate",
+                    "control.target.scale",
+                    "control.target.mesh",
+                ],
+                format!(
+                    "the placed target spans {axis} [{}, {}] m, outside the domain [0, {}] (check translate, scale and rotate_y)",
+                    num(lo[a]),
+                    num(hi[a]),
+                    num(size[a])
+                ),
+            );
+            return out.0;
+        }
+    }
+    let target = crate::sim::control::Target::new(c, t, &mesh);
+    if !target.inside.iter().any(|x| *x) {
+        out.fail(
+            &["control.target.scale", "control.target.mesh"],
+            format!(
+                "the placed target holds no voxel centre of the controller's {} m voxels (scale it up or set a smaller voxel_size)",
+                num(crate::sim::control::voxel_size(c, t))
+            ),
+        );
+    }
+    out.0
 }

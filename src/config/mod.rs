@@ -181,6 +181,11 @@ fn normalise(cfg: &mut ShotConfig) {
             src.image_sha256 = crate::io::heat_map::file_sha256(Path::new(path)).ok();
         }
     }
+    if let Some(t) = &mut cfg.control.target {
+        if t.mesh_sha256.is_none() {
+            t.mesh_sha256 = crate::io::heat_map::file_sha256(Path::new(&t.mesh)).ok();
+        }
+    }
 }
 
 /// Heat-map paths become absolute: relative ones are taken from `base` (the config file's
@@ -195,6 +200,16 @@ fn resolve_paths(cfg: &mut ShotConfig, base: Option<&Path>) {
         };
         if let Ok(abs) = std::path::absolute(&joined) {
             src.image = Some(abs.to_string_lossy().into_owned());
+        }
+    }
+    if let Some(t) = &mut cfg.control.target {
+        let p = Path::new(&t.mesh);
+        let joined = match base {
+            Some(b) if p.is_relative() => b.join(p),
+            _ => p.to_path_buf(),
+        };
+        if let Ok(abs) = std::path::absolute(&joined) {
+            t.mesh = abs.to_string_lossy().into_owned();
         }
     }
 }

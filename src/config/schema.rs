@@ -24,6 +24,10 @@ pub struct ShotConfig {
     pub export: ExportConfig,
     #[serde(default)]
     pub checkpoint: CheckpointConfig,
+    /// Art-direction control (docs/CONFIG.md "control"); left out of the serialisation when
+    /// unset, so the hashes and manifests of shots without it are unchanged.
+    #[serde(default, skip_serializing_if = "ControlConfig::is_unset")]
+    pub control: ControlConfig,
 }
 fn d_seed() -> u64 {
     1
@@ -920,5 +924,116 @@ impl HeatSource {
     /// Vapor rate at full strength (kg/kg per s).
     pub fn vapor_rate(&self) -> f64 {
         self.vapor.unwrap_or(0.0)
+    }
+}
+
+/// `control`: steering the cloud towards an artist's intent.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct ControlConfig {
+    /// Target-shape control (docs/CONFIG.md "control.target").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target: Option<TargetConfig>,
+}
+
+impl ControlConfig {
+    pub fn is_unset(&self) -> bool {
+        self.target.is_none()
+    }
+
+    /// The target when its control is on.
+    pub fn active_target(&self) -> Option<&TargetConfig> {
+        self.target.as_ref().filter(|t| t.enabled)
+    }
+}
+
+/// A closed OBJ mesh the cloud is steered to fill (after Dobashi et al. 2008): per ground
+/// column the cloud top is compared with the target's top and the heat and vapor supply of
+/// that column follows the gap (`sim::control`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TargetConfig {
+    /// Whether the controller acts (the target is still loaded, checked and measured).
+    #[serde(default = "d_true")]
+    pub enabled: bool,
+    /// Closed triangle or polygon mesh (Wavefront OBJ); a relative path is resolved against
+    /// the config file's directory when the config is loaded.
+    pub mesh: String,
+    /// SHA-256 of `mesh`, filled in when the config is loaded; a value given must match.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh_sha256: Option<String>,
+    /// Scale of the mesh's own coordinates: one value (uniform) or three (x, y, z).
+    #[serde(default = "d_unit_scale")]
+    pub scale: Vec<f64>,
+    /// Rotation about the vertical axis (degrees, from +x towards +z), after the scale.
+    #[serde(default)]
+    pub rotate_y: f64,
+    /// Translation (m), after the rotation.
+    #[serde(default)]
+    pub translate: [f64; 3],
+    /// Edge of the controller's voxels (m); `None` = the kernel radius h0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub voxel_size: Option<f64>,
+    /// Cloud water (kg/kg, the mean over a voxel's particles) above which a voxel is cloud.
+    #[serde(default = "d_cloud_threshold")]
+    pub cloud_threshold: f64,
+    /// Supply per metre of gap between the target's top and the cloud's top in a column
+    /// (1/m): the column's supply factor is min(1, gain * gap).
+    #[serde(default = "d_target_gain")]
+    pub gain: f64,
+    /// Heating at a supply factor of 1 (K/s), below `supply_height`.
+    #[serde(default = "d_target_heat")]
+    pub heat: f64,
+    /// Vapor added at a supply factor of 1 (kg/kg per s), below `supply_height`.
+    #[serde(default = "d_target_vapor")]
+    pub vapor: f64,
+    /// Top of the layer the supply heats (m); `None` = `physics.heat_height`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub supply_height: Option<f64>,
+    /// Distance from the target's footprint (m) within which the other heating (noise,
+    /// sources) keeps full strength; it falls to 0 over the next `margin` metres.
+    #[serde(default = "d_target_margin")]
+    pub margin: f64,
+    /// Acceleration (m/s^2) pulling cloud particles (cloud water above `cloud_threshold`)
+    /// outside the target towards its nearest voxel, within `reach` of it; 0 = no pull.
+    #[serde(default)]
+    pub pull: f64,
+    /// Distance (m) from the target within which the pull acts.
+    #[serde(default = "d_target_reach")]
+    pub reach: f64,
+}
+fn d_target_reach() -> f64 {
+    300.0
+}
+fn d_true() -> bool {
+    true
+}
+fn d_unit_scale() -> Vec<f64> {
+    vec![1.0]
+}
+fn d_cloud_threshold() -> f64 {
+    1.0e-5
+}
+fn d_target_gain() -> f64 {
+    0.01
+}
+fn d_target_heat() -> f64 {
+    0.1
+}
+fn d_target_vapor() -> f64 {
+    0.0
+}
+fn d_target_margin() -> f64 {
+    100.0
+}
+
+impl TargetConfig {
+    /// The scale along x, y, z.
+    pub fn scale3(&self) -> [f64; 3] {
+        match self.scale.as_slice() {
+            [s] => [*s; 3],
+            [x, y, z] => [*x, *y, *z],
+            _ => [1.0; 3],
+        }
     }
 }

@@ -141,6 +141,18 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     above("export.detail.scale", 0.0, 1.0e5),
     closed("export.detail.amplitude", 0.0, 1.0),
     closed("export.detail.rest_smoothing", 1.0, 4.0),
+    above("control.target.scale", 0.0, 1.0e5),
+    closed("control.target.rotate_y", -360.0, 360.0),
+    closed("control.target.translate", -1.0e5, 1.0e5),
+    above("control.target.voxel_size", 0.0, 1.0e5),
+    closed("control.target.cloud_threshold", 0.0, 1.0),
+    closed("control.target.gain", 0.0, 1000.0),
+    closed("control.target.heat", 0.0, 10.0),
+    closed("control.target.vapor", 0.0, 0.01),
+    above("control.target.supply_height", 0.0, 1.0e5),
+    closed("control.target.margin", 0.0, 1.0e5),
+    closed("control.target.pull", 0.0, 100.0),
+    closed("control.target.reach", 0.0, 1.0e5),
 ];
 
 impl FloatRange {
@@ -319,6 +331,41 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
             }
         }
     }
+    if let Some(t) = &c.control.target {
+        for (key, x) in [
+            ("control.target.rotate_y", t.rotate_y),
+            ("control.target.cloud_threshold", t.cloud_threshold),
+            ("control.target.gain", t.gain),
+            ("control.target.heat", t.heat),
+            ("control.target.vapor", t.vapor),
+            ("control.target.margin", t.margin),
+            ("control.target.pull", t.pull),
+            ("control.target.reach", t.reach),
+        ] {
+            v.push((key.to_string(), key, x));
+        }
+        for (key, x) in [
+            ("control.target.voxel_size", t.voxel_size),
+            ("control.target.supply_height", t.supply_height),
+        ] {
+            if let Some(x) = x {
+                v.push((key.to_string(), key, x));
+            }
+        }
+        for (name, xs) in [
+            ("scale", t.scale.as_slice()),
+            ("translate", &t.translate[..]),
+        ] {
+            let key = if name == "scale" {
+                "control.target.scale"
+            } else {
+                "control.target.translate"
+            };
+            for (a, x) in xs.iter().enumerate() {
+                v.push((format!("control.target.{name}[{a}]"), key, *x));
+            }
+        }
+    }
     if let Some(w) = &ph.wind {
         v.push((
             "physics.wind.time_constant".into(),
@@ -426,6 +473,8 @@ pub(crate) fn issues(c: &ShotConfig) -> Vec<Issue> {
     check_physics(&mut k, &c.physics, c);
     check_adaptive(&mut k, &c.adaptive, c);
     check_export(&mut k, &c.export, &c.domain);
+    // control.target: its mesh read, closed and placed in the domain (config::art)
+    k.issues.extend(super::art::target_issues(c));
     if c.gpu.adapter.trim().is_empty() {
         k.fail(
             &["gpu.adapter"],

@@ -5,5 +5,6 @@ pub mod checkpoint;
 pub mod exr;
 pub mod heat_map;
 pub mod inspect;
+pub mod obj;
 pub mod ply;
 pub mod vdb;

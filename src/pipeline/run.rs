@@ -194,7 +194,6 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
         pending_stats: Vec::new(),
     };
     let initial_layers = crate::sim::diagnostics::initial_layer_mass(cfg);
-    let heat_maps = crate::sim::sources::HeatMaps::load(cfg)?;
     let result = (|| -> Result<()> {
         for frame in first_frame..=end {
             let t0 = Instant::now();
@@ -221,7 +220,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                 cfg,
                 &initial_layers,
                 clock.time,
-                &heat_maps,
+                sim.heat_maps(),
             ));
             if let Some(msg) = time_step_warning(frame, &diagnostics, cfg) {
                 progress.note("warning", &msg);

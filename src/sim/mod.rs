@@ -13,6 +13,7 @@
 //! - boundary particles (floor and ceiling walls) live in their own static arrays.
 pub mod adaptive;
 pub mod buffers;
+pub mod control;
 pub mod diagnostics;
 pub mod grid;
 pub mod grid_params;

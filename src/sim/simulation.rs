@@ -14,6 +14,7 @@ use crate::gpu::timing::GpuTimer;
 use crate::gpu::Context;
 use crate::sim::adaptive::{self, AdaptiveStage};
 use crate::sim::buffers::ParticleBuffers;
+use crate::sim::control::Target;
 use crate::sim::grid::GridStage;
 use crate::sim::grid_params::GridParams;
 use crate::sim::pbf::{PbfParams, PbfStage};
@@ -67,6 +68,9 @@ pub struct Simulation {
     timer: Option<GpuTimer<Phase>>,
     timing: Timing,
     boundary_host: (Vec<[f32; 4]>, Vec<u32>),
+    /// `control.target`, voxelised (`sim::control`): its supply map is set from every frame's
+    /// read-back state, and `target_iou` measured, also when its control is off.
+    target: Option<Target>,
 }
 
 impl Simulation {
@@ -139,8 +143,14 @@ impl Simulation {
         grid.n_boundary = boundary.0.len() as u32;
         let params = PbfParams::for_shot(cfg);
         let b = ParticleBuffers::new(&ctx, state, capacity, &grid, &boundary, clock.next_id)?;
-        let mut thermo = ThermoStage::new(&ctx, cfg, &b)?;
+        let target = Target::load(cfg)?;
+        let mut thermo = ThermoStage::new(&ctx, cfg, &b, target.as_ref())?;
         thermo.set_layers(LayerBuoyancy::of_state(cfg, state));
+        // the controller's state is a function of the particles: a resume from a checkpoint
+        // sets the same supply as the uninterrupted run did at that frame's end
+        if let Some(t) = &target {
+            thermo.set_supply(&ctx, &t.update(state).0);
+        }
         let adaptive = if cfg.adaptive.enabled {
             let h0 = cfg.domain.spacing * cfg.domain.kernel_ratio;
             Some(AdaptiveStage::new(&ctx, &cfg.adaptive, &grid, h0, &b)?)
@@ -170,6 +180,7 @@ impl Simulation {
             timer,
             timing: Timing::Timestamps,
             boundary_host: boundary,
+            target,
             ctx,
         })
     }
@@ -177,6 +188,16 @@ impl Simulation {
     pub fn clock(&self) -> SimClock {
         self.clock
     }
+    /// The heat maps the thermo stage samples (with the controller's current supply map).
+    pub fn heat_maps(&self) -> &crate::sim::sources::HeatMaps {
+        self.s.thermo.maps()
+    }
+
+    /// The voxelised `control.target`, if the shot has one.
+    pub fn target(&self) -> Option<&Target> {
+        self.target.as_ref()
+    }
+
     pub fn capacity(&self) -> usize {
         self.b.capacity as usize
     }
@@ -248,7 +269,8 @@ impl Simulation {
     fn advance_frame(&mut self, full: bool) -> Result<(FrameReport, ParticleState)> {
         // the next frame's buoyancy profile needs positions and thermo
         let full = full
-            || self.cfg.physics.buoyancy_reference == crate::config::BuoyancyReference::LayerMean;
+            || self.cfg.physics.buoyancy_reference == crate::config::BuoyancyReference::LayerMean
+            || self.target.is_some();
         let ctx = self.ctx.clone();
         let waits_before = ctx.waits();
         let mut report = FrameReport::default();
@@ -308,6 +330,11 @@ impl Simulation {
         self.s
             .thermo
             .set_layers(LayerBuoyancy::of_state(&self.cfg, &end));
+        if let Some(t) = &self.target {
+            let (supply, iou) = t.update(&end);
+            self.s.thermo.set_supply(&ctx, &supply);
+            report.diagnostics.insert("target_iou".into(), iou);
+        }
         let rho0 = self.params.rest_density as f64;
         let d = &mut report.diagnostics;
         d.insert("substeps".into(), substeps as f64);

@@ -110,6 +110,13 @@ pub struct HeatMaps {
     pub values: Vec<f32>,
     /// Per source index: (offset, width, height), width 0 for sources without a map.
     pub entries: Vec<[u32; 3]>,
+    /// The target controller's maps when its control is on (`sim::control`): (offset, nx, nz, ny)
+    /// of the per-column supply factors, rewritten every frame, followed by the same number of
+    /// footprint-mask values on the other heating and by the pull field, four values per voxel
+    /// (`sim::control::Target::field`).
+    pub control: Option<[u32; 4]>,
+    /// The target's pull: (m/s^2, reach m, cloud threshold kg/kg, voxel height m).
+    pub pull: [f32; 4],
 }
 
 impl HeatMaps {
@@ -140,7 +147,48 @@ impl HeatMaps {
         if values.is_empty() {
             values.push(0.0);
         }
-        Ok(Self { values, entries })
+        Ok(Self {
+            values,
+            entries,
+            control: None,
+            pull: [0.0; 4],
+        })
+    }
+
+    /// These maps with room for an active target's supply (0 until the first
+    /// [`Self::set_supply`]) and its footprint mask; unchanged for a target whose control is off.
+    pub fn with_target(mut self, target: Option<&crate::sim::control::Target>) -> Self {
+        if let Some(t) = target.filter(|t| t.enabled) {
+            let offset = self.values.len() as u32;
+            self.values.extend(std::iter::repeat_n(0.0, t.mask.len()));
+            self.values.extend_from_slice(&t.mask);
+            self.values.extend(t.field.iter().flatten());
+            self.control = Some([
+                offset,
+                t.grid.n[0] as u32,
+                t.grid.n[2] as u32,
+                t.grid.n[1] as u32,
+            ]);
+            self.pull = [
+                t.pull as f32,
+                t.reach as f32,
+                t.threshold as f32,
+                t.grid.cell[1] as f32,
+            ];
+        }
+        self
+    }
+
+    /// Replaces the supply map; returns its offset in values (None without control or when
+    /// `supply` does not have one value per column).
+    pub fn set_supply(&mut self, supply: &[f32]) -> Option<usize> {
+        let [offset, nx, nz, _] = self.control?;
+        let offset = offset as usize;
+        if supply.len() != (nx * nz) as usize {
+            return None;
+        }
+        self.values[offset..offset + supply.len()].copy_from_slice(supply);
+        Some(offset)
     }
 
     /// `sources` with each image source's map entry filled in.

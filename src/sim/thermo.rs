@@ -20,7 +20,8 @@
 //!    rounding and neither goes negative;
 //! 5. latent heat, eq. 11: `T += Q (w* - w)` (eq. 11 integrated the same way as eq. 9).
 //!
-//! Usage: `let stage = ThermoStage::new(&ctx, &cfg, &buffers)?;` once (it reads the heat maps),
+//! Usage: `let stage = ThermoStage::new(&ctx, &cfg, &buffers, target)?;` once (it reads the heat
+//! maps),
 //! then per substep `stage.step(&mut recorder, &live, dt, time)`. Initial state (section 5):
 //! [`initial_thermo`].
 use crate::config::{PhysicsConfig, ShotConfig};
@@ -100,6 +101,16 @@ pub struct ThermoParams {
     /// `physics.sources` with this substep's schedule ([`crate::sim::sources::pack`]); the
     /// heat-map entries of image sources come from [`ThermoParams::with_maps`].
     pub sources: [SourceGpu; MAX_SOURCES],
+    // --- target-shape control (sim::control), after everything else ---
+    /// (1 when on, offset of the supply map in the heat-map buffer, columns along x, along z);
+    /// the footprint mask follows the supply map. Set by [`ThermoParams::with_maps`].
+    pub control: [u32; 4],
+    /// (heating K/s and vapor kg/kg/s at a supply factor of 1, top of the supplied layer (m),
+    /// voxels along y).
+    pub control_rate: [f32; 4],
+    /// (pull m/s^2, reach m, cloud threshold kg/kg, voxel height m) of the pull towards the
+    /// target; pull 0 = none.
+    pub control_pull: [f32; 4],
 }
 
 pub use crate::sim::sources::{HeatMaps, SourceGpu, MAX_SOURCES};
@@ -154,6 +165,16 @@ impl ThermoParams {
             wind,
             sources: crate::sim::sources::pack(cfg, dt, time),
             layers: [[0.0; 4]; MAX_LAYERS / 4],
+            control: [0; 4],
+            control_pull: [0.0; 4],
+            control_rate: cfg.control.active_target().map_or([0.0; 4], |t| {
+                [
+                    t.heat as f32,
+                    t.vapor as f32,
+                    t.supply_height.unwrap_or(p.heat_height) as f32,
+                    0.0,
+                ]
+            }),
         }
     }
 
@@ -161,6 +182,11 @@ impl ThermoParams {
     /// in the stage's map buffer, and its size).
     pub fn with_maps(mut self, maps: &HeatMaps) -> Self {
         self.sources = maps.with_maps(self.sources);
+        if let Some([offset, nx, nz, ny]) = maps.control {
+            self.control = [1, offset, nx, nz];
+            self.control_rate[3] = ny as f32;
+            self.control_pull = maps.pull;
+        }
         self
     }
 
@@ -267,10 +293,17 @@ pub struct ThermoStage {
 }
 
 impl ThermoStage {
-    pub fn new(ctx: &Context, cfg: &ShotConfig, b: &ParticleBuffers) -> Result<Self> {
+    /// The stage, with the heat maps of the image sources and, when `target` is given and its
+    /// control is on, room for the controller's supply map and its footprint mask.
+    pub fn new(
+        ctx: &Context,
+        cfg: &ShotConfig,
+        b: &ParticleBuffers,
+        target: Option<&crate::sim::control::Target>,
+    ) -> Result<Self> {
         let stage = Stage::new(ctx, SHADER, &[ENTRY])?;
         let params = ParamSlots::single(ctx, "thermo params", &ThermoParams::new(cfg, 0.0, 0.0));
-        let maps = HeatMaps::load(cfg)?;
+        let maps = HeatMaps::load(cfg)?.with_target(target);
         let map_buffer = crate::gpu::buffers::storage_init(&ctx.device, "heat maps", &maps.values);
         let own = [
             ("P", params.slot(0)),
@@ -291,6 +324,18 @@ impl ThermoStage {
     /// The heat maps this stage samples (what the mirror needs besides the parameters).
     pub fn maps(&self) -> &HeatMaps {
         &self.maps
+    }
+
+    /// The target controller's supply per column for the next substeps (set at frame starts,
+    /// written to the device with the queue before the next substep's submit: no host wait).
+    pub fn set_supply(&mut self, ctx: &Context, supply: &[f32]) {
+        if let Some(offset) = self.maps.set_supply(supply) {
+            ctx.queue.write_buffer(
+                &self.map_buffer,
+                (offset * 4) as u64,
+                bytemuck::cast_slice(supply),
+            );
+        }
     }
 
     /// The horizontal-mean buoyancy profile the next substeps subtract (set at frame starts).
@@ -335,7 +380,7 @@ mod tests {
 
     #[test]
     fn params_layout_matches_wgsl() {
-        assert_eq!(std::mem::size_of::<ThermoParams>(), 1040);
+        assert_eq!(std::mem::size_of::<ThermoParams>(), 1088);
     }
 
     /// A force that depends on height alone is the whole profile: eq. 6 less the profile is

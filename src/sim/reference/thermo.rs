@@ -130,7 +130,45 @@ pub fn source_rates(p: &ThermoParams, maps: &[f32], pos: [f64; 3]) -> [f64; 2] {
         rate += s.rate[2] as f64 * f;
         vapor += s.rate[3] as f64 * f;
     }
+    if p.control[0] != 0 {
+        let [_, offset, nx, nz] = p.control;
+        let mask = heat_map(
+            p,
+            maps,
+            [KIND_IMAGE, offset + nx * nz, nx, nz],
+            pos[0],
+            pos[2],
+        );
+        rate *= mask;
+        vapor *= mask;
+        if pos[1] < p.control_rate[2] as f64 {
+            let f = heat_map(p, maps, [KIND_IMAGE, offset, nx, nz], pos[0], pos[2]);
+            rate += f * p.control_rate[0] as f64;
+            vapor += f * p.control_rate[1] as f64;
+        }
+    }
     [rate, vapor]
+}
+
+/// The pull of the target-shape control on a particle with cloud water `w` at `pos`
+/// (m/s^2; mirror of `target_pull`).
+pub fn target_pull(p: &ThermoParams, maps: &[f32], pos: [f64; 3], w: f64) -> [f64; 3] {
+    let pull = p.control_pull.map(|v| v as f64);
+    if p.control[0] == 0 || pull[0] <= 0.0 || w <= pull[2] {
+        return [0.0; 3];
+    }
+    let [_, offset, nx, nz] = p.control.map(|v| v as usize);
+    let ny = p.control_rate[3] as usize;
+    let cell = |x: f64, c: f64, n: usize| ((x / c).floor().max(0.0) as usize).min(n - 1);
+    let i = cell(pos[0], p.size_x as f64 / nx as f64, nx);
+    let j = cell(pos[1], pull[3], ny);
+    let k = cell(pos[2], p.size_z as f64 / nz as f64, nz);
+    let at = offset + 2 * nx * nz + 4 * ((j * nz + k) * nx + i);
+    let d = maps[at + 3] as f64;
+    if d <= 0.0 || d > pull[1] {
+        return [0.0; 3];
+    }
+    [0, 1, 2].map(|a| pull[0] / d * maps[at + a] as f64)
 }
 
 /// The wind (u_x, u_z) at height y (mirror of `wind_at`); (0, 0) without wind.
@@ -212,6 +250,13 @@ pub fn thermo_step_particle(
         let air = wind_at(p, pos[1]);
         vel[0] += f * (air[0] - vel[0]);
         vel[2] += f * (air[1] - vel[2]);
+    }
+    // target-shape control: the pull into the target
+    if p.control[0] != 0 {
+        let pull = target_pull(p, maps, pos, th[2]);
+        for a in 0..3 {
+            vel[a] += dt * pull[a];
+        }
     }
     // eq. 7, over the height gained by the move
     temp -= p.adiabatic_lapse_rate as f64 * vel[3];
