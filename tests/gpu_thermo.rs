@@ -35,6 +35,8 @@ fn shot() -> ShotConfig {
 
 /// (pos, vel, thermo) arrays.
 type State = (Vec<[f32; 4]>, Vec<[f32; 4]>, Vec<[f32; 4]>);
+/// (pos, vel, thermo) borrowed.
+type StateRef<'a> = (&'a [[f32; 4]], &'a [[f32; 4]], &'a [[f32; 4]]);
 
 struct ThermoRun {
     vel: Vec<[f32; 4]>,
@@ -85,6 +87,54 @@ fn gpu_thermo_with(
         vel: out.vel,
         thermo: out.thermo,
     }
+}
+
+/// Runs the f64 mirror of one thermo step on the same state and checks the GPU's `out` against
+/// it (T to 2e-3 K, v and w to 1e-8, u to 1e-5 m/s); returns the positions in f64.
+#[allow(clippy::needless_range_loop)] // parallel arrays indexed together
+fn check_against_mirror(
+    params: &ThermoParams,
+    maps: &[f32],
+    (pos, vel, th): StateRef,
+    out: &ThermoRun,
+) -> Vec<[f64; 3]> {
+    let pos64: Vec<[f64; 3]> = pos
+        .iter()
+        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
+        .collect();
+    let mut vel64: Vec<[f64; 4]> = vel.iter().map(|v| v.map(|c| c as f64)).collect();
+    let mut th64: Vec<[f64; 4]> = th.iter().map(|t| t.map(|v| v as f64)).collect();
+    thermo_step(params, maps, &pos64, &mut vel64, &mut th64);
+    for i in 0..pos.len() {
+        let (g, m) = (out.thermo[i], th64[i]);
+        assert!(
+            (g[0] as f64 - m[0]).abs() < 2e-3,
+            "T {i}: {} vs {}",
+            g[0],
+            m[0]
+        );
+        assert!(
+            (g[1] as f64 - m[1]).abs() < 1e-8,
+            "v {i}: {} vs {}",
+            g[1],
+            m[1]
+        );
+        assert!(
+            (g[2] as f64 - m[2]).abs() < 1e-8,
+            "w {i}: {} vs {}",
+            g[2],
+            m[2]
+        );
+        for a in 0..3 {
+            assert!(
+                (out.vel[i][a] as f64 - vel64[i][a]).abs() < 1e-5,
+                "u[{a}] {i}: {} vs {}",
+                out.vel[i][a],
+                vel64[i][a]
+            );
+        }
+    }
+    pos64
 }
 
 fn random_thermo_state(n: usize, seed: u64, cfg: &ShotConfig) -> State {
@@ -299,41 +349,8 @@ fn sources_and_wind_match_mirror() {
     let params = ThermoParams::new(&cfg, 2.0, 150.0).with_maps(&maps);
     let out = gpu_thermo(&ctx, &cfg, &[params], &pos, &vel, &th);
 
-    let pos64: Vec<[f64; 3]> = pos
-        .iter()
-        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
-        .collect();
-    let mut vel64: Vec<[f64; 4]> = vel.iter().map(|v| v.map(|c| c as f64)).collect();
-    let mut th64: Vec<[f64; 4]> = th.iter().map(|t| t.map(|v| v as f64)).collect();
-    thermo_step(&params, &maps.values, &pos64, &mut vel64, &mut th64);
+    let pos64 = check_against_mirror(&params, &maps.values, (&pos, &vel, &th), &out);
     for i in 0..n {
-        let (g, m) = (out.thermo[i], th64[i]);
-        assert!(
-            (g[0] as f64 - m[0]).abs() < 2e-3,
-            "T {i}: {} vs {}",
-            g[0],
-            m[0]
-        );
-        assert!(
-            (g[1] as f64 - m[1]).abs() < 1e-8,
-            "v {i}: {} vs {}",
-            g[1],
-            m[1]
-        );
-        assert!(
-            (g[2] as f64 - m[2]).abs() < 1e-8,
-            "w {i}: {} vs {}",
-            g[2],
-            m[2]
-        );
-        for a in 0..3 {
-            assert!(
-                (out.vel[i][a] as f64 - vel64[i][a]).abs() < 1e-5,
-                "u[{a}] {i}: {} vs {}",
-                out.vel[i][a],
-                vel64[i][a]
-            );
-        }
         assert!(
             (out.vel[i][0] - vel[i][0]).abs() > 1e-3 || (out.vel[i][2] - vel[i][2]).abs() > 1e-3,
             "the wind moved nothing at {i}"
@@ -772,42 +789,9 @@ fn target_control_matches_mirror() {
         &vel,
         &th,
     );
-    let pos64: Vec<[f64; 3]> = pos
-        .iter()
-        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
-        .collect();
-    let mut vel64: Vec<[f64; 4]> = vel.iter().map(|v| v.map(|c| c as f64)).collect();
-    let mut th64: Vec<[f64; 4]> = th.iter().map(|t| t.map(|v| v as f64)).collect();
-    thermo_step(&params, &maps.values, &pos64, &mut vel64, &mut th64);
+    let pos64 = check_against_mirror(&params, &maps.values, (&pos, &vel, &th), &out);
     let (mut pulled, mut supplied) = (0, 0);
     for i in 0..n {
-        let (g, m) = (out.thermo[i], th64[i]);
-        assert!(
-            (g[0] as f64 - m[0]).abs() < 2e-3,
-            "T {i}: {} vs {}",
-            g[0],
-            m[0]
-        );
-        assert!(
-            (g[1] as f64 - m[1]).abs() < 1e-8,
-            "v {i}: {} vs {}",
-            g[1],
-            m[1]
-        );
-        assert!(
-            (g[2] as f64 - m[2]).abs() < 1e-8,
-            "w {i}: {} vs {}",
-            g[2],
-            m[2]
-        );
-        for a in 0..3 {
-            assert!(
-                (out.vel[i][a] as f64 - vel64[i][a]).abs() < 1e-5,
-                "u[{a}] {i}: {} vs {}",
-                out.vel[i][a],
-                vel64[i][a]
-            );
-        }
         let p = nimbus::sim::reference::thermo::target_pull(
             &params,
             &maps.values,
