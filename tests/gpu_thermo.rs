@@ -90,14 +90,15 @@ fn gpu_thermo_with(
 }
 
 /// Runs the f64 mirror of one thermo step on the same state and checks the GPU's `out` against
-/// it (T to 2e-3 K, v and w to 1e-8, u to 1e-5 m/s); returns the positions in f64.
+/// it (T to 2e-3 K, v and w to 1e-8, u to 1e-5 m/s); returns the positions and the mirror's
+/// thermo state in f64.
 #[allow(clippy::needless_range_loop)] // parallel arrays indexed together
 fn check_against_mirror(
     params: &ThermoParams,
     maps: &[f32],
     (pos, vel, th): StateRef,
     out: &ThermoRun,
-) -> Vec<[f64; 3]> {
+) -> (Vec<[f64; 3]>, Vec<[f64; 4]>) {
     let pos64: Vec<[f64; 3]> = pos
         .iter()
         .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
@@ -134,7 +135,7 @@ fn check_against_mirror(
             );
         }
     }
-    pos64
+    (pos64, th64)
 }
 
 fn random_thermo_state(n: usize, seed: u64, cfg: &ShotConfig) -> State {
@@ -207,38 +208,12 @@ fn thermo_step_matches_mirror() {
     };
     let params = ThermoParams::new(&cfg, 2.0, 137.0).with_layers(&layers);
     let out = gpu_thermo(&ctx, &cfg, &[params], &pos, &vel, &th);
-
-    let pos64: Vec<[f64; 3]> = pos
-        .iter()
-        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
-        .collect();
-    let mut vel64: Vec<[f64; 4]> = vel.iter().map(|v| v.map(|c| c as f64)).collect();
-    let mut th64: Vec<[f64; 4]> = th.iter().map(|t| t.map(|v| v as f64)).collect();
-    thermo_step(&params, &[], &pos64, &mut vel64, &mut th64);
+    let (_, th64) = check_against_mirror(&params, &[], (&pos, &vel, &th), &out);
 
     let (mut heated, mut condensed, mut evaporated, mut moistened) = (0, 0, 0, 0);
     for i in 0..n {
         let (g, m) = (out.thermo[i], th64[i]);
-        assert!(
-            (g[0] as f64 - m[0]).abs() < 2e-3,
-            "T {i}: {} vs {}",
-            g[0],
-            m[0]
-        );
-        assert!(
-            (g[1] as f64 - m[1]).abs() < 1e-8,
-            "v {i}: {} vs {}",
-            g[1],
-            m[1]
-        );
-        assert!(
-            (g[2] as f64 - m[2]).abs() < 1e-8,
-            "w {i}: {} vs {}",
-            g[2],
-            m[2]
-        );
         assert_eq!(g[3], th[i][3], "shape energy is not ours to change");
-        assert!((out.vel[i][1] as f64 - vel64[i][1]).abs() < 1e-5, "u_y {i}");
         assert_eq!([out.vel[i][0], out.vel[i][2]], [vel[i][0], vel[i][2]]);
         heated += (pos[i][1] < cfg.physics.heat_height as f32) as usize;
         condensed += (m[2] > th[i][2] as f64) as usize;
@@ -349,7 +324,7 @@ fn sources_and_wind_match_mirror() {
     let params = ThermoParams::new(&cfg, 2.0, 150.0).with_maps(&maps);
     let out = gpu_thermo(&ctx, &cfg, &[params], &pos, &vel, &th);
 
-    let pos64 = check_against_mirror(&params, &maps.values, (&pos, &vel, &th), &out);
+    let (pos64, _) = check_against_mirror(&params, &maps.values, (&pos, &vel, &th), &out);
     for i in 0..n {
         assert!(
             (out.vel[i][0] - vel[i][0]).abs() > 1e-3 || (out.vel[i][2] - vel[i][2]).abs() > 1e-3,
@@ -789,7 +764,7 @@ fn target_control_matches_mirror() {
         &vel,
         &th,
     );
-    let pos64 = check_against_mirror(&params, &maps.values, (&pos, &vel, &th), &out);
+    let (pos64, _) = check_against_mirror(&params, &maps.values, (&pos, &vel, &th), &out);
     let (mut pulled, mut supplied) = (0, 0);
     for i in 0..n {
         let p = nimbus::sim::reference::thermo::target_pull(
