@@ -192,33 +192,7 @@ fn refused(dir: &Path, case: &Case) {
     let text_line = body.lines().nth(line - 1).unwrap();
     let col = text_line.find(token).unwrap() + 1;
     let at = format!("{}:{col}", line + BASE.lines().count());
-    let mut args: Vec<&str> = Vec::new();
-    for s in sets {
-        args.extend(["--set", s]);
-    }
-    let o = nimbus()
-        .arg("validate")
-        .arg(&cfg)
-        .args(&args)
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2), "{body}: {}", text(&o));
-    let err = String::from_utf8_lossy(&o.stderr).to_string();
-    assert_eq!(err.lines().count(), 1, "{err}");
-    let want = format!("{}:{at}: {key}: ", cfg.display());
-    assert!(err.starts_with(&want), "{body}:\n{err}\nwanted {want}");
-    assert!(err.contains(words), "{err} lacks {words:?}");
-    let out = dir.join("run");
-    let o = nimbus()
-        .arg("run")
-        .arg(&cfg)
-        .args(&args)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
-    assert!(!out.exists(), "a refused run wrote {}", out.display());
+    assert_refused(&cfg, sets, &at, key, words, &dir.join("run"));
 }
 
 /// (config body, line of the body, token whose column is reported, key, words of the

@@ -117,23 +117,7 @@ fn bad_targets_are_refused_with_their_key_and_nothing_is_written() {
         std::fs::write(&cfg, format!("{BASE}{body}")).unwrap();
         let col = body.lines().nth(line - 1).unwrap().find(token).unwrap() + 1;
         let at = format!("{}:{col}", line + BASE.lines().count());
-        let o = nimbus().arg("validate").arg(&cfg).output().unwrap();
-        assert_eq!(o.status.code(), Some(2), "{body}: {}", text(&o));
-        let err = String::from_utf8_lossy(&o.stderr).to_string();
-        assert_eq!(err.lines().count(), 1, "{err}");
-        let want = format!("{}:{at}: {key}: ", cfg.display());
-        assert!(err.starts_with(&want), "{body}:\n{err}\nwanted {want}");
-        assert!(err.contains(words), "{err} lacks {words:?}");
-        let out = d.join("run");
-        let o = nimbus()
-            .arg("run")
-            .arg(&cfg)
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        assert_eq!(o.status.code(), Some(2), "{}", text(&o));
-        assert!(!out.exists(), "a refused run wrote {}", out.display());
+        assert_refused(&cfg, &[], &at, key, words, &d.join("run"));
     }
     // the same cube, placed inside, is accepted
     let cfg = d.join("tc.yaml");

@@ -164,3 +164,36 @@ pub fn openjd_cli() -> Option<PathBuf> {
     }
     found
 }
+
+/// `validate` and `run` of `cfg` (with `sets` as --set overrides) both exit 2 with one line
+/// that starts `CFG:LINE:COL: key: ` (`at` = "LINE:COL") and contains `words`; the run writes
+/// nothing at `out`.
+#[allow(dead_code)] // not every test crate refuses configs
+pub fn assert_refused(cfg: &Path, sets: &[&str], at: &str, key: &str, words: &str, out: &Path) {
+    let mut args: Vec<&str> = Vec::new();
+    for s in sets {
+        args.extend(["--set", s]);
+    }
+    let o = nimbus()
+        .arg("validate")
+        .arg(cfg)
+        .args(&args)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert_eq!(o.status.code(), Some(2), "{}: {}", cfg.display(), text(&o));
+    assert_eq!(err.lines().count(), 1, "{err}");
+    let want = format!("{}:{at}: {key}: ", cfg.display());
+    assert!(err.starts_with(&want), "{err}\nwanted {want}");
+    assert!(err.contains(words), "{err} lacks {words:?}");
+    let o = nimbus()
+        .arg("run")
+        .arg(cfg)
+        .args(&args)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(!out.exists(), "a refused run wrote {}", out.display());
+}
