@@ -31,6 +31,24 @@ fn config(size: [f64; 3], extra: &str) -> ShotConfig {
 fn v3(a: &[f32; 4]) -> [f64; 3] {
     [a[0] as f64, a[1] as f64, a[2] as f64]
 }
+/// The density array read back, in f64.
+fn density(sim: &Simulation) -> Vec<f64> {
+    let d = sim.read_f32(Buf::Density).unwrap();
+    d.iter().map(|&v| v as f64).collect()
+}
+
+/// Scalars as vectors (x, 0, 0), for [`rel_err`].
+fn as3(v: &[f64]) -> Vec<[f64; 3]> {
+    v.iter().map(|&x| [x, 0.0, 0.0]).collect()
+}
+
+/// a - b per element (e.g. a velocity change).
+fn minus(a: &[[f64; 3]], b: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    a.iter()
+        .zip(b)
+        .map(|(x, p)| [x[0] - p[0], x[1] - p[1], x[2] - p[2]])
+        .collect()
+}
 
 /// Largest |gpu - cpu| over all components, relative to the largest |cpu| (plus a floor).
 fn rel_err(gpu: &[[f64; 3]], cpu: &[[f64; 3]]) -> f64 {
@@ -157,13 +175,7 @@ fn kernels_match_the_mirror(levels: u32) {
         "scratch p*"
     );
     let glam: Vec<f64> = scratch.iter().map(|v| v[3] as f64).collect();
-    let gden: Vec<f64> = sim
-        .read_f32(Buf::Density)
-        .unwrap()
-        .iter()
-        .map(|&v| v as f64)
-        .collect();
-    let as3 = |v: &[f64]| v.iter().map(|&x| [x, 0.0, 0.0]).collect::<Vec<_>>();
+    let gden: Vec<f64> = density(&sim);
     let e = rel_err(&as3(&glam), &as3(&lam));
     assert!(e < TOL, "compute_lambda lambda: {e}");
     let e = rel_err(&as3(&gden), &as3(&den));
@@ -216,24 +228,14 @@ fn kernels_match_the_mirror(levels: u32) {
     sim.run_step(Step::ViscosityConfine).unwrap();
     let gv: Vec<[f64; 3]> = sim.read_vec4(Buf::Vel).unwrap().iter().map(v3).collect();
     let cv = mirror::viscosity_confine(&sc, &pred, &gvel, &gden, &gw);
-    let dv = |a: &[[f64; 3]]| {
-        a.iter()
-            .zip(&gvel)
-            .map(|(x, p)| [x[0] - p[0], x[1] - p[1], x[2] - p[2]])
-            .collect::<Vec<_>>()
-    };
+    let dv = |a: &[[f64; 3]]| minus(a, &gvel);
     let e = rel_err(&dv(&gv), &dv(&cv));
     assert!(e < 1e-3, "viscosity_confine (velocity change): {e}");
     assert_eq!(gv.len(), n);
     // viscosity_confine also summed the density at p* (here the p* of compute_lambda), which
     // finish_positions stores
     sim.run_step(Step::Finish).unwrap();
-    let fden: Vec<f64> = sim
-        .read_f32(Buf::Density)
-        .unwrap()
-        .iter()
-        .map(|&v| v as f64)
-        .collect();
+    let fden: Vec<f64> = density(&sim);
     let e = rel_err(&as3(&fden), &as3(&den));
     assert!(e < TOL, "viscosity_confine density: {e}");
 }
@@ -299,17 +301,11 @@ fn later_passes_keep_the_first_lambdas_neighbours() {
         p[..3].copy_from_slice(&m[..3]);
     }
     sim.write(Buf::Pred, &pred4);
-    let as3 = |v: &[f64]| v.iter().map(|&x| [x, 0.0, 0.0]).collect::<Vec<_>>();
 
     sim.run_step(Step::LambdaMasked).unwrap();
     let scratch = sim.read_vec4(Buf::Scratch).unwrap();
     let glam: Vec<f64> = scratch.iter().map(|v| v[3] as f64).collect();
-    let gden: Vec<f64> = sim
-        .read_f32(Buf::Density)
-        .unwrap()
-        .iter()
-        .map(|&v| v as f64)
-        .collect();
+    let gden: Vec<f64> = density(&sim);
     let (lam, den) = mirror::compute_lambda_in(&sc, &moved, Some(&sets));
     let e = rel_err(&as3(&gden), &as3(&den));
     assert!(e < TOL, "compute_lambda_masked density: {e}");
@@ -355,23 +351,13 @@ fn later_passes_keep_the_first_lambdas_neighbours() {
         .collect();
     sim.run_step(Step::ViscosityConfine).unwrap();
     let gv: Vec<[f64; 3]> = sim.read_vec4(Buf::Vel).unwrap().iter().map(v3).collect();
-    let dv = |a: &[[f64; 3]]| {
-        a.iter()
-            .zip(&gvel)
-            .map(|(x, p)| [x[0] - p[0], x[1] - p[1], x[2] - p[2]])
-            .collect::<Vec<_>>()
-    };
+    let dv = |a: &[[f64; 3]]| minus(a, &gvel);
     let cv = mirror::viscosity_confine_in(&sc, &moved, &gvel, &gden, &[], Some(&sets));
     let e = rel_err(&dv(&gv), &dv(&cv));
     assert!(e < 1e-3, "viscosity_confine (velocity change): {e}");
     // and the density at the moved positions over the same sets (compute_lambda_masked's)
     sim.run_step(Step::Finish).unwrap();
-    let fden: Vec<f64> = sim
-        .read_f32(Buf::Density)
-        .unwrap()
-        .iter()
-        .map(|&v| v as f64)
-        .collect();
+    let fden: Vec<f64> = density(&sim);
     let e = rel_err(&as3(&fden), &as3(&den));
     assert!(e < TOL, "viscosity_confine density: {e}");
 }
