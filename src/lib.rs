@@ -12,6 +12,7 @@ pub mod pipeline;
 pub mod preview;
 pub mod sim;
 pub mod splat;
+pub mod stdout;
 
 pub use error::{Error, Result};
 

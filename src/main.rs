@@ -30,11 +30,11 @@ fn main() {
             log_format,
         } => pipeline::resume::resume(&out_dir, log_format),
         Command::Inspect { file } => {
-            nimbus::io::inspect::describe(&file).map(|text| println!("{text}"))
+            nimbus::io::inspect::describe(&file).map(|text| nimbus::outln!("{text}"))
         }
         Command::Preview { out_dir, set } => {
             pipeline::rerender::rerender_run(&out_dir, &set).map(|written| {
-                println!(
+                nimbus::outln!(
                     "{written} previews written to {}",
                     out_dir.join("preview").display()
                 )
@@ -63,7 +63,7 @@ fn validate(configs: &[PathBuf], set: &[String]) -> i32 {
     let mut code = exit::OK;
     for path in configs {
         match nimbus::config::load(path, set) {
-            Ok(cfg) => println!(
+            Ok(cfg) => nimbus::outln!(
                 "{}: ok (shot '{}', frames {}..={}, {} particles, sim hash {})",
                 path.display(),
                 cfg.shot,
@@ -94,7 +94,7 @@ fn export(
         name,
     };
     let s = reexport::export(&run_dir, &req)?;
-    println!(
+    nimbus::outln!(
         "export: {} frames written, {} already as recorded, in {}",
         s.written.len(),
         s.unchanged.len(),
@@ -159,12 +159,12 @@ fn bench(topic: BenchTopic) -> Result<()> {
         } => {
             let report = bench::table1::bench_table1(scale, frames, warmup)?;
             if let Some(table) = report["table"].as_str() {
-                println!("{table}");
+                nimbus::outln!("{table}");
             }
             report
         }
     };
-    println!(
+    nimbus::outln!(
         "{}",
         serde_json::to_string_pretty(&report).map_err(|e| Error::Runtime(e.to_string()))?
     );

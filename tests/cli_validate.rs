@@ -319,3 +319,46 @@ fn a_flag_value_outside_its_choices_exits_2_with_one_line() {
         assert_eq!(stderr_lines(&o), [format!("error: {want}")], "{args}");
     }
 }
+
+/// A reader that closes its end early (`nimbus validate ... | head -1`) ends the command quietly
+/// (exit 0, no panic on stderr); a full disk on standard output is a one-line exit 3.
+#[test]
+fn a_closed_or_full_stdout_is_not_a_panic() {
+    let configs: Vec<String> = (0..2000)
+        .map(|_| root().join("samples/tiny.yaml").display().to_string())
+        .collect();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_nimbus"))
+        .arg("validate")
+        .args(&configs)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // read one line, then close the pipe while nimbus still has ~2000 lines to write
+    let mut first = String::new();
+    {
+        let out = child.stdout.take().unwrap();
+        std::io::BufRead::read_line(&mut std::io::BufReader::new(out), &mut first).unwrap();
+    }
+    let o = child.wait_with_output().unwrap();
+    assert!(first.contains(": ok ("), "{first}");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+
+    if let Ok(full) = std::fs::OpenOptions::new().write(true).open("/dev/full") {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_nimbus"))
+            .arg("validate")
+            .arg(root().join("samples/tiny.yaml"))
+            .stdout(full)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(3), "{err}");
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(
+            err.starts_with("error: writing to standard output"),
+            "{err}"
+        );
+    }
+}

@@ -150,11 +150,14 @@ pub fn run(cmd: FarmCommand) -> Result<()> {
             let plan = super::plan::FarmPlan::load(&farm_dir)?;
             let s = status::collect(&plan, &farm_dir);
             match log_format {
-                LogFormat::Json => println!(
+                LogFormat::Json => crate::outln!(
                     "{}",
                     serde_json::to_string(&s).map_err(|e| Error::Runtime(e.to_string()))?
                 ),
-                LogFormat::Human => print!("{}", status::render_text(&s)),
+                LogFormat::Human => {
+                    let text = status::render_text(&s);
+                    crate::outln!("{}", text.strip_suffix('\n').unwrap_or(&text))
+                }
             }
             match s.scheduler_error {
                 Some(e) => Err(Error::Runtime(e)),
@@ -164,7 +167,7 @@ pub fn run(cmd: FarmCommand) -> Result<()> {
         FarmCommand::Report { farm_dir } => {
             let r = super::report::report(&farm_dir)?;
             for w in &r.wedges {
-                println!(
+                crate::outln!(
                     "{}: {}/{} frames verified{}",
                     w.name,
                     w.frames_verified,
@@ -172,7 +175,7 @@ pub fn run(cmd: FarmCommand) -> Result<()> {
                     if w.complete { "" } else { " (incomplete)" }
                 );
             }
-            println!(
+            crate::outln!(
                 "report: {} (complete: {})",
                 farm_dir.join(super::plan::REPORT).display(),
                 r.complete
@@ -190,14 +193,14 @@ pub fn run(cmd: FarmCommand) -> Result<()> {
 }
 
 fn print_submitted(done: &Submitted, dry_run: bool) {
-    println!(
+    crate::outln!(
         "farm {}: shot '{}', {} wedge(s)",
         done.farm_dir.display(),
         done.plan.shot,
         done.plan.wedges.len()
     );
     for w in &done.plan.wedges {
-        println!("  {}  {}", w.name, w.label());
+        crate::outln!("  {}  {}", w.name, w.label());
     }
     if let Some(t) = &done.template {
         print_openjd(done, t);
@@ -205,17 +208,17 @@ fn print_submitted(done: &Submitted, dry_run: bool) {
     }
     for (name, line, id) in &done.jobs {
         match id {
-            Some(id) => println!("submitted {name}: job {id}"),
-            None => println!("{name}: {line}"),
+            Some(id) => crate::outln!("submitted {name}: job {id}"),
+            None => crate::outln!("{name}: {line}"),
         }
     }
     if dry_run {
-        println!(
+        crate::outln!(
             "dry run: nothing submitted; the plan is in {}",
             done.farm_dir.join(super::plan::PLAN).display()
         );
     } else {
-        println!(
+        crate::outln!(
             "follow it with: nimbus farm status {}",
             super::slurm::sh(&done.farm_dir.to_string_lossy())
         );
@@ -225,16 +228,16 @@ fn print_submitted(done: &Submitted, dry_run: bool) {
 fn print_openjd(done: &Submitted, template: &std::path::Path) {
     use super::slurm::sh;
     for (name, command, _) in &done.jobs {
-        println!("{name}: {command}");
+        crate::outln!("{name}: {command}");
     }
     let t = sh(&template.to_string_lossy());
-    println!(
+    crate::outln!(
         "wrote the Open Job Description template: {}",
         template.display()
     );
     match &done.local_run {
         Some(r) => {
-            println!(
+            crate::outln!(
                 "ran it here in {:.1} s: {} (log: {})",
                 r.seconds,
                 r.command
@@ -244,15 +247,15 @@ fn print_openjd(done: &Submitted, template: &std::path::Path) {
                     .join(" "),
                 r.log.display()
             );
-            println!(
+            crate::outln!(
                 "report: {}",
                 done.farm_dir.join(super::plan::REPORT).display()
             );
         }
         None => {
-            println!("check it: openjd check {t}");
-            println!("run it here: openjd run {t} --step Report --run-dependencies");
-            println!(
+            crate::outln!("check it: openjd check {t}");
+            crate::outln!("run it here: openjd run {t} --step Report --run-dependencies");
+            crate::outln!(
                 "submit it to AWS Deadline Cloud (a job bundle): deadline bundle submit {}",
                 sh(&template.parent().unwrap_or(template).to_string_lossy())
             );
