@@ -5,18 +5,19 @@
 //! wireframe. Each source has its own colour ([`super::PALETTE`], by index).
 //!
 //! Schedules: a source is drawn at full strength in a frame in which it acts (its
-//! `start`..`end` overlaps the frame's simulated time), its fill scaled by its ramp's envelope
-//! over the frame; in a frame in which it does not act it is drawn dimmed, outline or wires
-//! only, so its place is still visible. Footprints wrap across periodic faces as the heating
-//! does; wireframes are drawn where the centre is, unwrapped.
+//! `start`..`end` overlaps the frame's simulated time), its fill following its ramp's envelope
+//! over the frame from a dim floor up to full; in a frame in which it does not act it is drawn
+//! dimmed (the floor of the fill, faint outline or wires), so its place is still visible.
+//! Footprints wrap across periodic faces as the heating does; wireframes are drawn where the
+//! centre is, unwrapped.
 use super::{blend, draw_segment, edge, ground_hit, line_width, PALETTE};
 use crate::config::{Axis, HeatSource, ShotConfig, SourceShape};
 use crate::error::{Error, Result};
 use crate::preview::{LinearImage, PreviewParams, SKY_RGB};
 use glam::DVec3;
 
-/// Opacity of a footprint's fill at full strength, of its outline, and of a source drawn in a
-/// frame in which it does not act.
+/// Opacity of a footprint's fill at full strength, of its outline, and the fraction of either
+/// drawn for a source in a frame in which it does not act.
 const FILL_ALPHA: f64 = 0.55;
 const LINE_ALPHA: f64 = 0.95;
 const DIM: f64 = 0.35;
@@ -136,7 +137,7 @@ impl SourceOverlay {
         for (g, &k) in ground.iter().enumerate() {
             let color = PALETTE[k % PALETTE.len()];
             for (i, b) in bg.iter_mut().enumerate() {
-                let a = FILL_ALPHA * fill[g * n + i] * sched[k].1;
+                let a = FILL_ALPHA * fill[g * n + i] * (DIM + (1.0 - DIM) * sched[k].1);
                 if a > 0.0 {
                     *b = b.lerp(color, a);
                 }
@@ -299,5 +300,53 @@ fn wireframe(s: &HeatSource) -> Vec<(DVec3, DVec3)> {
             out
         }
         _ => Vec::new(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn overlay(sources: &str) -> SourceOverlay {
+        let cfg = crate::config::load_str(
+            &format!(
+                "shot: t\noutput: {{frames: {{start: 1, end: 9}}, frame_seconds: 5}}\n\
+                 domain: {{size: [800, 800, 800], spacing: 50}}\nphysics: {{sources: {sources}}}\n"
+            ),
+            "t.yaml",
+            &[],
+        )
+        .unwrap();
+        SourceOverlay::new(&cfg).unwrap()
+    }
+
+    #[test]
+    fn a_source_acts_in_the_frames_its_schedule_overlaps() {
+        let o = overlay(
+            "[{shape: disc, center: [400, 400], radius: 100, strength: 0.1, start: 10, end: 30, ramp: 5}]",
+        );
+        // frame 1 is the state after 0..5 s
+        assert_eq!(o.frame_span(1), (0.0, 5.0));
+        let at = |f: u32| o.schedule(f)[0];
+        assert_eq!(at(2), (false, 0.0), "5..10 s: not yet");
+        // 10..15 s: ramping in, full at its end
+        assert_eq!(at(3), (true, 1.0));
+        assert_eq!(at(6), (true, 1.0), "25..30 s: ramping out from full");
+        assert_eq!(at(7), (false, 0.0), "30..35 s: off");
+    }
+
+    #[test]
+    fn footprints_wrap_across_periodic_faces_and_turn_with_their_angle() {
+        let o = overlay(
+            "[{shape: disc, center: [20, 400], radius: 100, strength: 0.1},\
+              {shape: box, center: [400, 400], size: [200, 40], angle: 90, strength: 0.1}]",
+        );
+        // 40 m from the centre across the x faces (periodic by default)
+        let (q, f) = o.footprint(0, 780.0, 400.0);
+        assert!((q - 0.4).abs() < 1e-9 && f == 1.0, "{q} {f}");
+        assert!(o.footprint(0, 400.0, 400.0).0 > 1.0);
+        // the box turned by 90 degrees is long along z
+        assert!(o.footprint(1, 400.0, 480.0).0 < 1.0);
+        assert!(o.footprint(1, 480.0, 400.0).0 > 1.0);
     }
 }
