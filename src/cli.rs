@@ -62,10 +62,15 @@ pub enum Command {
     },
     /// Describe a .vdb, .exr or checkpoint file.
     Inspect { file: PathBuf },
-    /// (Re)render the preview images of a run from its VDB files.
+    /// (Re)render the preview images of a run from its VDB files, or a debug view of it.
     Preview {
         /// The run directory.
         out_dir: PathBuf,
+        /// volume: the run's previews (preview/); sources: with the heat sources drawn in;
+        /// target: with the control target as a ghost; particles: the particles coloured by
+        /// adaptive level. The debug views write to preview/VIEW/.
+        #[arg(long, value_enum, default_value = "volume")]
+        view: nimbus::pipeline::rerender::View,
         /// Camera/light overrides, e.g. `--set output.preview.sun_direction=[1,1,0]`.
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,

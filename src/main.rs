@@ -32,12 +32,9 @@ fn main() {
         Command::Inspect { file } => {
             nimbus::io::inspect::describe(&file).map(|text| nimbus::outln!("{text}"))
         }
-        Command::Preview { out_dir, set } => {
-            pipeline::rerender::rerender_run(&out_dir, &set).map(|written| {
-                nimbus::outln!(
-                    "{written} previews written to {}",
-                    out_dir.join("preview").display()
-                )
+        Command::Preview { out_dir, view, set } => {
+            pipeline::rerender::rerender_run(&out_dir, &set, view).map(|(written, dir)| {
+                nimbus::outln!("{written} previews written to {}", dir.display())
             })
         }
         Command::Export {

@@ -176,6 +176,26 @@ mod tests {
     }
 
     #[test]
+    fn source_overlay_is_output_only_and_absent_when_off() {
+        let src = "physics.sources=[{shape: disc, center: [50, 50], radius: 20, strength: 0.1}]";
+        let (a, b) = (
+            cfg(&[src]),
+            cfg(&[src, "output.preview.source_overlay=true"]),
+        );
+        assert_eq!(sim_hash(&a), sim_hash(&b));
+        assert_ne!(full_hash(&a), full_hash(&b));
+        // off, the key is not serialised: the hashes of shots from before it are unchanged
+        assert!(!canonical_string(&a).contains("source_overlay"));
+        assert!(canonical_string(&b).contains("\"source_overlay\":true"));
+    }
+
+    fn canonical_string(c: &ShotConfig) -> String {
+        let mut s = String::new();
+        canonical(&to_value(c), &mut s);
+        s
+    }
+
+    #[test]
     fn sim_keys_change_sim_hash_and_are_listed() {
         let a = cfg(&[]);
         for (set, key) in [

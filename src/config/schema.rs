@@ -120,6 +120,14 @@ pub struct PreviewConfig {
     /// Also encode the previews as an H.264 MP4 (`preview/<shot>.mp4`, needs ffmpeg).
     #[serde(default)]
     pub movie: bool,
+    /// Draw the heat sources' footprints (and wireframes in the air) into the previews
+    /// (`preview::overlay::sources`). Left out of the serialisation when off, so the hashes and
+    /// manifests of earlier shots are unchanged.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub source_overlay: bool,
+}
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 fn d_preview_res() -> [u32; 2] {
     [640, 360]
@@ -159,6 +167,7 @@ impl Default for PreviewConfig {
             density_mode: DensityMode::Auto,
             camera: None,
             movie: false,
+            source_overlay: false,
         }
     }
 }

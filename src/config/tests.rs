@@ -433,6 +433,8 @@ fn every_key_is_documented() {
         look_at: [1.0, 1.0, 1.0],
         fov_deg: 45.0,
     });
+    // serialised only when on
+    c.output.preview.source_overlay = true;
     let mut keys = Vec::new();
     leaves(&serde_json::to_value(&c).unwrap(), "", &mut keys);
     assert!(keys.len() > 60, "{keys:?}");

@@ -467,7 +467,7 @@ pub(crate) fn issues(c: &ShotConfig) -> Vec<Issue> {
         return k.issues; // the consistency checks below need values in range
     }
     check_names(&mut k, c);
-    check_output(&mut k, &c.output);
+    check_output(&mut k, &c.output, &c.physics.sources);
     check_domain(&mut k, c);
     check_solver(&mut k, &c.solver, c);
     check_physics(&mut k, &c.physics, c);
@@ -556,7 +556,13 @@ fn check_names(k: &mut Checks, c: &ShotConfig) {
     }
 }
 
-fn check_output(k: &mut Checks, o: &OutputConfig) {
+fn check_output(k: &mut Checks, o: &OutputConfig, sources: &[HeatSource]) {
+    if o.preview.source_overlay && sources.is_empty() {
+        k.fail(
+            &["output.preview.source_overlay"],
+            "the overlay draws physics.sources, and the shot has none".into(),
+        );
+    }
     if o.preview.movie && !o.preview.enabled {
         k.fail(
             &["output.preview.movie"],

@@ -1,6 +1,7 @@
 //! The frame loop Simulate (GPU) -> Splat (CPU) -> Write, checkpoint policy, progress, records.
 pub mod lock;
 pub mod naming;
+pub mod particle_view;
 pub mod progress;
 pub mod records;
 pub mod reexport;

@@ -44,6 +44,8 @@ pub struct FrameWriter {
     particle_mass: f64,
     splat: crate::splat::SplatParams,
     preview: Option<crate::preview::PreviewParams>,
+    /// `output.preview.source_overlay`: the sources drawn into the previews.
+    overlay: Option<crate::preview::overlay::sources::SourceOverlay>,
     rest_clock: RestClock,
     rest_codec: RestCodec,
 }
@@ -62,6 +64,11 @@ impl FrameWriter {
         } else {
             None
         };
+        let overlay = if preview.is_some() && cfg.output.preview.source_overlay {
+            Some(crate::preview::overlay::sources::SourceOverlay::new(cfg)?)
+        } else {
+            None
+        };
         Ok(Self {
             cfg: cfg.clone(),
             run_dir: run_dir.to_path_buf(),
@@ -76,6 +83,7 @@ impl FrameWriter {
             rest_codec: RestCodec::new(cfg.domain.size, splat.periodic),
             splat,
             preview,
+            overlay,
             rest_clock: RestClock::from_config(cfg),
         })
     }
@@ -157,13 +165,15 @@ impl FrameWriter {
         }
         if let (Some(params), Some(density)) = (&self.preview, &grids.density) {
             let t = Instant::now();
-            let png = crate::preview::write_frame_preview(
-                density,
-                params,
-                &self.run_dir,
-                &c.shot,
-                job.frame,
-                pad,
+            let mut img = crate::preview::render(density, params)?;
+            if let Some(overlay) = &self.overlay {
+                overlay.draw(&mut img, params, job.frame);
+            }
+            let png = crate::preview::write_image(
+                &img,
+                params.exposure,
+                &self.run_dir.join("preview"),
+                &crate::preview::frame_stem(&c.shot, job.frame, pad),
                 c.output.preview.exr,
             )?;
             files.push(file_record(&self.run_dir, &png)?);

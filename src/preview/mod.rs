@@ -20,6 +20,7 @@
 //! Everything is deterministic: rows are rendered in parallel, each pixel independently, and the
 //! start offset that hides banding is a hash of the pixel coordinates.
 pub mod movie;
+pub mod overlay;
 pub mod particles;
 pub mod sheet;
 mod volume;
@@ -531,13 +532,33 @@ pub fn write_frame_preview(
     exr: bool,
 ) -> Result<PathBuf> {
     let img = render(grid, params)?;
-    let dir = out_dir.join("preview");
-    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-    let stem = format!("{shot}.{frame:0width$}", width = padding as usize);
+    write_image(
+        &img,
+        params.exposure,
+        &out_dir.join("preview"),
+        &frame_stem(shot, frame, padding),
+        exr,
+    )
+}
+
+/// `<shot>.<frame>` with the frame zero-padded to `padding` digits: a preview's file stem.
+pub fn frame_stem(shot: &str, frame: u32, padding: u32) -> String {
+    format!("{shot}.{frame:0width$}", width = padding as usize)
+}
+
+/// Writes `img` to `<dir>/<stem>.png` (and `.exr` when `exr`), atomically; returns the PNG path.
+pub fn write_image(
+    img: &LinearImage,
+    exposure: f64,
+    dir: &Path,
+    stem: &str,
+    exr: bool,
+) -> Result<PathBuf> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let png = dir.join(format!("{stem}.png"));
-    crate::io::atomic::write_atomic(&png, &png_bytes(&img.to_srgb8(params.exposure))?)?;
+    crate::io::atomic::write_atomic(&png, &png_bytes(&img.to_srgb8(exposure))?)?;
     if exr {
-        write_exr(&dir.join(format!("{stem}.exr")), &img)?;
+        write_exr(&dir.join(format!("{stem}.exr")), img)?;
     }
     Ok(png)
 }

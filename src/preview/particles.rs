@@ -37,6 +37,36 @@ pub fn render_particles(
     color: ParticleColor,
     energy_max: f64,
 ) -> Result<LinearImage> {
+    draw(state, params, h0, color, energy_max, false)
+}
+
+/// [`render_particles`] coloured by level, a finer level drawn over a coarser one whatever their
+/// depths (the nearer of one level wins): the split particles inside a cloud show through the
+/// coarse ones around it (`nimbus preview --view particles`).
+pub fn render_levels(
+    state: &ParticleState,
+    params: &PreviewParams,
+    h0: f64,
+    max_level: u32,
+) -> Result<LinearImage> {
+    draw(
+        state,
+        params,
+        h0,
+        ParticleColor::Level { max_level },
+        1.0,
+        true,
+    )
+}
+
+fn draw(
+    state: &ParticleState,
+    params: &PreviewParams,
+    h0: f64,
+    color: ParticleColor,
+    energy_max: f64,
+    levels_in_front: bool,
+) -> Result<LinearImage> {
     params.validate()?;
     let (w, h) = (params.width, params.height);
     let c = &params.camera;
@@ -51,6 +81,8 @@ pub fn render_particles(
         })
         .collect();
     let mut depth = vec![f64::INFINITY; data.len()];
+    // the level of the particle drawn at each pixel (with `levels_in_front`)
+    let mut drawn = vec![0u32; data.len()];
     for j in 0..state.len() {
         let p = state.pos[j];
         let rel = Vec4::from(p).truncate().as_dvec3() - c.position;
@@ -93,8 +125,14 @@ pub fn render_particles(
                     continue;
                 }
                 let i = (y * w + x) as usize;
-                if z < depth[i] {
+                let wins = if levels_in_front && depth[i].is_finite() {
+                    level > drawn[i] || (level == drawn[i] && z < depth[i])
+                } else {
+                    z < depth[i]
+                };
+                if wins {
                     depth[i] = z;
+                    drawn[i] = level;
                     // Simple shading: darker towards the disc's rim.
                     let s = 1.0 - 0.4 * (dx * dx + dy * dy) / (rad * rad);
                     data[i] = (col * s).as_vec3().extend(1.0).to_array();
@@ -107,4 +145,29 @@ pub fn render_particles(
         height: h,
         data,
     })
+}
+
+/// A key to [`ParticleColor::Level`] at the top-right corner of an image: a swatch of each
+/// level's colour with its number, level 0 to `max_level` from left to right.
+pub fn draw_level_legend(img: &mut image::RgbImage, max_level: u32) {
+    let scale = (img.height() / 180).max(1);
+    let sw = 6 * scale;
+    let cell = sw + 5 * scale;
+    let n = max_level + 1;
+    let x0 = img.width().saturating_sub(n * cell + 2 * scale);
+    let y0 = 2 * scale;
+    for level in 0..n {
+        let x = x0 + level * cell;
+        let c = ramp(level as f64 / max_level.max(1) as f64);
+        let rgb = image::Rgb([c.x, c.y, c.z].map(|v| super::encode_srgb(v.clamp(0.0, 1.0))));
+        super::sheet::draw_number(img, x, y0, level, scale);
+        for dy in 0..sw {
+            for dx in 0..sw {
+                let (px, py) = (x + dx, y0 + 7 * scale + dy);
+                if px < img.width() && py < img.height() {
+                    img.put_pixel(px, py, rgb);
+                }
+            }
+        }
+    }
 }
