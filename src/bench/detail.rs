@@ -617,8 +617,9 @@ impl RestMatch<'_> {
 }
 
 /// The splat evaluated at any point, not only at voxel centres: the undetailed density
-/// sum_j V_j W(x - x_j) c_j and the Shepard displacement of both rest fields (over the wider
-/// `rest_smoothing` kernel), with the kernels and minimum image of `splat` (periodic x and z). The rest-frame correlation evaluates frame
+/// sum_j V_j W(x - x_j) c_j and the Shepard displacement of both rest fields (the particles'
+/// displacements smoothed over `rest_smoothing` x h first, `splat::rest_smooth`), with the
+/// kernels and minimum image of `splat` (periodic x and z). The rest-frame correlation evaluates frame
 /// f's detail exactly at the matched point with it instead of interpolating the 12.5 m grid
 /// between voxels (trilinear interpolation of a field with 40 m cells attenuates it by up to
 /// half between voxels, and only one side of each pair was interpolated).
@@ -634,9 +635,6 @@ struct PointSource {
     x: [f64; 3],
     h2: f64,
     c: f64,
-    /// The displacement kernel (`rest_smoothing` x h): squared radius and normalisation.
-    hd2: f64,
-    cd: f64,
     cloud: f64,
     disp: [[f64; 3]; 2],
 }
@@ -646,8 +644,14 @@ impl PointSplat {
     fn new(fr: &Frame, p: &SplatParams, codec: RestCodec) -> Self {
         let size = p.domain_size;
         let periodic = [p.periodic[0], false, p.periodic[1]];
-        let sm = p.rest_smoothing.max(1.0);
-        let cell = p.h0 * sm;
+        let cell = p.h0;
+        let input = crate::splat::RestInput {
+            rest: &fr.rest,
+            codec,
+            weights: [0.5; 2],
+            dual: true,
+        };
+        let smoothed = crate::splat::rest_smooth::smoothed_displacements(&fr.state, &input, p);
         let mut parts = Vec::new();
         let mut bins: std::collections::HashMap<[i64; 3], Vec<usize>> = Default::default();
         let rho_min = crate::splat::MIN_DENSITY_RATIO * p.rest_density;
@@ -671,14 +675,9 @@ impl PointSplat {
             let rho = (fr.state.density[j] as f64).max(rho_min);
             let rho = if rho.is_finite() { rho } else { rho_min };
             let c = m / rho * 315.0 / (64.0 * std::f64::consts::PI * h.powi(9));
-            let hd = h * sm;
-            let cd = m / rho * 315.0 / (64.0 * std::f64::consts::PI * hd.powi(9));
-            let q = fr.rest[j];
-            let xw = [pw[0] as f64, pw[1] as f64, pw[2] as f64];
-            let disp = [
-                codec.diff(xw, codec.decode([q[0], q[1], q[2]])),
-                codec.diff(xw, codec.decode([q[3], q[4], q[5]])),
-            ];
+            let Some(disp) = smoothed[j] else {
+                continue;
+            };
             bins.entry(x.map(|v| (v / cell).floor() as i64))
                 .or_default()
                 .push(parts.len());
@@ -686,8 +685,6 @@ impl PointSplat {
                 x,
                 h2: h * h,
                 c,
-                hd2: hd * hd,
-                cd,
                 cloud: fr.state.thermo[j][2] as f64 * p.cloud_scale,
                 disp,
             });
@@ -712,7 +709,7 @@ impl PointSplat {
         }
         let b = xx.map(|v| (v / self.cell).floor() as i64);
         let n = [0, 1, 2].map(|a| (self.size[a] / self.cell).ceil() as i64);
-        let (mut cov, mut dcov, mut dens) = (0.0, 0.0, 0.0);
+        let (mut cov, mut dens) = (0.0, 0.0);
         let mut d = [0.0f64; 6];
         for dx in -1..=1 {
             for dy in -1..=1 {
@@ -736,25 +733,21 @@ impl PointSplat {
                             }
                             r2 += e * e;
                         }
-                        if r2 < s.hd2 {
-                            let w = s.cd * (s.hd2 - r2).powi(3);
-                            dcov += w;
+                        if r2 < s.h2 {
+                            let w = s.c * (s.h2 - r2).powi(3);
+                            cov += w;
+                            dens += w * s.cloud;
                             for a in 0..3 {
                                 d[a] += w * s.disp[0][a];
                                 d[3 + a] += w * s.disp[1][a];
                             }
                         }
-                        if r2 < s.h2 {
-                            let w = s.c * (s.h2 - r2).powi(3);
-                            cov += w;
-                            dens += w * s.cloud;
-                        }
                     }
                 }
             }
         }
-        (cov > 0.0 && dcov > 0.0).then(|| {
-            let r = |k: usize| [0, 1, 2].map(|a| x[a] - d[k + a] / dcov);
+        (cov > 0.0).then(|| {
+            let r = |k: usize| [0, 1, 2].map(|a| x[a] - d[k + a] / cov);
             (dens, [r(0), r(3)])
         })
     }

@@ -3,11 +3,12 @@
 //! cloud moving through a fixed noise.
 //!
 //! Per voxel of the splat:
-//! - rest coordinate of field f: r_f = x - D_f, where D_f = sum_j V_j W (x_j - rest_j,f) /
-//!   sum_j V_j W is the Shepard-interpolated displacement since the reset (minimum image on
-//!   periodic axes), so r_f is continuous across the periodic faces; W is the poly6 kernel of
-//!   radius `rest_smoothing` x h_j (1.5 by default), wider than the density splat's, so that
-//!   the particles' shuffle at the particle scale averages out of the rest coordinate;
+//! - rest coordinate of field f: r_f = x - D_f, where D_f = sum_j V_j W (D~_j,f) / sum_j V_j W
+//!   is the Shepard interpolation, with the density kernel W, of the particles' displacements
+//!   since the reset D~_j,f, themselves first smoothed over the particles within
+//!   `rest_smoothing` x h (1.5 by default; `rest_smooth`), so that the particles' shuffle at
+//!   the particle scale averages out of the rest coordinate (minimum image on periodic axes, so
+//!   r_f is continuous across the periodic faces);
 //! - noise n = sin(t) N(r_A) + cos(t) N(r_B), t = (pi / 2) w_A, with the rest clock's triangle
 //!   weights (w_A + w_B = 1, linear in time): an equal-power cross-fade (the contrast stays the
 //!   same) that turns by the same angle every frame, pi / P, so two consecutive frames share

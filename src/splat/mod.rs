@@ -20,11 +20,12 @@
 //! therefore byte-identical whatever the number of threads.
 //!
 //! With the frame's rest positions (`splat_with_rest`, `sim::rest`): the `rest` grids are the
-//! voxel centres less the Shepard-interpolated displacement since each rest reset (active where
-//! `vel` is), and `export.detail` modulates the density by noise at that rest coordinate
+//! voxel centres less the displacement since each rest reset, first smoothed over the particles
+//! (`rest_smooth`) and then interpolated like `vel` (active where `vel` is), and `export.detail` modulates the density by noise at that rest coordinate
 //! (`detail`), renormalised to the undetailed total once per frame.
 pub mod detail;
 pub mod grid;
+pub mod rest_smooth;
 pub use detail::{DetailParams, RestInput};
 pub use grid::{GridTransform, Leaf, SparseGrid, LEAF_DIM, LEAF_VOXELS};
 
@@ -254,13 +255,9 @@ struct Source {
     vapor: f64,
     temp: f64,
     vel: [f64; 3],
-    /// Displacement since the rest reset of field A and B (minimum image), m.
-    disp: [[f64; 3]; 2],
-    /// The displacement kernel (`rest_smoothing` x h): radius in voxels, squared world radius,
-    /// V_j * poly6 normalisation.
-    rd: f64,
-    hd2: f64,
-    cd: f64,
+    /// Displacement since the rest reset of field A and B, smoothed over the particles
+    /// (`rest_smooth`), m.
+    disp: rest_smooth::Displacement,
 }
 
 fn leaf_of(i: f64) -> i32 {
@@ -318,6 +315,9 @@ pub fn splat_with_rest(
     // normalised field needs every particle.
     let all = f.temperature || f.velocity || rest.is_some();
     let rho_min = MIN_DENSITY_RATIO * params.rest_density;
+    let smoothed = rest
+        .as_ref()
+        .map(|r| rest_smooth::smoothed_displacements(state, r, params));
 
     let per_particle: Vec<Vec<Source>> = (0..n)
         .into_par_iter()
@@ -349,14 +349,6 @@ pub fn splat_with_rest(
             let vol = m / rho;
             let c = vol * 315.0 / (64.0 * std::f64::consts::PI * h.powi(9));
             let r = h / v;
-            let (hd, rd) = if rest.is_some() {
-                let hd = h * params.rest_smoothing.max(1.0);
-                (hd, hd / v)
-            } else {
-                (h, r)
-            };
-            let cd = vol * 315.0 / (64.0 * std::f64::consts::PI * hd.powi(9));
-            let reach_r = r.max(rd);
             let p = t.world_to_index(world);
             let vel = if need_vel {
                 let u = state.vel[j];
@@ -364,30 +356,23 @@ pub fn splat_with_rest(
             } else {
                 [0.0; 3]
             };
-            let disp = match &rest {
-                Some(r) => {
-                    let q = r.rest[j];
-                    let x = [pw[0] as f64, pw[1] as f64, pw[2] as f64];
-                    [
-                        r.codec.diff(x, r.codec.decode([q[0], q[1], q[2]])),
-                        r.codec.diff(x, r.codec.decode([q[3], q[4], q[5]])),
-                    ]
-                }
-                None => [[0.0; 3]; 2],
-            };
+            let disp = smoothed
+                .as_ref()
+                .and_then(|d| d[j])
+                .unwrap_or([[0.0; 3]; 2]);
             // Shifts (in voxels) of the images whose support meets the output range.
             let mut shifts: [Vec<f64>; 3] = Default::default();
             for a in 0..3 {
                 let ks: Vec<i64> = match period[a] {
                     Some(np) => {
-                        let m = (reach_r / np as f64).ceil() as i64 + 1;
+                        let m = (r / np as f64).ceil() as i64 + 1;
                         (-m..=m).map(|k| k * np).collect()
                     }
                     None => vec![0],
                 };
                 for s in ks {
                     let q = p[a] + s as f64;
-                    if q + reach_r > lo[a] as f64 && q - reach_r < hi[a] as f64 {
+                    if q + r > lo[a] as f64 && q - r < hi[a] as f64 {
                         shifts[a].push(s as f64);
                     }
                 }
@@ -408,9 +393,6 @@ pub fn splat_with_rest(
                             temp: th[0] as f64,
                             vel,
                             disp,
-                            rd,
-                            hd2: hd * hd,
-                            cd,
                         });
                     }
                 }
@@ -450,7 +432,7 @@ pub fn splat_with_rest(
         }
     }
     bin_start.push(sources.len());
-    let max_r = sources.iter().map(|s| s.r.max(s.rd)).fold(0.0f64, f64::max);
+    let max_r = sources.iter().map(|s| s.r).fold(0.0f64, f64::max);
     let reach = (max_r / LEAF_DIM as f64).ceil() as i32;
 
     let noise = match (&params.detail, &rest) {
@@ -589,12 +571,6 @@ impl LeafCtx<'_> {
         } else {
             Vec::new()
         };
-        // Weight sum of the displacement kernel.
-        let mut dcov = if self.rest {
-            vec![0.0f64; LEAF_VOXELS]
-        } else {
-            Vec::new()
-        };
         // Voxels of this leaf inside the output range.
         let vlo = [0, 1, 2].map(|a| (o[a] as i64).max(self.lo[a]));
         let vhi = [0, 1, 2].map(|a| (o[a] as i64 + 7).min(self.hi[a]));
@@ -608,14 +584,8 @@ impl LeafCtx<'_> {
                         continue;
                     };
                     for s in &self.sources[self.bin_start[b]..self.bin_start[b + 1]] {
-                        // the wider of the two kernels (the displacement's only with rest)
-                        let (sr, sh2) = if self.rest {
-                            (s.r.max(s.rd), s.h2.max(s.hd2))
-                        } else {
-                            (s.r, s.h2)
-                        };
-                        let a = [0, 1, 2].map(|k| ((s.p[k] - sr).ceil() as i64).max(vlo[k]));
-                        let e = [0, 1, 2].map(|k| ((s.p[k] + sr).floor() as i64).min(vhi[k]));
+                        let a = [0, 1, 2].map(|k| ((s.p[k] - s.r).ceil() as i64).max(vlo[k]));
+                        let e = [0, 1, 2].map(|k| ((s.p[k] + s.r).floor() as i64).min(vhi[k]));
                         if a[0] > e[0] || a[1] > e[1] || a[2] > e[2] {
                             continue;
                         }
@@ -623,30 +593,24 @@ impl LeafCtx<'_> {
                             let ddx = (x as f64 - s.p[0]) * (x as f64 - s.p[0]) * v2;
                             for y in a[1]..=e[1] {
                                 let ddy = ddx + (y as f64 - s.p[1]) * (y as f64 - s.p[1]) * v2;
-                                if ddy >= sh2 {
+                                if ddy >= s.h2 {
                                     continue;
                                 }
                                 for z in a[2]..=e[2] {
                                     let r2 = ddy + (z as f64 - s.p[2]) * (z as f64 - s.p[2]) * v2;
-                                    if r2 >= sh2 {
+                                    if r2 >= s.h2 {
                                         continue;
                                     }
                                     let n = Leaf::<f32>::offset(x as i32, y as i32, z as i32);
-                                    if self.rest && r2 < s.hd2 {
-                                        let d = s.hd2 - r2;
-                                        let w = s.cd * d * d * d;
-                                        dcov[n] += w;
+                                    let d = s.h2 - r2;
+                                    let w = s.c * d * d * d;
+                                    if self.rest {
                                         let dn = &mut dnum[n];
                                         for a in 0..3 {
                                             dn[a] += w * s.disp[0][a];
                                             dn[3 + a] += w * s.disp[1][a];
                                         }
                                     }
-                                    if r2 >= s.h2 {
-                                        continue;
-                                    }
-                                    let d = s.h2 - r2;
-                                    let w = s.c * d * d * d;
                                     cov[n] += w;
                                     dens[n] += w * s.cloud;
                                     vap[n] += w * s.vapor;
@@ -677,7 +641,7 @@ impl LeafCtx<'_> {
         };
         let rest_of = |n: usize| {
             let x = centre(n);
-            let c = dcov[n];
+            let c = cov[n];
             let d = &dnum[n];
             let r = |k: usize| [0, 1, 2].map(|a| if c > 0.0 { x[a] - d[k + a] / c } else { x[a] });
             (x, [r(0), r(3)])
