@@ -478,3 +478,49 @@ fn bad_vdb_targets_are_refused_with_their_key_and_nothing_is_written() {
         assert!(o.status.success(), "{}", text(&o));
     }
 }
+
+/// A run with a VDB target measures `target_iou` each frame; its resolved config (what the
+/// manifest holds) pins the VDB's SHA-256 and refuses a changed file.
+#[test]
+fn a_run_with_a_vdb_target_pins_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::copy(fixture("sphere_ls.vdb"), d.join("t.vdb")).unwrap();
+    let cfg = d.join("vt.yaml");
+    std::fs::write(
+        &cfg,
+        format!("{DOMAIN}control:\n  target: {{vdb: t.vdb, scale: [2], voxel_size: 5}}\n"),
+    )
+    .unwrap();
+    let out = d.join("run");
+    let o = nimbus()
+        .arg("run")
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&out)
+        .env("XDG_RUNTIME_DIR", "/tmp/nimbus-xdg")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let stats = stats_without_timings(&out);
+    assert_eq!(stats.len(), 2);
+    for s in &stats {
+        let iou = s["diagnostics"]["target_iou"].as_f64();
+        assert!(iou.is_some_and(|x| (0.0..=1.0).contains(&x)), "{s}");
+    }
+    let loaded = nimbus::config::load(&cfg, &[]).unwrap();
+    let sha = nimbus::io::heat_map::file_sha256(&d.join("t.vdb")).unwrap();
+    let t = loaded.control.target.as_ref().unwrap();
+    assert_eq!(t.vdb_sha256.as_deref(), Some(sha.as_str()));
+    assert!(Path::new(t.vdb.as_deref().unwrap()).is_absolute());
+    let resolved = serde_json::to_string(&loaded).unwrap();
+    assert!(nimbus::config::load_str(&resolved, "manifest.json", &[]).is_ok());
+    std::fs::copy(fixture("sphere_fog.vdb"), d.join("t.vdb")).unwrap();
+    let e = nimbus::config::load_str(&resolved, "manifest.json", &[])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("control.target.vdb") && e.contains("has changed"),
+        "{e}"
+    );
+}
