@@ -81,7 +81,14 @@ fn bad_targets_are_refused_with_their_key_and_nothing_is_written() {
             2,
             "mesh",
             "control.target.mesh",
-            "only Wavefront OBJ meshes",
+            "a VDB volume is given as control.target.vdb, not as a mesh",
+        ),
+        (
+            "control:\n  target: {mesh: cloud.ply}\n",
+            2,
+            "mesh",
+            "control.target.mesh",
+            "only Wavefront OBJ meshes (.obj) are read as target meshes",
         ),
         (
             "control:\n  target: {mesh: cube.obj, scale: [300, 300]}\n",

@@ -303,13 +303,42 @@ fn check_wind(out: &mut Out, w: &WindConfig, c: &ShotConfig) {
     }
 }
 
-/// `control.target`: the scale's form, the voxel grid's size, the mesh (read, closed, SHA-256)
-/// and where it lands (inside the domain, covering at least one voxel).
+/// `control.target`: the scale's form, the voxel grid's size, the shape (a mesh read, closed
+/// and pinned by SHA-256, or a VDB read, pinned, its grid found and holding an inside) and where
+/// it lands (inside the domain, covering at least one voxel).
 pub(crate) fn target_issues(c: &ShotConfig) -> Vec<Issue> {
     let mut out = Out(Vec::new());
     let Some(t) = &c.control.target else {
         return out.0;
     };
+    match (&t.mesh, &t.vdb) {
+        (Some(_), Some(_)) => {
+            out.fail(
+                &["control.target.vdb", "control.target.mesh"],
+                "give the target as either mesh (OBJ) or vdb, not both".into(),
+            );
+            return out.0;
+        }
+        (None, None) => {
+            out.fail(
+                &["control.target"],
+                "the target needs a shape: mesh (a closed OBJ mesh) or vdb (a fog volume or level set)".into(),
+            );
+            return out.0;
+        }
+        (Some(_), None) => {
+            for (key, given) in [
+                ("control.target.grid", t.grid.is_some()),
+                ("control.target.iso", t.iso.is_some()),
+            ] {
+                if given {
+                    out.fail(&[key], "applies to a vdb target only, not to a mesh".into());
+                    return out.0;
+                }
+            }
+        }
+        (None, Some(_)) => {}
+    }
     if !matches!(t.scale.len(), 1 | 3) {
         out.fail(
             &["control.target.scale"],
@@ -335,31 +364,46 @@ pub(crate) fn target_issues(c: &ShotConfig) -> Vec<Issue> {
         );
         return out.0;
     }
-    let mesh = match crate::sim::control::load_mesh(t) {
-        Ok(m) => m,
-        Err(why) => {
-            out.fail(&["control.target.mesh"], why);
+    let (shape_key, bounds, inside) = match crate::sim::target_volume::load(t) {
+        Some(Err(e)) => {
+            out.fail(e.keys, e.msg);
             return out.0;
         }
+        Some(Ok(vdb)) => (
+            "control.target.vdb",
+            vdb.placed_bounds(t),
+            vdb.voxelize(t, &grid),
+        ),
+        None => {
+            let mesh = match crate::sim::control::load_mesh(t) {
+                Ok(m) => m,
+                Err(why) => {
+                    out.fail(&["control.target.mesh"], why);
+                    return out.0;
+                }
+            };
+            // the voxelisation tests every triangle against every column
+            let work = (grid.columns() as u64).saturating_mul(mesh.triangles.len() as u64);
+            if work > MAX_TARGET_WORK {
+                out.fail(
+                    &["control.target.voxel_size", "control.target.mesh"],
+                    format!(
+                        "{} triangles over {} x {} columns of voxels is too much to voxelise ({} tests; at most {}): use larger voxels or a coarser mesh",
+                        mesh.triangles.len(),
+                        grid.n[0],
+                        grid.n[2],
+                        work,
+                        MAX_TARGET_WORK
+                    ),
+                );
+                return out.0;
+            }
+            let placed = crate::sim::control::place(&mesh, t);
+            let inside = crate::sim::control::voxelize(&placed, &grid);
+            ("control.target.mesh", placed.bounds(), inside)
+        }
     };
-    // the voxelisation tests every triangle against every column
-    let work = (grid.columns() as u64).saturating_mul(mesh.triangles.len() as u64);
-    if work > MAX_TARGET_WORK {
-        out.fail(
-            &["control.target.voxel_size", "control.target.mesh"],
-            format!(
-                "{} triangles over {} x {} columns of voxels is too much to voxelise ({} tests; at most {}): use larger voxels or a coarser mesh",
-                mesh.triangles.len(),
-                grid.n[0],
-                grid.n[2],
-                work,
-                MAX_TARGET_WORK
-            ),
-        );
-        return out.0;
-    }
-    let placed = crate::sim::control::place(&mesh, t);
-    let (lo, hi) = placed.bounds();
+    let (lo, hi) = bounds;
     let size = c.domain.size;
     for (a, axis) in ["x", "y", "z"].iter().enumerate() {
         if lo[a] < 0.0 || hi[a] > size[a] {
@@ -367,7 +411,7 @@ pub(crate) fn target_issues(c: &ShotConfig) -> Vec<Issue> {
                 &[
                     "control.target.translate",
                     "control.target.scale",
-                    "control.target.mesh",
+                    shape_key,
                 ],
                 format!(
                     "the placed target spans {axis} [{}, {}] m, outside the domain [0, {}] (check translate, scale and rotate_y)",
@@ -379,10 +423,9 @@ pub(crate) fn target_issues(c: &ShotConfig) -> Vec<Issue> {
             return out.0;
         }
     }
-    let target = crate::sim::control::Target::new(c, t, &mesh);
-    if !target.inside.iter().any(|x| *x) {
+    if !inside.iter().any(|x| *x) {
         out.fail(
-            &["control.target.scale", "control.target.mesh"],
+            &["control.target.scale", shape_key],
             format!(
                 "the placed target holds no voxel centre of the controller's {} m voxels (scale it up or set a smaller voxel_size)",
                 num(crate::sim::control::voxel_size(c, t))

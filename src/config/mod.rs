@@ -11,6 +11,7 @@ mod validate;
 
 pub use art::{MAP_ASPECT_TOLERANCE, MAX_WIND_LEVELS};
 pub use hash::{full_hash, sim_hash, sim_key_diff, NON_SIM_KEYS};
+pub use node::fmt_float;
 pub use schema::*;
 pub use validate::{
     float_values, lattice_count, FloatRange, FLOAT_RANGES, MAX_CAPACITY, MAX_FRAME, MAX_LEVEL,
@@ -182,8 +183,10 @@ fn normalise(cfg: &mut ShotConfig) {
         }
     }
     if let Some(t) = &mut cfg.control.target {
-        if t.mesh_sha256.is_none() {
-            t.mesh_sha256 = crate::io::heat_map::file_sha256(Path::new(&t.mesh)).ok();
+        for (path, sha) in [(&t.mesh, &mut t.mesh_sha256), (&t.vdb, &mut t.vdb_sha256)] {
+            if let (Some(path), true) = (path, sha.is_none()) {
+                *sha = crate::io::heat_map::file_sha256(Path::new(path)).ok();
+            }
         }
     }
 }
@@ -203,13 +206,15 @@ fn resolve_paths(cfg: &mut ShotConfig, base: Option<&Path>) {
         }
     }
     if let Some(t) = &mut cfg.control.target {
-        let p = Path::new(&t.mesh);
-        let joined = match base {
-            Some(b) if p.is_relative() => b.join(p),
-            _ => p.to_path_buf(),
-        };
-        if let Ok(abs) = std::path::absolute(&joined) {
-            t.mesh = abs.to_string_lossy().into_owned();
+        for path in [&mut t.mesh, &mut t.vdb].into_iter().flatten() {
+            let p = Path::new(path.as_str());
+            let joined = match base {
+                Some(b) if p.is_relative() => b.join(p),
+                _ => p.to_path_buf(),
+            };
+            if let Ok(abs) = std::path::absolute(&joined) {
+                *path = abs.to_string_lossy().into_owned();
+            }
         }
     }
 }

@@ -82,7 +82,7 @@ impl Val {
 }
 
 /// YAML spelling of a float (`.nan`, `.inf`), else Rust's shortest round-trip form.
-pub(crate) fn fmt_float(f: f64) -> String {
+pub fn fmt_float(f: f64) -> String {
     if f.is_nan() {
         ".nan".into()
     } else if f.is_infinite() {

@@ -956,9 +956,9 @@ impl ControlConfig {
     }
 }
 
-/// A closed OBJ mesh the cloud is steered to fill (after Dobashi et al. 2008): per ground
-/// column the cloud top is compared with the target's top and the heat and vapor supply of
-/// that column follows the gap (`sim::control`).
+/// A target volume the cloud is steered to fill (after Dobashi et al. 2008), a closed OBJ mesh
+/// or a VDB fog volume or level set: per ground column the cloud top is compared with the
+/// target's top and the heat and vapor supply of that column follows the gap (`sim::control`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TargetConfig {
@@ -966,12 +966,29 @@ pub struct TargetConfig {
     #[serde(default = "d_true")]
     pub enabled: bool,
     /// Closed triangle or polygon mesh (Wavefront OBJ); a relative path is resolved against
-    /// the config file's directory when the config is loaded.
-    pub mesh: String,
+    /// the config file's directory when the config is loaded. Exactly one of `mesh` and `vdb`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<String>,
     /// SHA-256 of `mesh`, filled in when the config is loaded; a value given must match.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mesh_sha256: Option<String>,
-    /// Scale of the mesh's own coordinates: one value (uniform) or three (x, y, z).
+    /// OpenVDB file holding a float fog volume or level set (`sim::target_volume`); resolved
+    /// like `mesh`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vdb: Option<String>,
+    /// SHA-256 of `vdb`, filled in when the config is loaded; a value given must match.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vdb_sha256: Option<String>,
+    /// The grid of `vdb` to use; `None` = the first float grid of class fog volume or level
+    /// set, else the float grid named `density`, else the only float grid.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grid: Option<String>,
+    /// Where the grid's value makes the inside: below `iso` for a level set (default 0), above
+    /// it for any other class (default 0.01).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub iso: Option<f64>,
+    /// Scale of the target's own coordinates (the mesh's, or the VDB's world coordinates):
+    /// one value (uniform) or three (x, y, z).
     #[serde(default = "d_unit_scale")]
     pub scale: Vec<f64>,
     /// Rotation about the vertical axis (degrees, from +x towards +z), after the scale.

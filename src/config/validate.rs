@@ -153,6 +153,7 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("control.target.margin", 0.0, 1.0e5),
     closed("control.target.pull", 0.0, 100.0),
     closed("control.target.reach", 0.0, 1.0e5),
+    closed("control.target.iso", -1.0e6, 1.0e6),
 ];
 
 impl FloatRange {
@@ -347,6 +348,7 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         for (key, x) in [
             ("control.target.voxel_size", t.voxel_size),
             ("control.target.supply_height", t.supply_height),
+            ("control.target.iso", t.iso),
         ] {
             if let Some(x) = x {
                 v.push((key.to_string(), key, x));
@@ -473,7 +475,7 @@ pub(crate) fn issues(c: &ShotConfig) -> Vec<Issue> {
     check_physics(&mut k, &c.physics, c);
     check_adaptive(&mut k, &c.adaptive, c);
     check_export(&mut k, &c.export, &c.domain);
-    // control.target: its mesh read, closed and placed in the domain (config::art)
+    // control.target: its mesh or VDB read and placed in the domain (config::art)
     k.issues.extend(super::art::target_issues(c));
     if c.gpu.adapter.trim().is_empty() {
         k.fail(

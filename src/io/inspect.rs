@@ -111,6 +111,22 @@ fn describe_vdb(path: &Path) -> Result<String> {
                 "|value|",
             ),
         }
+        if !g.tiles.is_empty() {
+            let active: Vec<_> = g.tiles.iter().filter(|t| t.active).collect();
+            let _ = writeln!(
+                out,
+                "  tiles: {} ({} active, {} active voxels in them)",
+                g.tiles.len(),
+                active.len(),
+                active.iter().map(|t| t.voxels()).sum::<u64>()
+            );
+        }
+    }
+    for (name, ty) in &f.skipped {
+        let _ = writeln!(
+            out,
+            "grid '{name}': {ty} (not read: nimbus reads float and vec3s grids)"
+        );
     }
     Ok(out)
 }

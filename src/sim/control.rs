@@ -1,9 +1,11 @@
 //! Target-shape control (`control.target`), a feedback controller after Dobashi et al. 2008.
 //!
-//! On the host, once: the OBJ mesh ([`crate::io::obj`]) is placed in the domain (scale, then
-//! rotation about y, then translation) and voxelised on a coarse grid tiling the domain (cells of
-//! about `voxel_size`, default the kernel radius): a voxel is inside when its centre is, by the
-//! parity of the crossings of a vertical ray through its column. Per ground column this gives
+//! On the host, once: the target is placed in the domain (scale, then rotation about y, then
+//! translation) and voxelised on a coarse grid tiling the domain (cells of about `voxel_size`,
+//! default the kernel radius): a voxel is inside when its centre is. For an OBJ mesh
+//! ([`crate::io::obj`]) by the parity of the crossings of a vertical ray through its column; for
+//! a VDB fog volume or level set ([`crate::sim::target_volume`]) by the grid's value there. From
+//! the voxels on, both are the same. Per ground column this gives
 //! the target's top, and the footprint gives a mask that keeps the other heating (noise,
 //! sources) at full strength within `margin` of the footprint and fades it to 0 over the next
 //! `margin` (condensation supply suppressed far outside the target).
@@ -81,19 +83,10 @@ pub fn voxel_size(cfg: &ShotConfig, t: &TargetConfig) -> f64 {
 /// The mesh's vertices placed in the domain: scaled, turned about y (from +x towards +z),
 /// translated.
 pub fn place(mesh: &Mesh, t: &TargetConfig) -> Mesh {
-    let s = t.scale3();
-    let (sin, cos) = t.rotate_y.to_radians().sin_cos();
     let vertices = mesh
         .vertices
         .iter()
-        .map(|v| {
-            let (x, y, z) = (v[0] * s[0], v[1] * s[1], v[2] * s[2]);
-            [
-                cos * x - sin * z + t.translate[0],
-                y + t.translate[1],
-                sin * x + cos * z + t.translate[2],
-            ]
-        })
+        .map(|v| crate::sim::target_volume::place_point(*v, t))
         .collect();
     Mesh {
         vertices,
@@ -192,12 +185,20 @@ pub struct Target {
 }
 
 impl Target {
-    /// The shot's target, or `None` without `control.target`; the mesh is read again here (a
-    /// file that changed or vanished since validation is an input error).
+    /// The shot's target, or `None` without `control.target`; the mesh or VDB is read again
+    /// here (a file that changed or vanished since validation is an input error).
     pub fn load(cfg: &ShotConfig) -> crate::Result<Option<Self>> {
         let Some(t) = &cfg.control.target else {
             return Ok(None);
         };
+        if let Some(vdb) = crate::sim::target_volume::load(t) {
+            let vdb = vdb.map_err(|e| {
+                crate::Error::InvalidInput(format!("control.target.vdb: {}", e.msg))
+            })?;
+            let grid = VoxelGrid::for_target(cfg, t);
+            let inside = vdb.voxelize(t, &grid);
+            return Ok(Some(Self::from_inside(cfg, t, grid, inside)));
+        }
         let mesh = load_mesh(t)
             .map_err(|why| crate::Error::InvalidInput(format!("control.target.mesh: {why}")))?;
         Ok(Some(Self::new(cfg, t, &mesh)))
@@ -207,6 +208,16 @@ impl Target {
     pub fn new(cfg: &ShotConfig, t: &TargetConfig, mesh: &Mesh) -> Self {
         let grid = VoxelGrid::for_target(cfg, t);
         let inside = voxelize(&place(mesh, t), &grid);
+        Self::from_inside(cfg, t, grid, inside)
+    }
+
+    /// The target of the voxels `inside` of `grid` (index [`VoxelGrid::index`]).
+    pub fn from_inside(
+        cfg: &ShotConfig,
+        t: &TargetConfig,
+        grid: VoxelGrid,
+        inside: Vec<bool>,
+    ) -> Self {
         let cols = grid.columns();
         let mut top = vec![0.0; cols];
         for (v, _) in inside.iter().enumerate().filter(|(_, x)| **x) {
@@ -279,26 +290,33 @@ impl Target {
 }
 
 /// Reads a target's mesh and checks that it is closed (the error is one line, without the key).
+/// (A target without `mesh` is a VDB: [`crate::sim::target_volume::load`].)
 pub fn load_mesh(t: &TargetConfig) -> Result<Mesh, String> {
-    let path = std::path::Path::new(&t.mesh);
+    let Some(name) = t.mesh.as_deref() else {
+        return Err("control.target has no mesh".into());
+    };
+    let path = std::path::Path::new(name);
     let ext = path
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase());
-    if ext.as_deref() != Some("obj") {
+    if ext.as_deref() == Some("vdb") {
         return Err(format!(
-            "{}: only Wavefront OBJ meshes (.obj) are supported as targets",
-            t.mesh
+            "{name}: a VDB volume is given as control.target.vdb, not as a mesh"
         ));
     }
-    let mesh = crate::io::obj::read(path).map_err(|why| format!("{}: {why}", t.mesh))?;
+    if ext.as_deref() != Some("obj") {
+        return Err(format!(
+            "{name}: only Wavefront OBJ meshes (.obj) are read as target meshes (VDB volumes: control.target.vdb)"
+        ));
+    }
+    let mesh = crate::io::obj::read(path).map_err(|why| format!("{name}: {why}"))?;
     mesh.check_closed()
-        .map_err(|why| format!("{}: {why}", t.mesh))?;
+        .map_err(|why| format!("{name}: {why}"))?;
     if let Some(sha) = &t.mesh_sha256 {
         let now = crate::io::heat_map::file_sha256(path)?;
         if *sha != now {
             return Err(format!(
-                "{} has changed since this config was resolved (SHA-256 {now}, recorded {sha}); restore the mesh or start a new run",
-                t.mesh
+                "{name} has changed since this config was resolved (SHA-256 {now}, recorded {sha}); restore the mesh or start a new run"
             ));
         }
     }

@@ -29,6 +29,7 @@ mod simulation;
 pub mod smoothing;
 pub mod sources;
 mod step;
+pub mod target_volume;
 pub mod thermo;
 pub mod wind;
 

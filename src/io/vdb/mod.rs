@@ -1,7 +1,10 @@
-//! OpenVDB files (format 224, as OpenVDB 10 writes them): the writer, and a reader for the
-//! subset nimbus writes. Layout notes: `docs/ARCHITECTURE.md` and the comments in `write.rs`.
+//! OpenVDB files (format 224, as OpenVDB 10 writes them): the writer, a reader for float and
+//! vec3s grids of formats 222-225 (tiles included), and [`volume::Volume`], a float grid read
+//! back as a function of index space (the VDB targets of `control.target.vdb`). Layout notes:
+//! `docs/ARCHITECTURE.md` and the comments in `write.rs` and `read.rs`.
 pub mod blosc;
 pub mod read;
+pub mod volume;
 pub mod write;
 
 pub use crate::config::Compression;
@@ -17,6 +20,7 @@ pub const LIBRARY_VERSION: (u32, u32) = (10, 0);
 pub const MAGIC: i64 = 0x5644_4220;
 /// OpenVDB `GridBase::gridClassToString` names.
 pub const CLASS_FOG_VOLUME: &str = "fog volume";
+pub const CLASS_LEVEL_SET: &str = "level set";
 pub const CLASS_UNKNOWN: &str = "unknown";
 
 /// Stream compression flags (OpenVDB `io::COMPRESS_*`).

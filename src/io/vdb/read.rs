@@ -1,20 +1,44 @@
-//! Reader for the OpenVDB subset nimbus writes: format 224, `Tree_float_5_4_3` and
-//! `Tree_vec3s_5_4_3` (optionally `_HalfFloat`), uniform-scale transforms, no active tiles,
-//! any of none / zip / blosc with or without the active mask, grid instances. Anything else, or
-//! a damaged file, is an `Error::InvalidInput` naming the problem, never a panic.
+//! Reader for OpenVDB files of formats 222-225 (OpenVDB 3 to 13: the same layout for the grids
+//! read here): `Tree_float_5_4_3` and `Tree_vec3s_5_4_3` (optionally `_HalfFloat`) with
+//! uniform-scale transforms, tiles (active or not) in the root and internal nodes, any of none /
+//! zip / blosc with or without the active mask, grid instances. Grids of other types (double,
+//! int, bool, points, ...) are skipped and listed in [`ReadFile::skipped`]. Layout as OpenVDB's
+//! `RootNode::readTopology`, `InternalNode::readTopology`, `LeafNode::readBuffers` and
+//! `io::readCompressedValues`. Anything else, or a damaged file, is an `Error::InvalidInput`
+//! naming the problem, never a panic.
 use super::write::VdbValue;
 use super::{
-    blosc, GridData, MetaValue, COMPRESS_ACTIVE_MASK, COMPRESS_BLOSC, COMPRESS_ZIP, FILE_VERSION,
-    MAGIC,
+    blosc, GridData, MetaValue, COMPRESS_ACTIVE_MASK, COMPRESS_BLOSC, COMPRESS_ZIP, MAGIC,
 };
 use crate::error::{Error, Result};
 use crate::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use std::io::Read;
 use std::path::Path;
 
+/// File format versions read: 222 (per-grid compression, node-mask compression) to 225
+/// (OpenVDB 13, which only adds half grids, a type skipped here).
+pub const READ_VERSIONS: std::ops::RangeInclusive<u32> = 222..=225;
+
+/// A tile of the root (edge 4096 voxels) or of an internal node (edge 128 or 8): one value for
+/// the whole cube of voxels from `origin`. For vector grids `value` is the vector's length.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tile {
+    pub origin: [i32; 3],
+    pub edge: u32,
+    pub value: f32,
+    pub active: bool,
+}
+
+impl Tile {
+    pub fn voxels(&self) -> u64 {
+        (self.edge as u64).pow(3)
+    }
+}
+
 /// A grid as read back.
 #[derive(Debug, Clone)]
 pub struct ReadGrid {
+    /// The grid's name (OpenVDB's unique-name suffix `\x1e N` stripped).
     pub name: String,
     /// Type name as in the file (with `_HalfFloat` when stored as half).
     pub type_name: String,
@@ -24,7 +48,14 @@ pub struct ReadGrid {
     /// Stream compression flags (`COMPRESS_*`).
     pub compression: u32,
     pub metadata: Vec<(String, MetaValue)>,
+    /// The leaves' active voxels (inactive ones hold the background: the `SparseGrid` contract).
     pub data: GridData,
+    /// Tiles that are active or hold a value other than the background (a level set's inside),
+    /// in file order.
+    pub tiles: Vec<Tile>,
+    /// Float grids: the leaves (with every value) whose inactive voxels hold values other than
+    /// the background, as a level set's narrow band does inside (the sign of the distance).
+    pub inactive_leaves: Vec<Leaf<f32>>,
 }
 
 impl ReadGrid {
@@ -37,6 +68,26 @@ impl ReadGrid {
             GridData::Vec3(g) => g.transform,
         }
     }
+    /// The `class` metadata ("fog volume", "level set", ...), "unknown" when absent.
+    pub fn class(&self) -> String {
+        self.meta("class")
+            .map(|v| v.to_string())
+            .unwrap_or_else(|| "unknown".into())
+    }
+    /// Active voxels in leaves and in active tiles.
+    pub fn active_voxel_count(&self) -> u64 {
+        let leaves = match &self.data {
+            GridData::Float(g) => g.active_voxel_count(),
+            GridData::Vec3(g) => g.active_voxel_count(),
+        };
+        leaves
+            + self
+                .tiles
+                .iter()
+                .filter(|t| t.active)
+                .map(Tile::voxels)
+                .sum::<u64>()
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -46,6 +97,8 @@ pub struct ReadFile {
     pub uuid: String,
     pub metadata: Vec<(String, MetaValue)>,
     pub grids: Vec<ReadGrid>,
+    /// Grids of types this reader does not read: (name, type name as in the file).
+    pub skipped: Vec<(String, String)>,
 }
 
 impl ReadFile {
@@ -287,26 +340,86 @@ fn read_values<T: VdbValue>(
     Ok(out)
 }
 
-fn read_tree<T: VdbValue>(
-    c: &mut Cur,
-    flags: u32,
-    half: bool,
-    name: &str,
-) -> Result<SparseGrid<T>> {
+/// What a tree holds: its active leaf voxels, its tiles that matter, and the leaves whose
+/// inactive voxels hold values other than the background.
+struct Tree<T> {
+    grid: SparseGrid<T>,
+    tiles: Vec<Tile>,
+    inactive_leaves: Vec<Leaf<T>>,
+}
+
+/// A value as one number: itself, or a vector's length.
+fn scalar<T: VdbValue>(v: &T) -> f32 {
+    if T::COMPS == 1 {
+        v.comps()[0]
+    } else {
+        v.comps().iter().map(|c| c * c).sum::<f32>().sqrt()
+    }
+}
+
+/// The tiles of an internal node's value table worth keeping: active, or not the background.
+/// `edge` is the child's edge in voxels and `log2` the node's own log2 dimension.
+fn node_tiles<T: VdbValue>(
+    origin: [i32; 3],
+    log2: u32,
+    edge: u32,
+    values: &[T],
+    child: &[u64],
+    value: &[u64],
+    background: T,
+) -> Vec<Tile> {
+    let mut out = Vec::new();
+    let dim = 1usize << log2;
+    for (n, v) in values.iter().enumerate() {
+        if bit(child, n) {
+            continue;
+        }
+        let active = bit(value, n);
+        if !active && *v == background {
+            continue;
+        }
+        let (x, y, z) = (n >> (2 * log2), (n >> log2) & (dim - 1), n & (dim - 1));
+        let o = [
+            origin[0] + (x as u32 * edge) as i32,
+            origin[1] + (y as u32 * edge) as i32,
+            origin[2] + (z as u32 * edge) as i32,
+        ];
+        let tile = Tile {
+            origin: o,
+            edge,
+            value: scalar(v),
+            active,
+        };
+        out.push(tile);
+    }
+    out
+}
+
+fn read_tree<T: VdbValue>(c: &mut Cur, flags: u32, half: bool, name: &str) -> Result<Tree<T>> {
     if c.u32()? != 1 {
         return Err(bad("buffer count other than 1"));
     }
     let background: T = full_value(c)?;
-    let tiles = c.count(4 * (3 + T::COMPS) + 1, "root tile")?;
+    let root_tiles = c.count(4 * (3 + T::COMPS) + 1, "root tile")?;
     let children = c.count(12 + 1024 * 8, "root child")?;
-    for _ in 0..tiles {
-        c.take(12)?;
-        let _: T = full_value(c)?;
-        if c.u8()? != 0 {
-            return Err(bad("active root tiles are not supported"));
+    let mut tiles: Vec<Tile> = Vec::new();
+    for _ in 0..root_tiles {
+        let origin = [c.i32()?, c.i32()?, c.i32()?];
+        let v: T = full_value(c)?;
+        let active = c.u8()? != 0;
+        if origin.iter().any(|o| o & 4095 != 0) {
+            return Err(bad("root tile origin not aligned to 4096"));
+        }
+        if active || v != background {
+            let tile = Tile {
+                origin,
+                edge: 4096,
+                value: scalar(&v),
+                active,
+            };
+            tiles.push(tile);
         }
     }
-    let unsupported_tiles = || bad("active tiles in internal nodes are not supported");
     let mut origins: Vec<[i32; 3]> = Vec::new();
     let mut masks: Vec<[u64; 8]> = Vec::new();
     for _ in 0..children {
@@ -316,10 +429,8 @@ fn read_tree<T: VdbValue>(
         }
         let child5 = c.mask(512)?;
         let value5 = c.mask(512)?;
-        if value5.iter().any(|&w| w != 0) {
-            return Err(unsupported_tiles());
-        }
-        read_values::<T>(c, 32768, &value5, flags, half, background)?;
+        let v5 = read_values::<T>(c, 32768, &value5, flags, half, background)?;
+        tiles.extend(node_tiles(o5, 5, 128, &v5, &child5, &value5, background));
         for n5 in (0..32768).filter(|&n| bit(&child5, n)) {
             let o4 = [
                 o5[0] + (((n5 >> 10) & 31) << 7) as i32,
@@ -328,10 +439,8 @@ fn read_tree<T: VdbValue>(
             ];
             let child4 = c.mask(64)?;
             let value4 = c.mask(64)?;
-            if value4.iter().any(|&w| w != 0) {
-                return Err(unsupported_tiles());
-            }
-            read_values::<T>(c, 4096, &value4, flags, half, background)?;
+            let v4 = read_values::<T>(c, 4096, &value4, flags, half, background)?;
+            tiles.extend(node_tiles(o4, 4, 8, &v4, &child4, &value4, background));
             for n4 in (0..4096).filter(|&n| bit(&child4, n)) {
                 origins.push([
                     o4[0] + (((n4 >> 8) & 15) << 3) as i32,
@@ -343,6 +452,7 @@ fn read_tree<T: VdbValue>(
         }
     }
     let mut leaves = Vec::with_capacity(origins.len());
+    let mut inactive_leaves = Vec::new();
     for (origin, mask) in origins.into_iter().zip(masks) {
         let again: [u64; 8] = c.mask(8)?.try_into().unwrap();
         if again != mask {
@@ -350,11 +460,24 @@ fn read_tree<T: VdbValue>(
         }
         let v = read_values::<T>(c, LEAF_VOXELS, &mask, flags, half, background)?;
         let mut values = Box::new([background; LEAF_VOXELS]);
-        for (n, (dst, src)) in values.iter_mut().zip(v).enumerate() {
-            // Inactive voxels hold the background (the SparseGrid contract).
+        let mut other_inactive = false;
+        for (n, (dst, src)) in values.iter_mut().zip(&v).enumerate() {
+            // Inactive voxels hold the background (the SparseGrid contract); those that do not
+            // (a level set's inside) keep the whole leaf in `inactive_leaves`.
             if bit(&mask, n) {
-                *dst = src;
+                *dst = *src;
+            } else if *src != background {
+                other_inactive = true;
             }
+        }
+        if other_inactive {
+            let mut all = Box::new([background; LEAF_VOXELS]);
+            all.copy_from_slice(&v);
+            inactive_leaves.push(Leaf {
+                origin,
+                values: all,
+                mask,
+            });
         }
         leaves.push(Leaf {
             origin,
@@ -363,14 +486,18 @@ fn read_tree<T: VdbValue>(
         });
     }
     leaves.sort_by_key(|l| l.origin);
-    Ok(SparseGrid {
-        name: name.to_string(),
-        background,
-        transform: GridTransform {
-            voxel_size: 1.0,
-            origin: [0.0; 3],
+    Ok(Tree {
+        grid: SparseGrid {
+            name: name.to_string(),
+            background,
+            transform: GridTransform {
+                voxel_size: 1.0,
+                origin: [0.0; 3],
+            },
+            leaves,
         },
-        leaves,
+        tiles,
+        inactive_leaves,
     })
 }
 
@@ -381,9 +508,11 @@ pub fn read_bytes(bytes: &[u8]) -> Result<ReadFile> {
         return Err(bad("bad magic number"));
     }
     let version = c.u32()?;
-    if version != FILE_VERSION {
+    if !READ_VERSIONS.contains(&version) {
         return Err(bad(format!(
-            "file format {version} (nimbus reads {FILE_VERSION})"
+            "file format {version} (nimbus reads {} to {})",
+            READ_VERSIONS.start(),
+            READ_VERSIONS.end()
         )));
     }
     let library = (c.u32()?, c.u32()?);
@@ -394,8 +523,17 @@ pub fn read_bytes(bytes: &[u8]) -> Result<ReadFile> {
     let metadata = read_metadata(&mut c)?;
     let count = c.count(12 + 24, "grid")?;
     let mut grids: Vec<ReadGrid> = Vec::with_capacity(count);
+    // unique names (OpenVDB's `name\x1eN` for repeated names), as instances refer to them
+    let mut unique: Vec<String> = Vec::with_capacity(count);
+    let mut skipped: Vec<(String, String)> = Vec::new();
+    let mut skipped_unique: Vec<String> = Vec::new();
     for _ in 0..count {
-        let name = c.string()?;
+        let unique_name = c.string()?;
+        let name = unique_name
+            .split('\x1e')
+            .next()
+            .unwrap_or_default()
+            .to_string();
         let type_name = c.string()?;
         let parent = c.string()?;
         let (grid_pos, _block_pos, end_pos) = (c.i64()?, c.i64()?, c.i64()?);
@@ -410,13 +548,22 @@ pub fn read_bytes(bytes: &[u8]) -> Result<ReadFile> {
             Some(b) => (b, true),
             None => (type_name.as_str(), false),
         };
+        let readable = matches!(base, "Tree_float_5_4_3" | "Tree_vec3s_5_4_3");
+        if !readable || skipped_unique.contains(&parent) {
+            // the offsets say where the next grid starts
+            c.p = ep;
+            skipped.push((name, type_name.clone()));
+            skipped_unique.push(unique_name);
+            continue;
+        }
         let compression = c.u32()?;
         let gmeta = read_metadata(&mut c)?;
         let transform = read_transform(&mut c)?;
-        let data = if !parent.is_empty() {
-            let p = grids
+        let (mut data, tiles, inactive_leaves) = if !parent.is_empty() {
+            let p = unique
                 .iter()
-                .find(|g| g.name == parent)
+                .position(|u| *u == parent)
+                .map(|i| &grids[i])
                 .ok_or_else(|| bad(format!("grid '{name}': instance of unknown '{parent}'")))?;
             if p.type_name != type_name {
                 return Err(bad(format!("grid '{name}': type differs from its parent")));
@@ -426,23 +573,14 @@ pub fn read_bytes(bytes: &[u8]) -> Result<ReadFile> {
                 GridData::Float(g) => g.name = name.clone(),
                 GridData::Vec3(g) => g.name = name.clone(),
             }
-            d
+            (d, p.tiles.clone(), p.inactive_leaves.clone())
+        } else if base == "Tree_float_5_4_3" {
+            let t = read_tree::<f32>(&mut c, compression, half, &name)?;
+            (GridData::Float(t.grid), t.tiles, t.inactive_leaves)
         } else {
-            match base {
-                "Tree_float_5_4_3" => {
-                    GridData::Float(read_tree::<f32>(&mut c, compression, half, &name)?)
-                }
-                "Tree_vec3s_5_4_3" => {
-                    GridData::Vec3(read_tree::<[f32; 3]>(&mut c, compression, half, &name)?)
-                }
-                other => {
-                    return Err(bad(format!(
-                        "grid '{name}': type '{other}' is not supported"
-                    )))
-                }
-            }
+            let t = read_tree::<[f32; 3]>(&mut c, compression, half, &name)?;
+            (GridData::Vec3(t.grid), t.tiles, Vec::new())
         };
-        let mut data = data;
         match &mut data {
             GridData::Float(g) => g.transform = transform,
             GridData::Vec3(g) => g.transform = transform,
@@ -452,14 +590,18 @@ pub fn read_bytes(bytes: &[u8]) -> Result<ReadFile> {
                 "grid '{name}': end offset does not match the data"
             )));
         }
+        unique.push(unique_name);
         grids.push(ReadGrid {
             name,
             type_name: type_name.clone(),
             half,
-            instance_parent: (!parent.is_empty()).then_some(parent),
+            instance_parent: (!parent.is_empty())
+                .then(|| parent.split('\x1e').next().unwrap_or_default().to_string()),
             compression,
             metadata: gmeta,
             data,
+            tiles,
+            inactive_leaves,
         });
     }
     Ok(ReadFile {
@@ -468,10 +610,11 @@ pub fn read_bytes(bytes: &[u8]) -> Result<ReadFile> {
         uuid,
         metadata,
         grids,
+        skipped,
     })
 }
 
-/// Reads a VDB file written by nimbus (or an equivalent one written by OpenVDB).
+/// Reads a VDB file (written by nimbus, OpenVDB, Houdini, ...).
 pub fn read_file(path: &Path) -> Result<ReadFile> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     read_bytes(&bytes).map_err(|e| Error::InvalidInput(format!("{}: {e}", path.display())))
