@@ -4,6 +4,9 @@
 
     /usr/bin/python3 tools/make_target_vdb.py                    # samples/target_cumulus.vdb
     /usr/bin/python3 tools/make_target_vdb.py --fixtures DIR     # the test fixtures (tests/data/vdb)
+    /usr/bin/python3 tools/make_target_vdb.py --from-obj MESH.obj OUT.vdb SX SY SZ TX TY TZ VOXEL
+        # a closed OBJ mesh, scaled then translated (metres), as a level set with VOXEL m voxels
+        # (OpenVDB's mesh-to-volume, as a DCC's VDB export makes it)
 
 samples/target_cumulus.vdb, the target of pipelines/target_shape_vdb.yaml: a narrow-band level
 set (class "level set", grid "surface") of a cumulus made of four overlapping spheres cut flat at
@@ -120,7 +123,37 @@ def fixtures(out):
         print(f"{os.path.join(out, name)}: {os.path.getsize(os.path.join(out, name))} bytes")
 
 
+def from_obj(path, scale, translate, vs):
+    """A closed OBJ mesh (v and f lines; polygons split into fans) as a narrow-band level set."""
+    points, tris = [], []
+    with open(path) as f:
+        for line in f:
+            w = line.split()
+            if not w:
+                continue
+            if w[0] == "v":
+                points.append([float(w[1 + a]) * scale[a] + translate[a] for a in range(3)])
+            elif w[0] == "f":
+                idx = [int(t.split("/")[0]) - 1 for t in w[1:]]
+                tris += [[idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1)]
+    g = vdb.FloatGrid.createLevelSetFromPolygons(
+        np.array(points, dtype=np.float32),
+        triangles=np.array(tris, dtype=np.int32),
+        transform=vdb.createLinearTransform(voxelSize=vs),
+        halfWidth=HALF_WIDTH,
+    )
+    g.name = "surface"
+    return g
+
+
 def main():
+    if len(sys.argv) == 11 and sys.argv[1] == "--from-obj":
+        nums = [float(x) for x in sys.argv[4:]]
+        g = from_obj(sys.argv[2], nums[0:3], nums[3:6], nums[6])
+        out = sys.argv[3]
+        vdb.write(out, grids=[g], metadata={"creator": "tools/make_target_vdb.py --from-obj"})
+        print(f"{out}: {os.path.getsize(out)} bytes, {g.activeVoxelCount()} active voxels")
+        return
     if len(sys.argv) == 3 and sys.argv[1] == "--fixtures":
         fixtures(sys.argv[2])
         return
