@@ -26,19 +26,6 @@ fn run(name: &str, sets: &[&str]) -> PathBuf {
     out
 }
 
-/// A tool the test needs; under CI=true its absence is a failure, elsewhere a skip.
-fn have_pyopenvdb() -> bool {
-    let ok = Command::new("/usr/bin/python3")
-        .args(["-c", "import pyopenvdb"])
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !ok && std::env::var("CI").as_deref() == Ok("true") {
-        panic!("CI=true but /usr/bin/python3 has no pyopenvdb (tools/setup.sh installs it)");
-    }
-    ok
-}
-
 const PY: &str = r#"
 import sys, json, pyopenvdb as vdb
 grids, meta = vdb.readAll(sys.argv[1])
@@ -54,7 +41,7 @@ print(json.dumps(out))
 
 #[test]
 fn houdini_profile_reads_right_in_openvdb() {
-    if !have_pyopenvdb() {
+    if !common::pyopenvdb_available() {
         eprintln!("note: /usr/bin/python3 has no pyopenvdb; OpenVDB check skipped");
         return;
     }

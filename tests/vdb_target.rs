@@ -160,18 +160,6 @@ fn file_versions_222_to_225_are_read_and_others_refused() {
     }
 }
 
-fn pyopenvdb() -> bool {
-    let ok = Command::new("/usr/bin/python3")
-        .args(["-c", "import pyopenvdb"])
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !ok && std::env::var("CI").as_deref() == Ok("true") {
-        panic!("CI=true but pyopenvdb is not installed: CI must install python3-openvdb (tools/setup.sh)");
-    }
-    ok
-}
-
 /// Values pyopenvdb's accessor reads at the points (a file of `i j k` lines).
 const PY_VALUES: &str = r#"
 import sys, pyopenvdb as vdb
@@ -210,7 +198,7 @@ fn openvdb_values(path: &Path, grid: &str, points: &[[i32; 3]]) -> Vec<f32> {
 /// background), as the real OpenVDB reads it; and the tools script makes the same files again.
 #[test]
 fn values_match_openvdb_and_the_script_makes_the_fixtures() {
-    if !pyopenvdb() {
+    if !common::pyopenvdb_available() {
         eprintln!("note: pyopenvdb absent; OpenVDB cross-check skipped");
         return;
     }

@@ -107,6 +107,19 @@ pub fn blender_available() -> bool {
     ok
 }
 
+/// Whether /usr/bin/python3 has pyopenvdb (the real OpenVDB). Under CI=true (where .ci/run
+/// installs python3-openvdb) a missing one fails the test instead of skipping it.
+pub fn pyopenvdb_available() -> bool {
+    let ok = Command::new("/usr/bin/python3")
+        .args(["-c", "import pyopenvdb"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok && std::env::var("CI").as_deref() == Ok("true") {
+        panic!("CI=true but /usr/bin/python3 has no pyopenvdb: CI must install python3-openvdb (tools/setup.sh)");
+    }
+    ok
+}
+
 /// Runs tools/render_blender.py headless with `args` (after `--`); returns the process output
 /// and the script's `NIMBUS_BLENDER` JSON summary line (a missing line fails the test).
 pub fn render_blender<I, S>(args: I) -> (Output, serde_json::Value)
