@@ -264,8 +264,9 @@ fn lam_scan(a: ptr<function, LamAcc>, me: Me) {
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) { _ = lam_fluid(a, me, j); }
                 if (!wall_row(c.y + dy)) { continue; }
-                let k_end = bcell_start[e.y];
-                for (var k = bcell_start[e.x]; k < k_end; k++) { lam_wall(a, me, k); }
+                let we = e - vec2<u32>(wall_shift(c.y + dy, c.z + dz, grid));
+                let k_end = bcell_start[we.y];
+                for (var k = bcell_start[we.x]; k < k_end; k++) { lam_wall(a, me, k); }
             }
         }
     }
@@ -438,8 +439,9 @@ fn lam_build(a: ptr<function, LamAcc>, me: Me, an: Anchor) -> Mask {
                 mask_put(&m, off, bits, seg_bits(off, j1 - j0));
                 off += j1 - j0;
                 if (!wall_row(an.c.y + dy)) { continue; }
-                let k_end = bcell_start[e.y];
-                for (var k = bcell_start[e.x]; k < k_end; k++) { lam_wall(a, me, k); }
+                let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
+                let k_end = bcell_start[we.y];
+                for (var k = bcell_start[we.x]; k < k_end; k++) { lam_wall(a, me, k); }
             }
         }
     }
@@ -467,8 +469,9 @@ fn lam_masked(a: ptr<function, LamAcc>, me: Me, an: Anchor, m: Mask) {
                 }
                 for (var j = j0 + nb; j < j1; j++) { _ = lam_fluid(a, me, j); }
                 if (!wall_row(an.c.y + dy)) { continue; }
-                let k_end = bcell_start[e.y];
-                for (var k = bcell_start[e.x]; k < k_end; k++) { lam_wall(a, me, k); }
+                let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
+                let k_end = bcell_start[we.y];
+                for (var k = bcell_start[we.x]; k < k_end; k++) { lam_wall(a, me, k); }
             }
         }
     }
@@ -593,8 +596,9 @@ fn delta_scan(dp: ptr<function, vec3<f32>>, me: Me) {
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) { delta_fluid(dp, me, j); }
                 if (!wall_row(c.y + dy)) { continue; }
-                let k_end = bcell_start[e.y];
-                for (var k = bcell_start[e.x]; k < k_end; k++) { delta_wall(dp, me, k); }
+                let we = e - vec2<u32>(wall_shift(c.y + dy, c.z + dz, grid));
+                let k_end = bcell_start[we.y];
+                for (var k = bcell_start[we.x]; k < k_end; k++) { delta_wall(dp, me, k); }
             }
         }
     }
@@ -621,8 +625,9 @@ fn delta_masked(dp: ptr<function, vec3<f32>>, me: Me, an: Anchor, m: Mask) {
                 }
                 for (var j = j0 + nb; j < j1; j++) { delta_fluid(dp, me, j); }
                 if (!wall_row(an.c.y + dy)) { continue; }
-                let k_end = bcell_start[e.y];
-                for (var k = bcell_start[e.x]; k < k_end; k++) { delta_wall(dp, me, k); }
+                let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
+                let k_end = bcell_start[we.y];
+                for (var k = bcell_start[we.x]; k < k_end; k++) { delta_wall(dp, me, k); }
             }
         }
     }
@@ -779,8 +784,9 @@ fn visc_scan(a: ptr<function, Visc>, me: Vi) {
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) { visc_pair(a, me, j); }
                 if (!wall_row(c.y + dy)) { continue; }
-                let k_end = bcell_start[e.y];
-                for (var k = bcell_start[e.x]; k < k_end; k++) { visc_wall(a, me, k); }
+                let we = e - vec2<u32>(wall_shift(c.y + dy, c.z + dz, grid));
+                let k_end = bcell_start[we.y];
+                for (var k = bcell_start[we.x]; k < k_end; k++) { visc_wall(a, me, k); }
             }
         }
     }
@@ -807,8 +813,9 @@ fn visc_masked(a: ptr<function, Visc>, me: Vi, an: Anchor, m: Mask) {
                 }
                 for (var j = j0 + nb; j < j1; j++) { visc_pair(a, me, j); }
                 if (!wall_row(an.c.y + dy)) { continue; }
-                let k_end = bcell_start[e.y];
-                for (var k = bcell_start[e.x]; k < k_end; k++) { visc_wall(a, me, k); }
+                let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
+                let k_end = bcell_start[we.y];
+                for (var k = bcell_start[we.x]; k < k_end; k++) { visc_wall(a, me, k); }
             }
         }
     }

@@ -136,6 +136,19 @@ fn row_entries(p: vec3<f32>, c: vec3<i32>, dy: i32, dz: i32, g: GridParams) -> v
     return row_span(nz, ny, a, b, g);
 }
 
+// Offset from a row's entries in the fluid cell table to the same row's in the wall table,
+// which holds only the first and the last y row of cells, where every wall particle lies
+// (GridParams::wall_entry in grid_params.rs): wall entries = row entries - wall_shift. Only for
+// those rows (ny the first or the last); z is the row's unwrapped cell index.
+fn wall_shift(ny: i32, z: i32, g: GridParams) -> u32 {
+    let d = vec3<i32>(g.dims);
+    var nz = z;
+    if ((g.periodic & 4u) != 0u) { nz = (nz + d.z) % d.z; }
+    let rows = min(d.y, 2);
+    let w = select(0, rows - 1, ny > 0);
+    return u32((nz * d.y + ny - (nz * rows + w)) * d.x * i32(g.x_slices));
+}
+
 // Table entry ranges of the slices a..=b of row (ny, nz) (slice indices along the whole row,
 // a may be < 0 or b past the end on a periodic x axis: then two segments; clipped at x walls).
 fn row_span(nz: i32, ny: i32, a: i32, b: i32, g: GridParams) -> vec4<u32> {

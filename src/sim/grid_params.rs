@@ -105,6 +105,42 @@ impl GridParams {
         (self.num_cells * self.x_slices) as usize + 1
     }
 
+    /// Rows of the wall table: wall particles lie below the floor and above the ceiling, so they
+    /// are binned only into the first and the last y row of cells (one row when the grid has
+    /// one). The wall table holds those rows alone: a table over every row would cost one entry
+    /// per slice of the whole grid, mostly empty (docs/PERFORMANCE.md "Memory").
+    pub fn wall_rows(&self) -> u32 {
+        self.dims[1].min(2)
+    }
+
+    /// Entries of a wall table: one per slice of the wall rows, plus the end.
+    pub fn wall_table_len(&self) -> usize {
+        (self.dims[0] * self.wall_rows() * self.dims[2] * self.x_slices) as usize + 1
+    }
+
+    /// Wall-table entry of the first slice of cell `cell`, or None when its y row holds no wall
+    /// particles (mirror of `wall_shift` in common.wgsl).
+    pub fn wall_entry(&self, cell: u32) -> Option<usize> {
+        let [dx, dy, _] = self.dims;
+        let (cx, cy, cz) = (cell % dx, (cell / dx) % dy, cell / (dx * dy));
+        let w = if cy == 0 {
+            0
+        } else if cy == dy - 1 {
+            self.wall_rows() - 1
+        } else {
+            return None;
+        };
+        Some((((cz * self.wall_rows() + w) * dx + cx) * self.x_slices) as usize)
+    }
+
+    /// Slots of cell `cell` in a wall table (`wall_entry`); empty in the rows between.
+    pub fn wall_cell_slots(&self, wall_start: &[u32], cell: u32) -> std::ops::Range<u32> {
+        match self.wall_entry(cell) {
+            Some(e) => wall_start[e]..wall_start[e + self.x_slices as usize],
+            None => 0..0,
+        }
+    }
+
     /// Slots (indices into the cell-ordered arrays) of cell `cell` in a cell table.
     pub fn cell_slots(&self, cell_start: &[u32], cell: u32) -> std::ops::Range<u32> {
         let s = self.x_slices as usize;

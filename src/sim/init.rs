@@ -103,7 +103,8 @@ pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
 
 /// Floor and ceiling walls: the x/z lattice, layers spaced d below y = 0 and above y = size
 /// down to depth h0 (so a fluid particle at the wall has a full neighbourhood), w = the
-/// environment temperature of the floor (ceiling). Returned in cell order with their cell table.
+/// environment temperature of the floor (ceiling). Returned in cell order with their wall table
+/// (`build_wall_table`: the first and last y rows of cells only).
 pub fn boundary_particles(cfg: &ShotConfig, grid: &GridParams) -> (Vec<[f32; 4]>, Vec<u32>) {
     let (n, d) = lattice(cfg);
     let h = kernel_radius(cfg);
@@ -124,7 +125,7 @@ pub fn boundary_particles(cfg: &ShotConfig, grid: &GridParams) -> (Vec<[f32; 4]>
         }
     }
     let p3: Vec<[f64; 3]> = pts.iter().map(|p| [p[0], p[1], p[2]]).collect();
-    let (order, cell_start) = crate::sim::reference::grid::build_cell_table(grid, &p3);
+    let (order, cell_start) = crate::sim::reference::grid::build_wall_table(grid, &p3);
     let sorted = order
         .iter()
         .map(|&o| pts[o as usize].map(|v| v as f32))

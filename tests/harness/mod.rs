@@ -11,7 +11,7 @@ use nimbus::gpu::Context;
 use nimbus::sim::buffers::ParticleBuffers;
 use nimbus::sim::grid_params::GridParams;
 use nimbus::sim::phase::Recorder;
-use nimbus::sim::reference::grid::build_cell_table;
+use nimbus::sim::reference::grid::{build_cell_table, build_wall_table};
 use nimbus::sim::ParticleState;
 use std::sync::Arc;
 
@@ -79,7 +79,7 @@ impl Scene {
             info: order.iter().map(|&o| state.info[o as usize]).collect(),
             density,
         };
-        let (border, bcell) = build_cell_table(&grid, &p64(&walls));
+        let (border, bcell) = build_wall_table(&grid, &p64(&walls));
         let walls = border
             .iter()
             .map(|&o| walls[o as usize])

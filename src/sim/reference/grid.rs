@@ -43,6 +43,57 @@ pub fn build_cell_table(grid: &GridParams, pos: &[[f64; 3]]) -> (Vec<u32>, Vec<u
     cell_scatter(&keys, scanned)
 }
 
+/// The grid build of the wall particles: `(order, wall_start)` as `build_cell_table`, but the
+/// table holds only the wall rows (`GridParams::wall_rows`), where every wall particle lies.
+pub fn build_wall_table(grid: &GridParams, pos: &[[f64; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let (order, full) = build_cell_table(grid, pos);
+    let [dx, dy, dz] = grid.dims;
+    let row = (dx * grid.x_slices) as usize;
+    let mut table = Vec::with_capacity(grid.wall_table_len());
+    for z in 0..dz {
+        for y in [0, dy - 1].into_iter().take(grid.wall_rows() as usize) {
+            let base = (z * dy + y) as usize * row;
+            table.extend_from_slice(&full[base..base + row]);
+        }
+    }
+    table.push(pos.len() as u32);
+    // every particle in a wall row (the walls lie outside [0, size y]): the rows between are
+    // empty in the full table, or the walls would be lost
+    assert!((0..dz).all(|z| (1..dy.saturating_sub(1)).all(|y| {
+        let base = (z * dy + y) as usize * row;
+        full[base] == full[base + row]
+    })));
+    (order, table)
+}
+
+/// Calls `f(k, x_ik)` for every wall particle k within the 27 neighbouring cells of `p` (a wall
+/// table, `build_wall_table`), with the minimum-image displacement `x_ik = p - x_k`.
+pub fn for_each_wall_neighbor(
+    grid: &GridParams,
+    wall_start: &[u32],
+    sorted_pos: &[[f64; 3]],
+    p: impl Into<DVec3>,
+    mut f: impl FnMut(usize, DVec3),
+) {
+    let p = p.into();
+    let size = super::common::domain_size(grid);
+    let periodic = [grid.periodic_x(), grid.periodic_z()];
+    let c = grid.cell_coord(p);
+    for dz in -1..=1 {
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                let Some(n) = grid.neighbor_cell(c, [dx, dy, dz]) else {
+                    continue;
+                };
+                for k in grid.wall_cell_slots(wall_start, n) {
+                    let k = k as usize;
+                    f(k, min_image(p - DVec3::from(sorted_pos[k]), size, periodic));
+                }
+            }
+        }
+    }
+}
+
 /// Calls `f(k)` for every slot of the 27 cells around cell `c`, in the shaders' order, until
 /// `f` returns false.
 pub fn for_each_slot(
@@ -88,6 +139,59 @@ pub fn for_each_neighbor(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The wall table holds the first and last rows' entries of the full table: every cell's
+    /// slots are the same, it is a fraction of the size, and the neighbour walk finds the same
+    /// wall particles.
+    #[test]
+    fn the_wall_table_keeps_the_wall_rows_slots() {
+        for (size, periodic) in [
+            ([1.0, 0.8, 0.7], true),
+            ([0.9, 0.3, 0.5], false),
+            ([0.6, 0.1, 0.6], true),
+        ] {
+            let grid = GridParams::new(size, 0.1, periodic, periodic);
+            let mut walls = Vec::new();
+            for i in 0..30 {
+                for k in 0..20 {
+                    let (x, z) = (
+                        size[0] * (i as f64 + 0.5) / 30.0,
+                        size[2] * (k as f64 + 0.5) / 20.0,
+                    );
+                    walls.push([x, -0.025, z]);
+                    walls.push([x, size[1] + 0.075, z]);
+                }
+            }
+            let (order, full) = build_cell_table(&grid, &walls);
+            let (worder, wall) = build_wall_table(&grid, &walls);
+            assert_eq!(order, worder);
+            assert_eq!(wall.len(), grid.wall_table_len());
+            assert!(
+                grid.dims[1] <= 2 || wall.len() < full.len() / 2,
+                "{} of {}",
+                wall.len(),
+                full.len()
+            );
+            for cell in 0..grid.num_cells {
+                let (w, f) = (
+                    grid.wall_cell_slots(&wall, cell),
+                    grid.cell_slots(&full, cell),
+                );
+                assert_eq!(w.collect::<Vec<_>>(), f.collect::<Vec<_>>(), "cell {cell}");
+            }
+            let sorted: Vec<[f64; 3]> = order.iter().map(|&o| walls[o as usize]).collect();
+            for p in [
+                [0.05, 0.02, 0.05],
+                [size[0] - 0.01, size[1] - 0.03, 0.3],
+                [0.3, size[1] / 2.0, 0.2],
+            ] {
+                let (mut a, mut b) = (Vec::new(), Vec::new());
+                for_each_neighbor(&grid, &full, &sorted, p, |k, d| a.push((k, d)));
+                for_each_wall_neighbor(&grid, &wall, &sorted, p, |k, d| b.push((k, d)));
+                assert_eq!(a, b);
+            }
+        }
+    }
 
     /// Counting, scanning and scattering unsorted keys gives the stable sort's order and a table
     /// whose entry e holds the number of keys below e.

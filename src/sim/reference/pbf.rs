@@ -1,7 +1,7 @@
 //! f64 mirror of shaders/pbf.wgsl, same entry names. Inputs are cell-ordered arrays with their
 //! cell table (as after the grid build); each function returns what its shader writes.
 use super::common::{domain_size, min_image, poly6_sym, spiky_grad_sym};
-use super::grid::for_each_neighbor;
+use super::grid::{for_each_neighbor, for_each_wall_neighbor};
 use crate::sim::grid_params::GridParams;
 use crate::sim::pbf::PbfParams;
 use glam::DVec3;
@@ -17,6 +17,7 @@ pub struct Scene<'a> {
     pub level: &'a [u32],
     /// boundary particles (cell-ordered) and their table
     pub bpos: &'a [V3],
+    /// The wall particles' table (`build_wall_table`: the first and last y rows only).
     pub bcell_start: &'a [u32],
 }
 
@@ -152,7 +153,7 @@ pub fn compute_lambda_in(
             grad_i += g;
             sum2 += g.dot(g);
         });
-        for_each_neighbor(sc.grid, sc.bcell_start, sc.bpos, p, |_, xik| {
+        for_each_wall_neighbor(sc.grid, sc.bcell_start, sc.bpos, p, |_, xik| {
             let r2 = xik.dot(xik);
             if r2 >= hi.max(h0).powi(2) {
                 return;
@@ -210,7 +211,7 @@ pub fn compute_delta_in(
                 let s = li * mj + lambda[j] * mi + sc.scorr(r2, hi, hj) * mj;
                 dp += spiky_grad_sym(xij, r2.sqrt(), hi, hj) * s;
             });
-            for_each_neighbor(sc.grid, sc.bcell_start, sc.bpos, p, |_, xik| {
+            for_each_wall_neighbor(sc.grid, sc.bcell_start, sc.bpos, p, |_, xik| {
                 let r2 = xik.dot(xik);
                 if r2 >= hi.max(h0).powi(2) {
                     return;

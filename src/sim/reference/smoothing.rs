@@ -1,7 +1,7 @@
 //! f64 mirror of shaders/smoothing.wgsl (`smooth_temperature`): one Jacobi iteration of the
 //! temperature-smoothing constraint (eqs. 12-17). Arrays are in cell order, as on the GPU.
 use super::common::spiky_grad_sym;
-use super::grid::for_each_neighbor;
+use super::grid::{for_each_neighbor, for_each_wall_neighbor};
 use crate::sim::grid_params::GridParams;
 use crate::sim::smoothing::SmoothParams;
 use glam::DVec3;
@@ -16,6 +16,7 @@ pub struct SmoothInput<'a> {
     pub cell_start: &'a [u32],
     /// Boundary particles (xyz, temperature) in cell order, and their cell table.
     pub boundary: &'a [[f64; 4]],
+    /// The wall particles' table (`build_wall_table`: the first and last y rows only).
     pub boundary_cell_start: &'a [u32],
 }
 
@@ -57,7 +58,7 @@ pub fn constraint_terms(input: &SmoothInput, i: usize) -> (f64, f64, f64) {
         return (sum_a, sum_a2, c);
     }
     let bpos: Vec<[f64; 3]> = input.boundary.iter().map(|b| [b[0], b[1], b[2]]).collect();
-    for_each_neighbor(
+    for_each_wall_neighbor(
         input.grid,
         input.boundary_cell_start,
         &bpos,
@@ -155,7 +156,7 @@ pub fn mix_vapor(input: &SmoothInput, vapor: &[f64], cloud: &[f64]) -> Vec<f64> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::reference::grid::build_cell_table;
+    use crate::sim::reference::grid::{build_cell_table, build_wall_table};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -206,7 +207,7 @@ mod tests {
             }
         }
         let (order, cell_start) = build_cell_table(&grid, &pos);
-        let (border, boundary_cell_start) = build_cell_table(&grid, &bpos);
+        let (border, boundary_cell_start) = build_wall_table(&grid, &bpos);
         Scene {
             grid,
             pos: order.iter().map(|&o| pos[o as usize]).collect(),
