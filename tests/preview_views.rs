@@ -165,7 +165,7 @@ fn each_view_draws_its_own_folder_and_leaves_the_previews_alone() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(
         err.lines().collect::<Vec<_>>(),
-        ["note: frame 1: no particle cache or checkpoint; skipped"],
+        ["note: no particle cache or checkpoint for frame 1; skipped"],
         "{}",
         text(&o)
     );

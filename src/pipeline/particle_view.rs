@@ -60,6 +60,7 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
         0
     };
     let mut pngs = Vec::new();
+    let mut skipped = Vec::new();
     for (frame, source) in plan {
         let stem = crate::preview::frame_stem(&cfg.shot, frame, pad);
         let state: ParticleState = match source {
@@ -68,7 +69,7 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
             }
             Some(Source::Checkpoint(p)) => crate::io::checkpoint::read_checkpoint(&p)?.state,
             None => {
-                eprintln!("note: frame {frame}: no particle cache or checkpoint; skipped");
+                skipped.push(frame);
                 remove_if_present(&dir.join(format!("{stem}.png")))?;
                 continue;
             }
@@ -84,6 +85,13 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
         let png = dir.join(format!("{stem}.png"));
         crate::io::atomic::write_atomic(&png, &crate::preview::png_bytes(&rgb)?)?;
         pngs.push((frame, png));
+    }
+    if !skipped.is_empty() {
+        eprintln!(
+            "note: no particle cache or checkpoint for frame{} {}; skipped",
+            if skipped.len() == 1 { "" } else { "s" },
+            super::naming::frame_ranges(&skipped)
+        );
     }
     crate::preview::sheet::write_contact_sheet_in(dir, &pngs)?;
     Ok(pngs.len())

@@ -118,7 +118,7 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
             return Err(Error::InvalidInput(format!(
                 "{}: frames {} are not in the run's manifest (frames {}..={} recorded)",
                 run_dir.display(),
-                ranges(&missing),
+                super::naming::frame_ranges(&missing),
                 manifest.frames.first().map_or(0, |f| f.frame),
                 manifest.frames.last().map_or(0, |f| f.frame)
             )));
@@ -389,22 +389,4 @@ pub fn check_name(n: &str) -> Result<String> {
 fn default_name(cfg: &ShotConfig) -> String {
     let text = serde_json::to_string(&cfg.export).unwrap_or_default();
     format!("x{}", &super::records::sha256_hex(text.as_bytes())[..12])
-}
-
-fn ranges(frames: &[u32]) -> String {
-    let mut out: Vec<String> = Vec::new();
-    let mut i = 0;
-    while i < frames.len() {
-        let mut j = i;
-        while j + 1 < frames.len() && frames[j + 1] == frames[j] + 1 {
-            j += 1;
-        }
-        out.push(if i == j {
-            frames[i].to_string()
-        } else {
-            format!("{}-{}", frames[i], frames[j])
-        });
-        i = j + 1;
-    }
-    out.join(", ")
 }
