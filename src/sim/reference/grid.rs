@@ -78,20 +78,11 @@ pub fn for_each_wall_neighbor(
     let p = p.into();
     let size = super::common::domain_size(grid);
     let periodic = [grid.periodic_x(), grid.periodic_z()];
-    let c = grid.cell_coord(p);
-    for dz in -1..=1 {
-        for dy in -1..=1 {
-            for dx in -1..=1 {
-                let Some(n) = grid.neighbor_cell(c, [dx, dy, dz]) else {
-                    continue;
-                };
-                for k in grid.wall_cell_slots(wall_start, n) {
-                    let k = k as usize;
-                    f(k, min_image(p - DVec3::from(sorted_pos[k]), size, periodic));
-                }
-            }
-        }
-    }
+    let slots = |n| grid.wall_cell_slots(wall_start, n);
+    for_each_slot_of(grid, slots, grid.cell_coord(p), |k| {
+        f(k, min_image(p - DVec3::from(sorted_pos[k]), size, periodic));
+        true
+    });
 }
 
 /// Calls `f(k)` for every slot of the 27 cells around cell `c`, in the shaders' order, until
@@ -99,6 +90,16 @@ pub fn for_each_wall_neighbor(
 pub fn for_each_slot(
     g: &GridParams,
     cell_start: &[u32],
+    c: [i32; 3],
+    f: impl FnMut(usize) -> bool,
+) {
+    for_each_slot_of(g, |n| g.cell_slots(cell_start, n), c, f)
+}
+
+/// `for_each_slot` over any table: `slots(n)` the slots of cell n.
+fn for_each_slot_of(
+    g: &GridParams,
+    slots: impl Fn(u32) -> std::ops::Range<u32>,
     c: [i32; 3],
     mut f: impl FnMut(usize) -> bool,
 ) {
@@ -108,7 +109,7 @@ pub fn for_each_slot(
                 let Some(n) = g.neighbor_cell(c, [dx, dy, dz]) else {
                     continue;
                 };
-                for k in g.cell_slots(cell_start, n) {
+                for k in slots(n) {
                     if !f(k as usize) {
                         return;
                     }
