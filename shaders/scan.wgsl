@@ -1,4 +1,4 @@
-// Exclusive prefix sum of u32 in blocks of WG_BLOCK (Hillis-Steele in workgroup memory); the
+// Exclusive prefix sum of u32 in blocks of WG_BLOCK x SCAN_ITEMS (in workgroup memory); the
 // block sums are scanned by the next level and added back (`scan_add`). The one scan of the
 // project: the grid's per-entry counts (the cell table) and the adaptive stage's flag ranks. Integer adds,
 // so the result does not depend on execution order. Mirror: src/sim/reference/scan.rs.
@@ -20,32 +20,56 @@ struct ScanParams {
 @group(0) @binding(3) var<storage, read_write> sums: array<u32>;
 @group(1) @binding(0) var<uniform> sp: ScanParams;
 
-var<workgroup> s: array<u32, WG_BLOCK>;
+// One block: WG_BLOCK threads x SCAN_ITEMS values. Each thread scans SCAN_ITEMS consecutive
+// values serially and the threads' totals are scanned Hillis-Steele: far fewer barriers per value
+// than a thread per value (a barrier is costly on CPU devices, where a workgroup's invocations
+// take turns). Loads and stores are coalesced through workgroup memory.
+const SCAN_BLOCK: u32 = WG_BLOCK * SCAN_ITEMS;
+var<workgroup> s: array<u32, SCAN_BLOCK>;
+var<workgroup> totals: array<u32, WG_BLOCK>;
 
 // output[i] = sum of the values before i in its block; sums[block] = the block's total.
 @compute @workgroup_size(WG_BLOCK)
 fn scan_blocks(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                @builtin(local_invocation_index) t: u32) {
     let g = wid.y * nwg.x + wid.x;
-    let i = g * WG_BLOCK + t;
+    let base = g * SCAN_BLOCK;
     var n = sp.n;
     if (sp.live_only != 0u) { n = min(n, live.count); }
-    var v = 0u;
-    if (i < n) {
-        v = input[i];
-        if (sp.mask != 0u) { v = select(0u, 1u, (v & sp.mask) != 0u); }
+    for (var k = 0u; k < SCAN_ITEMS; k++) {
+        let j = k * WG_BLOCK + t;
+        var v = 0u;
+        if (base + j < n) {
+            v = input[base + j];
+            if (sp.mask != 0u) { v = select(0u, 1u, (v & sp.mask) != 0u); }
+        }
+        s[j] = v;
     }
-    s[t] = v;
+    workgroupBarrier();
+    // this thread's run, exclusive in place
+    var run = 0u;
+    for (var k = 0u; k < SCAN_ITEMS; k++) {
+        let v = s[t * SCAN_ITEMS + k];
+        s[t * SCAN_ITEMS + k] = run;
+        run += v;
+    }
+    totals[t] = run;
     workgroupBarrier();
     for (var off = 1u; off < WG_BLOCK; off = off * 2u) {
         var a = 0u;
-        if (t >= off) { a = s[t - off]; }
+        if (t >= off) { a = totals[t - off]; }
         workgroupBarrier();
-        s[t] = s[t] + a;
+        totals[t] = totals[t] + a;
         workgroupBarrier();
     }
-    if (i < sp.n) { output[i] = s[t] - v; }
-    if (t == WG_BLOCK - 1u) { sums[g] = s[WG_BLOCK - 1u]; }
+    let before = totals[t] - run;
+    for (var k = 0u; k < SCAN_ITEMS; k++) { s[t * SCAN_ITEMS + k] += before; }
+    workgroupBarrier();
+    for (var k = 0u; k < SCAN_ITEMS; k++) {
+        let j = k * WG_BLOCK + t;
+        if (base + j < sp.n) { output[base + j] = s[j]; }
+    }
+    if (t == WG_BLOCK - 1u) { sums[g] = totals[WG_BLOCK - 1u]; }
 }
 
 // output[i] += input[block of i], where input holds the next level's scanned block sums.
@@ -54,5 +78,5 @@ fn scan_add(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg:
             @builtin(local_invocation_index) t: u32) {
     let g = wid.y * nwg.x + wid.x;
     let i = g * WG_BLOCK + t;
-    if (i < sp.n) { output[i] = output[i] + input[g]; }
+    if (i < sp.n) { output[i] = output[i] + input[i / SCAN_BLOCK]; }
 }

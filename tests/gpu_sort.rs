@@ -74,9 +74,12 @@ fn prefix_scan_matches_its_mirror_in_both_modes() {
     for (len, live_n) in [
         (1u32, 1u32),
         (256, 200),
-        (257, 257),
+        (2048, 2047),
+        (2049, 2049),
         (70_000, 65_537),
         (300_000, 5),
+        // three levels: more than 2048^2 values
+        (4_200_000, 4_194_305),
     ] {
         let values: Vec<u32> = (0..len).map(|_| rng.random_range(0..16u32)).collect();
         let input = storage_init(&ctx.device, "scan input", &values);

@@ -1,5 +1,5 @@
-//! The one exclusive prefix scan (shaders/scan.wgsl): blocks of `WG_BLOCK` values scanned in
-//! workgroup memory, the block sums scanned recursively by the next level and added back. The
+//! The one exclusive prefix scan (shaders/scan.wgsl): blocks of `WG_BLOCK` x `SCAN_ITEMS`
+//! values scanned in workgroup memory, the block sums scanned recursively by the next level and added back. The
 //! grid build scans its per-entry counts into the cell table with it, the adaptive stage its
 //! flag bits. Integer adds only: exact, and the same on every run. Mirror: `sim::reference::scan`.
 use crate::error::Result;
@@ -31,6 +31,8 @@ pub enum ScanOf {
 
 struct Level {
     len: u32,
+    /// Workgroups of `scan_blocks` (one per block of values).
+    groups: u32,
     blocks: wgpu::BindGroup,
     /// Adds the next level's scanned sums back (absent on the last level).
     add: Option<wgpu::BindGroup>,
@@ -62,7 +64,7 @@ impl PrefixScan {
         modes: &[ScanOf],
     ) -> Result<Self> {
         let stage = Stage::new(ctx, SHADER, &["scan_blocks", "scan_add"])?;
-        let block = ctx.prelude.wg_block;
+        let block = ctx.prelude.wg_block * ctx.prelude.scan_items;
         // level k scans lens[k] values into lens[k].div_ceil(block) block sums
         let mut lens = vec![max_len.max(1)];
         while *lens.last().unwrap() > block {
@@ -120,7 +122,13 @@ impl PrefixScan {
             };
             let blocks = level(&src)?;
             let add = outputs.get(k + 1).map(level).transpose()?;
-            levels.push(Level { len, blocks, add });
+            let groups = len.div_ceil(block);
+            levels.push(Level {
+                len,
+                groups,
+                blocks,
+                add,
+            });
         }
         // the per-dispatch parameters: group 1, a dynamic offset picks mode and level
         let param_group = stage.bind_group(ctx, 1, &[&[("sp", params.slot(0))]])?;
@@ -151,7 +159,7 @@ impl PrefixScan {
                 pass,
                 "scan_blocks",
                 &[(&lv.blocks, 0), (group, slot(k))],
-                Dispatch::Threads(lv.len),
+                Dispatch::Groups(lv.groups),
             );
         }
         for (k, lv) in self.levels.iter().enumerate().rev() {

@@ -9,6 +9,9 @@ pub const WG_PARTICLES: u32 = 64;
 /// Threads per workgroup of the block kernels: a prefix-scan block, the
 /// adaptive stage's per-particle kernels (`WG_BLOCK` in WGSL).
 pub const WG_BLOCK: u32 = 256;
+/// Values each thread of a prefix-scan block scans serially (`SCAN_ITEMS` in WGSL): a block is
+/// `WG_BLOCK` x `SCAN_ITEMS` values.
+pub const SCAN_ITEMS: u32 = 8;
 
 /// Loop iterations an invocation may run on llvmpipe, with a margin below its 65535.
 pub const CPU_LOOP_BUDGET: u32 = 60_000;
@@ -18,6 +21,7 @@ pub const CPU_LOOP_BUDGET: u32 = 60_000;
 pub struct Prelude {
     pub wg_particles: u32,
     pub wg_block: u32,
+    pub scan_items: u32,
     /// Most workgroups per dispatch dimension (the adapter's limit; a larger dispatch is folded
     /// into rows along y).
     pub max_groups_x: u32,
@@ -32,6 +36,7 @@ impl Default for Prelude {
         Self {
             wg_particles: WG_PARTICLES,
             wg_block: WG_BLOCK,
+            scan_items: SCAN_ITEMS,
             max_groups_x: 65535,
             loop_budget: CPU_LOOP_BUDGET,
         }
@@ -63,8 +68,8 @@ impl Prelude {
 
     fn wgsl(&self) -> String {
         format!(
-            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\n",
-            self.wg_particles, self.wg_block, self.max_groups_x, self.loop_budget
+            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst SCAN_ITEMS: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\n",
+            self.wg_particles, self.wg_block, self.scan_items, self.max_groups_x, self.loop_budget
         )
     }
 }

@@ -1,7 +1,7 @@
 //! Mirror of shaders/scan.wgsl (`scan_blocks`, `scan_add`): the exclusive u32 prefix scan in
-//! blocks of 256, composed over levels as the GPU's `PrefixScan` runs them. A nonzero `mask`
+//! blocks of `WG_BLOCK` x `SCAN_ITEMS` (2048), composed over levels as the GPU's `PrefixScan` runs them. A nonzero `mask`
 //! scans `(v & mask) != 0` as 0/1 instead of the values (the adaptive stage's flag scans).
-pub const BLOCK: usize = 256;
+pub const BLOCK: usize = (crate::gpu::shaders::WG_BLOCK * crate::gpu::shaders::SCAN_ITEMS) as usize;
 
 /// The value a scan with `mask` adds for `v`.
 pub fn masked(v: u32, mask: u32) -> u32 {
@@ -12,7 +12,7 @@ pub fn masked(v: u32, mask: u32) -> u32 {
     }
 }
 
-/// Exclusive scan of each block of 256 (of the masked values) in place; returns the block sums.
+/// Exclusive scan of each block of `BLOCK` (of the masked values) in place; returns the block sums.
 pub fn scan_blocks(data: &mut [u32], mask: u32) -> Vec<u32> {
     data.chunks_mut(BLOCK)
         .map(|b| {
@@ -57,17 +57,19 @@ pub fn exclusive_scan(values: &[u32], n: usize, mask: u32) -> Vec<u32> {
 mod tests {
     use super::*;
 
-    /// Three levels (more than 256^2 values), against a running sum, with and without a mask.
+    /// Three levels (more than `BLOCK`^2 values), against a running sum, with and without a mask.
     #[test]
     fn exclusive_scan_is_the_running_sum() {
-        let values: Vec<u32> = (0..70_000u32)
+        let big = BLOCK * BLOCK + 5;
+        let values: Vec<u32> = (0..big as u32)
             .map(|i| i.wrapping_mul(2654435761) >> 26)
             .collect();
         for (n, mask) in [
-            (70_000, 0),
-            (70_000, 0b1010),
+            (big, 0),
+            (big, 0b1010),
+            (BLOCK + 1, 0),
+            (BLOCK, 4),
             (257, 0),
-            (256, 4),
             (1, 0),
             (0, 0),
         ] {
