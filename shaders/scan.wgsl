@@ -72,11 +72,15 @@ fn scan_blocks(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) n
     if (t == WG_BLOCK - 1u) { sums[g] = totals[WG_BLOCK - 1u]; }
 }
 
-// output[i] += input[block of i], where input holds the next level's scanned block sums.
+// output[i] += input[block of i], where input holds the next level's scanned block sums; a
+// workgroup per block, as scan_blocks.
 @compute @workgroup_size(WG_BLOCK)
 fn scan_add(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
             @builtin(local_invocation_index) t: u32) {
     let g = wid.y * nwg.x + wid.x;
-    let i = g * WG_BLOCK + t;
-    if (i < sp.n) { output[i] = output[i] + input[i / SCAN_BLOCK]; }
+    let add = input[g];
+    for (var k = 0u; k < SCAN_ITEMS; k++) {
+        let i = g * SCAN_BLOCK + k * WG_BLOCK + t;
+        if (i < sp.n) { output[i] = output[i] + add; }
+    }
 }

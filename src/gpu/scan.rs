@@ -31,7 +31,7 @@ pub enum ScanOf {
 
 struct Level {
     len: u32,
-    /// Workgroups of `scan_blocks` (one per block of values).
+    /// Workgroups of `scan_blocks` and `scan_add` (one per block of values).
     groups: u32,
     blocks: wgpu::BindGroup,
     /// Adds the next level's scanned sums back (absent on the last level).
@@ -168,7 +168,7 @@ impl PrefixScan {
                     pass,
                     "scan_add",
                     &[(add, 0), (group, slot(k))],
-                    Dispatch::Threads(lv.len),
+                    Dispatch::Groups(lv.groups),
                 );
             }
         }
