@@ -46,10 +46,13 @@ var<workgroup> wg_end: u32;
 var<workgroup> nb_start: array<u32, 27>;
 var<workgroup> nb_pre: array<u32, 28>;
 var<workgroup> wg_flag: u32;
-var<workgroup> red_d2: array<f32, WG_PARTICLES>;
-var<workgroup> red_order: array<u32, WG_PARTICLES>;
-var<workgroup> red_slot: array<u32, WG_PARTICLES>;
-var<workgroup> red_blocked: array<u32, WG_PARTICLES>;
+// The reductions, by workgroup atomics (3 barriers where a tree over the threads takes 12): the
+// nearest partner's squared distance (f32 bits: for d2 >= 0 they order as the values), the
+// lowest neighbourhood order at that distance, its slot, and whether the midpoint is blocked.
+var<workgroup> wg_d2: atomic<u32>;
+var<workgroup> wg_order: atomic<u32>;
+var<workgroup> wg_partner: u32;
+var<workgroup> wg_blocked: atomic<u32>;
 
 // The neighbourhood slot of this thread's n-th candidate in neighbour cell kc, or NONE: thread t
 // takes the candidates whose neighbourhood order p = nb_pre[kc] + (k - nb_start[kc]) is
@@ -96,7 +99,13 @@ fn adaptive_merge(@builtin(workgroup_id) wid: vec3<u32>,
     let begin = workgroupUniformLoad(&wg_begin);
     let end = workgroupUniformLoad(&wg_end);
     for (var i = begin; i < end; i++) {
-        if (t == 0u) { wg_flag = flags[i]; }
+        if (t == 0u) {
+            wg_flag = flags[i];
+            atomicStore(&wg_d2, NONE);
+            atomicStore(&wg_order, NONE);
+            wg_partner = NONE;
+            atomicStore(&wg_blocked, 0u);
+        }
         // still only merge-marked: not merged into, nor the product of a merge, in this run
         if (workgroupUniformLoad(&wg_flag) != FLAG_MERGE) { continue; }
         let level = info[i].y;
@@ -119,48 +128,37 @@ fn adaptive_merge(@builtin(workgroup_id) wid: vec3<u32>,
                 }
             }
         }
-        red_d2[t] = best_d2;
-        red_order[t] = best_order;
-        red_slot[t] = best_slot;
+        if (best_order != NONE) { atomicMin(&wg_d2, bitcast<u32>(best_d2)); }
         workgroupBarrier();
-        for (var s = WG_PARTICLES / 2u; s > 0u; s = s / 2u) {
-            if (t < s) {
-                let o = t + s;
-                if (red_d2[o] < red_d2[t] || (red_d2[o] == red_d2[t] && red_order[o] < red_order[t])) {
-                    red_d2[t] = red_d2[o];
-                    red_order[t] = red_order[o];
-                    red_slot[t] = red_slot[o];
-                }
-            }
-            workgroupBarrier();
+        if (best_order != NONE && bitcast<u32>(best_d2) == atomicLoad(&wg_d2)) {
+            atomicMin(&wg_order, best_order);
         }
-        let j = red_slot[0];
+        workgroupBarrier();
+        // neighbourhood orders are distinct: one thread holds the winner
+        if (best_order != NONE && best_order == atomicLoad(&wg_order)) { wg_partner = best_slot; }
+        let j = workgroupUniformLoad(&wg_partner);
+        if (j == NONE) {
+            continue;
+        }
         // Equal masses on a level: the midpoint is the mass-weighted centre; it needs room.
-        var m = xi;
-        var blocked = 0u;
-        if (j != NONE) {
-            m = wrap_pos(xi + 0.5 * min_image(pos[j].xyz - xi, grid), grid);
-            let r = params.min_distance * level_radius(params.h0, level - 1u);
-            let r2 = r * r;
-            for (var kc = 0u; kc < 27u && blocked == 0u; kc++) {
-                let stop = nb_start[kc] + (nb_pre[kc + 1u] - nb_pre[kc]);
-                for (var k = first_candidate(kc, t); k < stop; k += WG_PARTICLES) {
-                    if (k == i || k == j || (flags[k] & FLAG_DEAD) != 0u) { continue; }
-                    let dk = min_image(m - pos[k].xyz, grid);
-                    if (dot(dk, dk) < r2) {
-                        blocked = 1u;
-                        break;
-                    }
+        let m = wrap_pos(xi + 0.5 * min_image(pos[j].xyz - xi, grid), grid);
+        let r = params.min_distance * level_radius(params.h0, level - 1u);
+        let r2 = r * r;
+        var blocked = false;
+        for (var kc = 0u; kc < 27u && !blocked; kc++) {
+            let stop = nb_start[kc] + (nb_pre[kc + 1u] - nb_pre[kc]);
+            for (var k = first_candidate(kc, t); k < stop; k += WG_PARTICLES) {
+                if (k == i || k == j || (flags[k] & FLAG_DEAD) != 0u) { continue; }
+                let dk = min_image(m - pos[k].xyz, grid);
+                if (dot(dk, dk) < r2) {
+                    blocked = true;
+                    break;
                 }
             }
         }
-        red_blocked[t] = blocked;
+        if (blocked) { atomicOr(&wg_blocked, 1u); }
         workgroupBarrier();
-        for (var s = WG_PARTICLES / 2u; s > 0u; s = s / 2u) {
-            if (t < s) { red_blocked[t] = red_blocked[t] | red_blocked[t + s]; }
-            workgroupBarrier();
-        }
-        if (t == 0u && j != NONE && red_blocked[0] == 0u) {
+        if (t == 0u && atomicLoad(&wg_blocked) == 0u) {
             pos[i] = vec4<f32>(m, pos[i].w);
             vel[i] = 0.5 * (vel[i] + vel[j]);
             thermo[i] = 0.5 * (thermo[i] + thermo[j]);

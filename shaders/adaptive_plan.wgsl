@@ -58,8 +58,9 @@ fn merge_cells(@builtin(global_invocation_id) gid: vec3<u32>,
             }
         }
     }
-    // loop iterations of one merge invocation: the slot walk, and per marked slot the 27 cells,
-    // its share of two neighbourhood scans and the two reductions
+    // loop iterations of one merge invocation: the slot walk, and per marked slot the 27 cells
+    // and its share of two neighbourhood scans (+16: what the tree reductions took before they
+    // became workgroup atomics, kept as margin so the limit a shot meets has not moved)
     let share = nb / WG_PARTICLES + 1u;
     let estimate = (end - begin) + marked * (2u * (27u + share) + 16u);
     atomicMax(&load[1], estimate);
