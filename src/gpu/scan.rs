@@ -30,7 +30,6 @@ pub enum ScanOf {
 }
 
 struct Level {
-    len: u32,
     /// Workgroups of `scan_blocks` and `scan_add` (one per block of values).
     groups: u32,
     blocks: wgpu::BindGroup,
@@ -124,7 +123,6 @@ impl PrefixScan {
             let add = outputs.get(k + 1).map(level).transpose()?;
             let groups = len.div_ceil(block);
             levels.push(Level {
-                len,
                 groups,
                 blocks,
                 add,
