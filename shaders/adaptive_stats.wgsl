@@ -1,4 +1,5 @@
-// Adaptive bookkeeping: totals after the scans (single thread) and particles per level.
+// Adaptive bookkeeping: totals after the scans (single thread). The particles per level are
+// counted by adaptive_split.wgsl into the words totals_split zeroes.
 // Integer counters only, so the read-back is exact and deterministic. totals_split also writes
 // the particle set's next live state (count, next id, single-level flag, dispatch arguments)
 // into the counters' C_LIVE block, which the host's encoder copies over `live` once the split is
@@ -10,8 +11,7 @@
 @group(0) @binding(1) var<storage, read_write> counters: array<atomic<u32>>;
 @group(0) @binding(2) var<storage, read> scan: array<u32>;
 @group(0) @binding(3) var<storage, read> flags: array<u32>;
-@group(0) @binding(4) var<storage, read> info: array<vec2<u32>>;
-@group(0) @binding(5) var<storage, read> live: Live;
+@group(0) @binding(4) var<storage, read> live: Live;
 
 // Total of an exclusive scan over the first n flags for the given bit.
 fn scan_total(n: u32, bit: u32) -> u32 {
@@ -55,12 +55,4 @@ fn totals_split() {
     atomicAdd(&counters[C_FRAME_MERGES], atomicLoad(&counters[C_MERGES]));
     atomicAdd(&counters[C_FRAME_SPLITS], done);
     atomicAdd(&counters[C_FRAME_SKIPPED], wanted - done);
-}
-
-@compute @workgroup_size(WG_BLOCK)
-fn count_levels(@builtin(global_invocation_id) gid: vec3<u32>,
-                @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = thread_index(gid, nwg, WG_BLOCK);
-    if (i >= atomicLoad(&counters[C_FINAL])) { return; }
-    atomicAdd(&counters[C_LEVELS + min(info[i].y, MAX_LEVELS - 1u)], 1u);
 }

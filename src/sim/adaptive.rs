@@ -14,7 +14,7 @@
 //!    appended after the live range, up to the capacity (excess splits skipped and counted);
 //!    the new live state is copied over `live` (gpu::live), so the next kernels and dispatches
 //!    see the new count;
-//! 5. `count_levels`: per-level counts in the counters, read back with the frame.
+//!    it also counts the particles per level into the counters, read back with the frame.
 //!
 //! Marks and the split room check read one snapshot (before any merge), so neither depends on
 //! the other's outcome. The f64 mirrors are in `sim::reference` (one file per shader).
@@ -371,7 +371,7 @@ impl AdaptiveStage {
         let stats = Stage::new(
             ctx,
             "adaptive_stats.wgsl",
-            &["totals_merge", "totals_split", "count_levels"],
+            &["totals_merge", "totals_split"],
         )?;
         let param_buf = ParamSlots::single(ctx, "adaptive params", &params);
         let flags = b.quarter(&b.pred, 0);
@@ -544,7 +544,7 @@ impl AdaptiveStage {
             one(&self.compact, &mut pass, "compact_move", &b.compact);
         }
         rec.end_phase(Phase::Merge)?;
-        // Split phase 2: scan of the split marks, children, the new live state, level counts.
+        // Split phase 2: scan of the split marks, the new live state, children and level counts.
         {
             let mut pass = rec.pass(Phase::Split);
             self.scan.encode(&mut pass, 1);
@@ -563,10 +563,6 @@ impl AdaptiveStage {
             0,
             std::mem::size_of::<crate::gpu::live::Live>() as u64,
         );
-        {
-            let mut pass = rec.pass(Phase::Split);
-            one(&self.stats, &mut pass, "count_levels", &b.stats);
-        }
         rec.end_phase(Phase::Split)
     }
 

@@ -8,7 +8,7 @@ use super::adaptive_compact::{compact_holes, compact_move};
 use super::adaptive_mark::adaptive_mark;
 use super::adaptive_merge::adaptive_merge;
 use super::adaptive_split::adaptive_split;
-use super::adaptive_stats::{count_levels, totals_merge, totals_split};
+use super::adaptive_stats::{totals_merge, totals_split};
 use super::scan::exclusive_scan;
 use crate::sim::adaptive::{
     colour_passes, mass_units, AdaptiveParams, AdaptiveReport, FLAG_DEAD, FLAG_SPLIT,
@@ -90,8 +90,7 @@ pub fn run(
     compact_move(prm, &c, &scan, &mut flags, &holes, p);
     let scan = exclusive_scan(&flags, n, FLAG_SPLIT);
     totals_split(prm, &scan, &flags, &mut c);
-    adaptive_split(g, prm, &c, &scan, &flags, p);
-    count_levels(&mut c, p);
+    adaptive_split(g, prm, &mut c, &scan, &flags, p);
     let per_level = c.levels[..prm.max_level as usize + 1].to_vec();
     AdaptiveReport {
         mass_units: mass_units(&per_level, prm.max_level),

@@ -1,22 +1,26 @@
-//! f64 mirror of shaders/adaptive_split.wgsl (`adaptive_split`).
+//! f64 mirror of shaders/adaptive_split.wgsl (`adaptive_split`), with its count per level.
 use super::adaptive::{Counters, RefParticles};
 use super::common::children;
-use crate::sim::adaptive::{AdaptiveParams, FLAG_SPLIT};
+use crate::sim::adaptive::{AdaptiveParams, FLAG_SPLIT, MAX_LEVELS};
 use crate::sim::grid_params::GridParams;
 
-/// Splits the marked particles below `newcount` whose rank fits the free capacity.
+/// Splits the marked particles below `newcount` whose rank fits the free capacity, and counts
+/// every final particle's level into `c.levels` (zeroed by `totals_split`).
 pub fn adaptive_split(
     g: &GridParams,
     prm: &AdaptiveParams,
-    c: &Counters,
+    c: &mut Counters,
     scan: &[u32],
     flags: &[u32],
     p: &mut RefParticles,
 ) {
+    let bin = |level: u32| level.min(MAX_LEVELS - 1) as usize;
     for i in 0..c.newcount as usize {
         if flags[i] & FLAG_SPLIT == 0 || scan[i] >= c.splits {
+            c.levels[bin(p.info[i][1])] += 1;
             continue;
         }
+        c.levels[bin(p.info[i][1] + 1)] += 2;
         let k = scan[i];
         let slot = (c.newcount + k) as usize;
         let [id, level] = p.info[i];

@@ -1,6 +1,6 @@
-//! f64 mirror of shaders/adaptive_stats.wgsl (`totals_merge`, `totals_split`, `count_levels`):
-//! the counters after the scans and the particles per level.
-use super::adaptive::{Counters, RefParticles};
+//! f64 mirror of shaders/adaptive_stats.wgsl (`totals_merge`, `totals_split`):
+//! the counters after the scans (adaptive_split counts the particles per level).
+use super::adaptive::Counters;
 use crate::sim::adaptive::{AdaptiveParams, FLAG_DEAD, FLAG_SPLIT, MAX_LEVELS};
 
 /// Total of an exclusive scan over the first n flags for the given bit.
@@ -27,10 +27,4 @@ pub fn totals_split(prm: &AdaptiveParams, scan: &[u32], flags: &[u32], c: &mut C
     c.final_count = c.newcount + done;
     c.next_id = prm.next_id + done;
     c.levels = vec![0; MAX_LEVELS as usize];
-}
-
-pub fn count_levels(c: &mut Counters, p: &RefParticles) {
-    for i in 0..c.final_count as usize {
-        c.levels[(p.info[i][1]).min(MAX_LEVELS - 1) as usize] += 1;
-    }
 }
