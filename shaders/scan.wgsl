@@ -1,7 +1,7 @@
 // Exclusive prefix sum of u32 in blocks of WG_BLOCK x SCAN_ITEMS (in workgroup memory); the
 // block sums are scanned by the next level and added back (`scan_add`). The one scan of the
-// project: the grid's per-entry counts (the cell table) and the adaptive stage's flag ranks. Integer adds,
-// so the result does not depend on execution order. Mirror: src/sim/reference/scan.rs.
+// project: the grid's per-entry counts (the cell table) and the adaptive stage's flag ranks.
+// Integer adds, so the result does not depend on execution order. Mirror: src/sim/reference/scan.rs.
 //!include shared/live.wgsl
 
 struct ScanParams {

@@ -74,6 +74,7 @@ fn prefix_scan_matches_its_mirror_in_both_modes() {
     for (len, live_n) in [
         (1u32, 1u32),
         (256, 200),
+        (257, 257),
         (2048, 2047),
         (2049, 2049),
         (70_000, 65_537),

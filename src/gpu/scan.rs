@@ -1,6 +1,6 @@
 //! The one exclusive prefix scan (shaders/scan.wgsl): blocks of `WG_BLOCK` x `SCAN_ITEMS`
-//! values scanned in workgroup memory, the block sums scanned recursively by the next level and added back. The
-//! grid build scans its per-entry counts into the cell table with it, the adaptive stage its
+//! values scanned in workgroup memory, the block sums scanned recursively by the next level and
+//! added back. The grid build scans its per-entry counts into the cell table with it, the adaptive stage its
 //! flag bits. Integer adds only: exact, and the same on every run. Mirror: `sim::reference::scan`.
 use crate::error::Result;
 use crate::gpu::buffers::{storage_zeroed, ParamSlots, Span};

@@ -1,6 +1,7 @@
 //! Mirror of shaders/scan.wgsl (`scan_blocks`, `scan_add`): the exclusive u32 prefix scan in
-//! blocks of `WG_BLOCK` x `SCAN_ITEMS` (2048), composed over levels as the GPU's `PrefixScan` runs them. A nonzero `mask`
-//! scans `(v & mask) != 0` as 0/1 instead of the values (the adaptive stage's flag scans).
+//! blocks of `WG_BLOCK` x `SCAN_ITEMS` (2048), composed over levels as the GPU's `PrefixScan`
+//! runs them. A nonzero `mask` scans `(v & mask) != 0` as 0/1 instead of the values (the
+//! adaptive stage's flag scans).
 pub const BLOCK: usize = (crate::gpu::shaders::WG_BLOCK * crate::gpu::shaders::SCAN_ITEMS) as usize;
 
 /// The value a scan with `mask` adds for `v`.
@@ -12,7 +13,8 @@ pub fn masked(v: u32, mask: u32) -> u32 {
     }
 }
 
-/// Exclusive scan of each block of `BLOCK` (of the masked values) in place; returns the block sums.
+/// Exclusive scan of each block of `BLOCK` (of the masked values) in place; returns the block
+/// sums.
 pub fn scan_blocks(data: &mut [u32], mask: u32) -> Vec<u32> {
     data.chunks_mut(BLOCK)
         .map(|b| {
@@ -70,6 +72,7 @@ mod tests {
             (BLOCK + 1, 0),
             (BLOCK, 4),
             (257, 0),
+            (256, 4),
             (1, 0),
             (0, 0),
         ] {
