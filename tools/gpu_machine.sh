@@ -81,12 +81,13 @@ run() {
         export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
         probe=$(probe_adapter)
     fi
-    echo "${probe:-{\"adapter\": null\}}" >"$OUT/adapter.json"
-    echo "adapter: ${probe:-none (see probe.err)}"
     if [ -z "$probe" ]; then
+        echo '{"adapter": null}' >"$OUT/adapter.json"
         echo "no adapter: wgpu found no Vulkan device (probe.err)" >&2
         return 4
     fi
+    echo "$probe" >"$OUT/adapter.json"
+    echo "adapter: $probe"
     if grep -qi llvmpipe <<<"$probe" && [ "${NIMBUS_GPU_ALLOW_CPU:-0}" != 1 ]; then
         echo "wgpu sees only llvmpipe: the NVIDIA GPU is not visible through Vulkan; stopping" >&2
         return 4
