@@ -6,12 +6,15 @@ mod harness;
 use nimbus::gpu::buffers::{read_back, storage_init, Span};
 use nimbus::gpu::live::{Live, LiveBuffer};
 use nimbus::gpu::scan::{PrefixScan, ScanOf};
+use nimbus::gpu::shaders::{WG_SCAN_CPU, WG_SCAN_GPU};
+use nimbus::gpu::Context;
 use nimbus::sim::grid::GridStage;
 use nimbus::sim::grid_params::GridParams;
 use nimbus::sim::phase::{Phase, Recorder};
 use nimbus::sim::reference::grid::build_cell_table;
 use nimbus::sim::ParticleState;
 use rand::{Rng, SeedableRng};
+use std::sync::Arc;
 
 /// The grid build's counting sort is the stable sort by (cell, x slice) key of the mirror, with
 /// its cell table: on a clump (hundreds of particles in one slice), one particle, a table larger
@@ -67,10 +70,20 @@ fn the_grid_build_is_a_stable_sort_by_cell() {
     }
 }
 
+/// Both shapes of a scan block (2048 values either way): a full workgroup of threads, what GPUs
+/// get, and one SIMD batch, what CPU devices get, whatever device runs the test.
 #[test]
 fn prefix_scan_matches_its_mirror_in_both_modes() {
-    let ctx = harness::context();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(harness::fresh_seed());
+    for wg_scan in [WG_SCAN_GPU, WG_SCAN_CPU] {
+        let mut ctx = Arc::into_inner(harness::context()).unwrap();
+        ctx.prelude.wg_scan = wg_scan;
+        scan_matches_mirror(&ctx, &mut rng);
+    }
+}
+
+fn scan_matches_mirror(ctx: &Context, rng: &mut impl Rng) {
+    let wg_scan = ctx.prelude.wg_scan;
     for (len, live_n) in [
         (1u32, 1u32),
         (256, 200),
@@ -84,20 +97,24 @@ fn prefix_scan_matches_its_mirror_in_both_modes() {
     ] {
         let values: Vec<u32> = (0..len).map(|_| rng.random_range(0..16u32)).collect();
         let input = storage_init(&ctx.device, "scan input", &values);
-        let live = LiveBuffer::new(&ctx, &Live::new(&ctx, live_n, 0, true));
+        let live = LiveBuffer::new(ctx, &Live::new(ctx, live_n, 0, true));
         let modes = [ScanOf::Values, ScanOf::LiveFlags(4)];
-        let scan = PrefixScan::new(&ctx, &Span::whole(&input), None, len, &live, &modes).unwrap();
+        let scan = PrefixScan::new(ctx, &Span::whole(&input), None, len, &live, &modes).unwrap();
         for (mode, what) in modes.iter().enumerate() {
-            let mut rec = Recorder::new(&ctx, None, None);
+            let mut rec = Recorder::new(ctx, None, None);
             scan.encode(&mut rec.pass(Phase::Grid), mode);
             rec.submit();
-            let got: Vec<u32> = read_back(&ctx, &scan.output().buffer, len as usize).unwrap();
+            let got: Vec<u32> = read_back(ctx, &scan.output().buffer, len as usize).unwrap();
             let (n, mask) = match what {
                 ScanOf::Values => (len as usize, 0),
                 ScanOf::LiveFlags(m) => (live_n as usize, *m),
             };
             let want = nimbus::sim::reference::scan::exclusive_scan(&values, n, mask);
-            assert_eq!(&got[..n], &want[..n], "len {len}, live {live_n}, {what:?}");
+            assert_eq!(
+                &got[..n],
+                &want[..n],
+                "{wg_scan} threads a block, len {len}, live {live_n}, {what:?}"
+            );
         }
     }
 }

@@ -1,5 +1,5 @@
-//! The one exclusive prefix scan (shaders/scan.wgsl): blocks of `WG_BLOCK` x `SCAN_ITEMS`
-//! values scanned in workgroup memory, the block sums scanned recursively by the next level and
+//! The one exclusive prefix scan (shaders/scan.wgsl): blocks of `SCAN_BLOCK` values scanned in
+//! workgroup memory by `WG_SCAN` threads (a full workgroup on GPUs, one SIMD batch on CPUs), the block sums scanned recursively by the next level and
 //! added back. The grid build scans its per-entry counts into the cell table with it, the adaptive stage its
 //! flag bits. Integer adds only: exact, and the same on every run. Mirror: `sim::reference::scan`.
 use crate::error::Result;
@@ -63,7 +63,7 @@ impl PrefixScan {
         modes: &[ScanOf],
     ) -> Result<Self> {
         let stage = Stage::new(ctx, SHADER, &["scan_blocks", "scan_add"])?;
-        let block = ctx.prelude.wg_block * ctx.prelude.scan_items;
+        let block = crate::gpu::shaders::SCAN_BLOCK;
         // level k scans lens[k] values into lens[k].div_ceil(block) block sums
         let mut lens = vec![max_len.max(1)];
         while *lens.last().unwrap() > block {

@@ -6,12 +6,20 @@ use crate::error::{Error, Result};
 
 /// Threads per workgroup of the per-particle kernels (`WG_PARTICLES` in WGSL).
 pub const WG_PARTICLES: u32 = 64;
-/// Threads per workgroup of the block kernels: a prefix-scan block, the
-/// adaptive stage's per-particle kernels (`WG_BLOCK` in WGSL).
+/// Threads per workgroup of the block kernels: the adaptive stage's per-particle kernels, and a
+/// prefix-scan block on GPUs (`WG_BLOCK` in WGSL).
 pub const WG_BLOCK: u32 = 256;
-/// Values each thread of a prefix-scan block scans serially (`SCAN_ITEMS` in WGSL): a block is
-/// `WG_BLOCK` x `SCAN_ITEMS` values.
-pub const SCAN_ITEMS: u32 = 8;
+/// Values in one prefix-scan block, whatever the device (the mirror `sim::reference::scan` scans
+/// the same blocks): `WG_SCAN` threads scan `SCAN_ITEMS` = `SCAN_BLOCK / WG_SCAN` consecutive
+/// values each (both in WGSL).
+pub const SCAN_BLOCK: u32 = 2048;
+/// Threads per prefix-scan block on GPUs: a full workgroup, 8 values each.
+pub const WG_SCAN_GPU: u32 = WG_BLOCK;
+/// Threads per prefix-scan block on CPU devices: one SIMD batch, 256 values each. llvmpipe runs a
+/// workgroup as batches of 8 invocations that take turns at every barrier; with a single batch
+/// the scan's barriers cost next to nothing (a scan of 137k values: 3.2 -> 1.4-1.9 ms,
+/// docs/PERFORMANCE.md "Table 1 / Session 10").
+pub const WG_SCAN_CPU: u32 = 8;
 
 /// Loop iterations an invocation may run on llvmpipe, with a margin below its 65535.
 pub const CPU_LOOP_BUDGET: u32 = 60_000;
@@ -21,7 +29,8 @@ pub const CPU_LOOP_BUDGET: u32 = 60_000;
 pub struct Prelude {
     pub wg_particles: u32,
     pub wg_block: u32,
-    pub scan_items: u32,
+    /// Threads per prefix-scan block (`WG_SCAN`; `WG_SCAN_GPU` or `WG_SCAN_CPU`).
+    pub wg_scan: u32,
     /// Most workgroups per dispatch dimension (the adapter's limit; a larger dispatch is folded
     /// into rows along y).
     pub max_groups_x: u32,
@@ -36,7 +45,7 @@ impl Default for Prelude {
         Self {
             wg_particles: WG_PARTICLES,
             wg_block: WG_BLOCK,
-            scan_items: SCAN_ITEMS,
+            wg_scan: WG_SCAN_GPU,
             max_groups_x: 65535,
             loop_budget: CPU_LOOP_BUDGET,
         }
@@ -46,13 +55,11 @@ impl Default for Prelude {
 impl Prelude {
     /// The prelude for a device of this type with these limits.
     pub fn for_device(limits: &wgpu::Limits, device_type: wgpu::DeviceType) -> Result<Self> {
+        let cpu = device_type == wgpu::DeviceType::Cpu;
         let p = Self {
             max_groups_x: limits.max_compute_workgroups_per_dimension,
-            loop_budget: if device_type == wgpu::DeviceType::Cpu {
-                CPU_LOOP_BUDGET
-            } else {
-                u32::MAX
-            },
+            loop_budget: if cpu { CPU_LOOP_BUDGET } else { u32::MAX },
+            wg_scan: if cpu { WG_SCAN_CPU } else { WG_SCAN_GPU },
             ..Self::default()
         };
         if limits.max_compute_invocations_per_workgroup < p.wg_block
@@ -68,8 +75,13 @@ impl Prelude {
 
     fn wgsl(&self) -> String {
         format!(
-            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst SCAN_ITEMS: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\n",
-            self.wg_particles, self.wg_block, self.scan_items, self.max_groups_x, self.loop_budget
+            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst WG_SCAN: u32 = {}u;\nconst SCAN_ITEMS: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\n",
+            self.wg_particles,
+            self.wg_block,
+            self.wg_scan,
+            SCAN_BLOCK / self.wg_scan,
+            self.max_groups_x,
+            self.loop_budget
         )
     }
 }

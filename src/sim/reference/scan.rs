@@ -1,8 +1,8 @@
 //! Mirror of shaders/scan.wgsl (`scan_blocks`, `scan_add`): the exclusive u32 prefix scan in
-//! blocks of `WG_BLOCK` x `SCAN_ITEMS` (2048), composed over levels as the GPU's `PrefixScan`
+//! blocks of `SCAN_BLOCK` (2048), composed over levels as the GPU's `PrefixScan`
 //! runs them. A nonzero `mask` scans `(v & mask) != 0` as 0/1 instead of the values (the
 //! adaptive stage's flag scans).
-pub const BLOCK: usize = (crate::gpu::shaders::WG_BLOCK * crate::gpu::shaders::SCAN_ITEMS) as usize;
+pub const BLOCK: usize = crate::gpu::shaders::SCAN_BLOCK as usize;
 
 /// The value a scan with `mask` adds for `v`.
 pub fn masked(v: u32, mask: u32) -> u32 {
