@@ -179,14 +179,24 @@ pub fn validate_with(name: &str, prelude: &Prelude) -> Result<naga::Module> {
 }
 
 /// Compiles a stage into a shader module on the context's device, with its prelude.
+///
+/// Every check wgpu adds stays on except the forced loop bound: naga would give every loop a
+/// 64-bit trip counter and an extra exit test, which costs ~10% of a PBF substep on llvmpipe
+/// (docs/PERFORMANCE.md "PBF / Session 11"). Our loops need no such bound: each runs over a
+/// range fixed before it starts (candidate entries, cells, scan items) or pops a bit of a mask
+/// per trip, so every loop ends.
 pub fn module(ctx: &crate::gpu::Context, name: &str) -> Result<wgpu::ShaderModule> {
     let src = source_with(name, &ctx.prelude)?;
-    Ok(ctx
-        .device
-        .create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(name),
-            source: wgpu::ShaderSource::Wgsl(src.into()),
-        }))
+    let checks = wgpu::ShaderRuntimeChecks {
+        force_loop_bounding: false,
+        ..wgpu::ShaderRuntimeChecks::checked()
+    };
+    let desc = wgpu::ShaderModuleDescriptor {
+        label: Some(name),
+        source: wgpu::ShaderSource::Wgsl(src.into()),
+    };
+    // SAFETY: the only check left out is the loop bound, and every loop of shaders/ ends (above).
+    Ok(unsafe { ctx.device.create_shader_module_trusted(desc, checks) })
 }
 
 #[cfg(test)]
