@@ -323,11 +323,6 @@ fn anchor_of(x: vec3<f32>, tag: u32) -> Anchor {
     return Anchor(c, s, true);
 }
 
-// n in -1..=d into 0..d (no integer division: a scalar loop over the lanes on SIMD CPUs)
-fn wrap(n: i32, d: i32) -> i32 {
-    return select(select(n, n - d, n >= d), n + d, n < 0);
-}
-
 // Row (dy, dz) around the anchor, clipped to the slices within SUB units of its sub-cell (all
 // integers: every pass gets the same entries); the entry ranges as `row_entries`.
 fn anchor_row(an: Anchor, dy: i32, dz: i32) -> vec4<u32> {
@@ -348,8 +343,9 @@ fn anchor_row(an: Anchor, dy: i32, dz: i32) -> vec4<u32> {
     if ((r + 1) * (r + 1) <= rem - 1) { r += 1; }
     if (r * r > rem - 1) { r -= 1; }
     let xs = i32(grid.x_slices);
-    // slice width SUB / x_slices, a power of two
-    let sh = u32(firstTrailingBit(u32(SUB) / grid.x_slices));
+    // slice width SUB / x_slices, a power of two (by bit positions: an integer division by a
+    // buffer value is a scalar divide per lane on SIMD CPUs)
+    let sh = firstTrailingBit(u32(SUB)) - firstTrailingBit(grid.x_slices);
     let sx = an.s.x + SUB;
     let a = max(((sx - r + (1 << sh) - 1) >> sh) - 1, 0);
     let b = min((sx + 1 + r) >> sh, 3 * xs - 1);
