@@ -181,7 +181,7 @@ pub fn validate_with(name: &str, prelude: &Prelude) -> Result<naga::Module> {
 /// Compiles a stage into a shader module on the context's device, with its prelude.
 ///
 /// Every check wgpu adds stays on except the forced loop bound: naga would give every loop a
-/// 64-bit trip counter and an extra exit test, which costs ~10% of a PBF substep on llvmpipe
+/// 64-bit trip counter and an extra exit test, which cost 5-12% of a PBF substep on llvmpipe
 /// (docs/PERFORMANCE.md "PBF / Session 11"). Our loops need no such bound: each runs over a
 /// range fixed before it starts (candidate entries, cells, scan items) or pops a bit of a mask
 /// per trip, so every loop ends.
