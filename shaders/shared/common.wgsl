@@ -81,8 +81,8 @@ fn cell_coord(p: vec3<f32>, g: GridParams) -> vec3<i32> {
     return clamp(c, vec3<i32>(0), vec3<i32>(g.dims) - vec3<i32>(1));
 }
 
-// n in -1..=d into 0..d, i.e. (n + d) % d there, without the integer division (a scalar divide
-// per lane on SIMD CPUs, ~20 instructions a row in every neighbour pass)
+// n in -1..=d into 0..d, i.e. (n + d) % d there, without the integer division (x86 has no vector
+// integer divide: llvmpipe runs one scalar divide per lane)
 fn wrap(n: i32, d: i32) -> i32 {
     return select(select(n, n - d, n >= d), n + d, n < 0);
 }

@@ -1,7 +1,8 @@
 //! The one exclusive prefix scan (shaders/scan.wgsl): blocks of `SCAN_BLOCK` values scanned in
 //! workgroup memory by `WG_SCAN` threads (a full workgroup on GPUs, one SIMD batch on CPUs), the
 //! block sums scanned recursively by the next level and added back. The grid build scans its
-//! per-entry counts into the cell table with it, the adaptive stage its flag bits. Integer adds only: exact, and the same on every run. Mirror: `sim::reference::scan`.
+//! per-entry counts into the cell table with it, the adaptive stage its flag bits. Integer adds
+//! only: exact, and the same on every run. Mirror: `sim::reference::scan`.
 use crate::error::Result;
 use crate::gpu::buffers::{storage_zeroed, ParamSlots, Span};
 use crate::gpu::live::LiveBuffer;
