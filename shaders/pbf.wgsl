@@ -26,6 +26,7 @@ struct PbfParams {
     // relaxation epsilon of eq. 4 in 1/m^2 (config value / h0^2)
     eps: f32,
     scorr_k: f32,
+    // (the kernels use SCORR_N, the same exponent as a pipeline constant)
     scorr_n: f32,
     scorr_dq: f32,
     xsph: f32,
@@ -143,10 +144,16 @@ fn predict(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     pred[i] = vec4<f32>(confine(pos[i].xyz + v * prm.dt), 0.0);
 }
 
-// x^n for the s_corr exponent n in [1, 16] (validated) by squaring: no loop per pair (a loop
-// inside the pair loop costs its own mask bookkeeping on SIMD CPUs).
+// The s_corr exponent n in [1, 16] (validated), `solver.scorr_n`: a pipeline constant (the stage
+// sets it from PbfParams.scorr_n), so pow_n compiles to its squarings alone. Read from the
+// uniform, the exponent and its select chain cost 27% of a density iteration of the periodic
+// bench on llvmpipe (docs/PERFORMANCE.md "PBF / Session 12").
+override SCORR_N: u32;
+
+// x^n for the s_corr exponent by squaring: no loop per pair (a loop inside the pair loop costs
+// its own mask bookkeeping on SIMD CPUs).
 fn pow_n(x: f32) -> f32 {
-    let n = u32(prm.scorr_n);
+    let n = SCORR_N;
     var t = select(1.0, x, (n & 1u) != 0u);
     var b = x * x;
     t = select(t, t * b, (n & 2u) != 0u);

@@ -152,6 +152,17 @@ pub fn reflect(
 impl Stage {
     /// Builds the pipelines of `entries` of `shader` with layouts reflected from its WGSL.
     pub fn new(ctx: &Context, shader: &'static str, entries: &[&'static str]) -> Result<Self> {
+        Self::with_constants(ctx, shader, entries, &[])
+    }
+
+    /// [`Self::new`] with values for the shader's pipeline-overridable constants (WGSL
+    /// `override`), by name: a value fixed for the stage's life that the compiler can fold.
+    pub fn with_constants(
+        ctx: &Context,
+        shader: &'static str,
+        entries: &[&'static str],
+        constants: &[(&str, f64)],
+    ) -> Result<Self> {
         let prelude = ctx.prelude;
         let module = crate::gpu::shaders::validate_with(shader, &prelude)?;
         let (bindings, sizes) = reflect(shader, &module, entries)?;
@@ -205,7 +216,10 @@ impl Stage {
                     layout: Some(&pipeline_layout),
                     module: &shader_module,
                     entry_point: Some(name),
-                    compilation_options: Default::default(),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants,
+                        ..Default::default()
+                    },
                     cache: None,
                 }),
             })

@@ -98,6 +98,8 @@ pub struct PbfStage {
     stage: Stage,
     params: ParamSlots<PbfParams>,
     bind: wgpu::BindGroup,
+    /// The s_corr exponent the pipelines were compiled with (`SCORR_N` in the WGSL).
+    scorr_n: f32,
 }
 
 /// The entry points of shaders/pbf.wgsl in the order of a substep.
@@ -114,7 +116,9 @@ pub const ENTRIES: [&str; 8] = [
 
 impl PbfStage {
     pub fn new(ctx: &Context, params: &PbfParams, b: &ParticleBuffers) -> Result<Self> {
-        let stage = Stage::new(ctx, "pbf.wgsl", &ENTRIES)?;
+        let scorr_n = params.scorr_n;
+        let constants = [("SCORR_N", scorr_n as f64)];
+        let stage = Stage::with_constants(ctx, "pbf.wgsl", &ENTRIES, &constants)?;
         let params = ParamSlots::single(ctx, "pbf params", params);
         let own = [
             ("prm", params.slot(0)),
@@ -125,11 +129,13 @@ impl PbfStage {
             stage,
             params,
             bind,
+            scorr_n,
         })
     }
 
     /// New parameters (a new substep length), from the next submit on.
     pub fn set_params(&self, ctx: &Context, params: &PbfParams) {
+        debug_assert_eq!(params.scorr_n, self.scorr_n, "SCORR_N is compiled in");
         self.params.write(ctx, 0, params);
     }
 
