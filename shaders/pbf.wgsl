@@ -64,12 +64,36 @@ struct PbfParams {
 @group(0) @binding(10) var<storage, read> bcell_start: array<u32>;
 @group(0) @binding(11) var<storage, read> live: Live;
 
+// The uniforms the pair terms use, read once per invocation and passed along: read where they are
+// used, inside the neighbour loops, they made the density iterations of the block bench ~12%
+// slower on llvmpipe (docs/PERFORMANCE.md "PBF / Session 12").
+struct K {
+    h0: f32,
+    h0sq: f32,
+    rho0: f32,
+    // level 0's kernel row (prm.lv[0]): the walls', and every particle's while all are level 0
+    lv0: vec4<f32>,
+    scorr_k: f32,
+    scorr_dq: f32,
+    // live.single_level
+    single: bool,
+    per_x: bool,
+    per_z: bool,
+    size: vec3<f32>,
+    inv: vec3<f32>,
+}
+fn pass_consts() -> K {
+    return K(prm.h0, prm.h0 * prm.h0, prm.rest_density, prm.lv[0], prm.scorr_k, prm.scorr_dq,
+        live.single_level != 0u, (grid.periodic & 1u) != 0u, (grid.periodic & 4u) != 0u,
+        grid.domain_size, 1.0 / grid.domain_size);
+}
+
 // min_image with a reciprocal (one multiply instead of a divide per pair; the rounded image is the
 // same for every pair closer than half the domain, i.e. every pair that counts)
-fn min_image_r(d: vec3<f32>, inv: vec3<f32>) -> vec3<f32> {
+fn min_image_k(d: vec3<f32>, k: K) -> vec3<f32> {
     var r = d;
-    if ((grid.periodic & 1u) != 0u) { r.x = r.x - grid.domain_size.x * round(r.x * inv.x); }
-    if ((grid.periodic & 4u) != 0u) { r.z = r.z - grid.domain_size.z * round(r.z * inv.z); }
+    if (k.per_x) { r.x = r.x - k.size.x * round(r.x * k.inv.x); }
+    if (k.per_z) { r.z = r.z - k.size.z * round(r.z * k.inv.z); }
     return r;
 }
 
@@ -167,14 +191,14 @@ fn pow_n(x: f32) -> f32 {
 
 // Artificial pressure s_corr = -k (W / W(dq h))^n h_i h_j (k dimensionless; h_i h_j gives lambda's
 // units, m^2, so the term is scale free).
-fn scorr(r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> f32 {
-    if (prm.scorr_k == 0.0) { return 0.0; }
+fn scorr(k: K, r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> f32 {
+    if (k.scorr_k == 0.0) { return 0.0; }
     let hi = lvi.x;
     let hj = lvj.x;
-    let hb = prm.scorr_dq * 0.5 * (hi + hj);
+    let hb = k.scorr_dq * 0.5 * (hi + hj);
     let x = wsym(r2, lvi, lvj) / wsym(hb * hb, lvi, lvj);
     let t = pow_n(x);
-    return -prm.scorr_k * t * hi * hj;
+    return -k.scorr_k * t * hi * hj;
 }
 
 struct LamAcc {
@@ -191,46 +215,47 @@ struct Me {
     hi: f32,
     mi: f32,
     lam: f32,
-    inv: vec3<f32>,
     wdq: f32,
+    k: K,
 }
 // Particle i at position and lambda pl (pred[i] with 0 in compute_lambda, scratch[i] after it)
 fn me_of(i: u32, pl: vec4<f32>) -> Me {
     let li = level_of(i);
     let lv = lv_of(li);
     let hd = prm.scorr_dq * lv.x;
-    return Me(pl.xyz, li, lv, lv.x, lv.w, pl.w, 1.0 / grid.domain_size, w_lv(hd * hd, lv));
+    return Me(pl.xyz, li, lv, lv.x, lv.w, pl.w, w_lv(hd * hd, lv), pass_consts());
 }
 // Level-0 kernels from the table's first row.
-fn w0(r2: f32) -> f32 {
-    return w_lv(r2, prm.lv[0]);
+fn w0(r2: f32, k: K) -> f32 {
+    return w_lv(r2, k.lv0);
 }
-fn gw0(xij: vec3<f32>, r: f32) -> vec3<f32> {
-    return gw_lv(xij, r, prm.lv[0]);
+fn gw0(xij: vec3<f32>, r: f32, k: K) -> vec3<f32> {
+    return gw_lv(xij, r, k.lv0);
 }
 // Adds candidate j; returns whether it is closer than h0 (a neighbour for the mask).
 fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) -> bool {
-    let xij = min_image_r(me.p - pred[j].xyz, me.inv);
+    let k = me.k;
+    let xij = min_image_k(me.p - pred[j].xyz, k);
     let r2 = dot(xij, xij);
-    if (live.single_level != 0u) {
+    if (k.single) {
         // no branch: both kernels are exactly 0 beyond h0 (adding 0 changes no sum), and on SIMD
         // CPUs a branch costs lane-mask bookkeeping for every pair
-        let m = prm.lv[0].w;
-        (*a).rho += m * w0(r2);
-        let g = gw0(xij, sqrt(r2)) * (m / prm.rest_density);
+        let m = k.lv0.w;
+        (*a).rho += m * w0(r2, k);
+        let g = gw0(xij, sqrt(r2), k) * (m / k.rho0);
         (*a).grad += g;
         (*a).g2 += dot(g, g);
-        return r2 < prm.h0 * prm.h0;
+        return r2 < k.h0sq;
     }
     // every radius is <= h0: farther pairs are rejected before their level is loaded
-    if (r2 < prm.h0 * prm.h0) {
+    if (r2 < k.h0sq) {
         let lj = level_of(j);
         let lvj = lv_of(lj);
         let hm = max(me.hi, lvj.x);
         if (r2 < hm * hm) {
             let mj = lvj.w;
             (*a).rho += mj * wsym(r2, me.lv, lvj);
-            let g = gsym(xij, sqrt(r2), me.lv, lvj) * (mj / prm.rest_density);
+            let g = gsym(xij, sqrt(r2), me.lv, lvj) * (mj / k.rho0);
             (*a).grad += g;
             (*a).g2 += dot(g, g);
         }
@@ -242,13 +267,14 @@ fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) -> bool {
 // (eq. 18 with the fluid's own mass starved split particles: a level-3 particle got 0.07 rho0
 // from the wall instead of 0.5 and was never pushed off it).
 fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
-    let xik = min_image_r(me.p - bpos[k].xyz, me.inv);
+    let c = me.k;
+    let xik = min_image_k(me.p - bpos[k].xyz, c);
     let r2 = dot(xik, xik);
-    let hm = max(me.hi, prm.h0);
+    let hm = max(me.hi, c.h0);
     if (r2 < hm * hm) {
-        let m = prm.lv[0].w;
-        (*a).rho += m * wsym(r2, me.lv, prm.lv[0]);
-        (*a).grad += gsym(xik, sqrt(r2), me.lv, prm.lv[0]) * (m / prm.rest_density);
+        let m = c.lv0.w;
+        (*a).rho += m * wsym(r2, me.lv, c.lv0);
+        (*a).grad += gsym(xik, sqrt(r2), me.lv, c.lv0) * (m / c.rho0);
         (*a).near_wall = true;
     }
 }
@@ -545,29 +571,30 @@ fn lambda_out(i: u32, me: Me, a: LamAcc) {
 
 // s_corr with W(dq h_i) precomputed for same-level pairs
 fn scorr_me(me: Me, r2: f32, lj: u32, lvj: vec4<f32>) -> f32 {
-    if (lj != me.li) { return scorr(r2, me.lv, lvj); }
-    if (prm.scorr_k == 0.0) { return 0.0; }
+    if (lj != me.li) { return scorr(me.k, r2, me.lv, lvj); }
+    if (me.k.scorr_k == 0.0) { return 0.0; }
     let x = w_lv(r2, me.lv) / me.wdq;
     let t = pow_n(x);
-    return -prm.scorr_k * t * me.hi * me.hi;
+    return -me.k.scorr_k * t * me.hi * me.hi;
 }
 fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
+    let k = me.k;
     let pj = scratch[j];
-    let xij = min_image_r(me.p - pj.xyz, me.inv);
+    let xij = min_image_k(me.p - pj.xyz, k);
     let r2 = dot(xij, xij);
-    if (live.single_level != 0u) {
+    if (k.single) {
         // no branch (see lam_fluid): gw0 is exactly 0 beyond h0
-        let m = prm.lv[0].w;
+        let m = k.lv0.w;
         var sc = 0.0;
-        if (prm.scorr_k != 0.0) {
-            let x = w0(r2) / me.wdq;
-            sc = -prm.scorr_k * pow_n(x) * me.hi * me.hi;
+        if (k.scorr_k != 0.0) {
+            let x = w0(r2, k) / me.wdq;
+            sc = -k.scorr_k * pow_n(x) * me.hi * me.hi;
         }
         let s = me.lam * m + pj.w * me.mi + sc * m;
-        *dp += s * gw0(xij, sqrt(r2));
+        *dp += s * gw0(xij, sqrt(r2), k);
         return;
     }
-    if (r2 < prm.h0 * prm.h0) {
+    if (r2 < k.h0sq) {
         let lj = level_of(j);
         let lvj = lv_of(lj);
         let hm = max(me.hi, lvj.x);
@@ -579,12 +606,13 @@ fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
     }
 }
 fn delta_wall(dp: ptr<function, vec3<f32>>, me: Me, k: u32) {
-    let xik = min_image_r(me.p - bpos[k].xyz, me.inv);
+    let c = me.k;
+    let xik = min_image_k(me.p - bpos[k].xyz, c);
     let r2 = dot(xik, xik);
-    let hm = max(me.hi, prm.h0);
+    let hm = max(me.hi, c.h0);
     if (r2 < hm * hm) {
-        let s = (me.lam + scorr(r2, me.lv, prm.lv[0])) * prm.lv[0].w;
-        *dp += s * gsym(xik, sqrt(r2), me.lv, prm.lv[0]);
+        let s = (me.lam + scorr(c, r2, me.lv, c.lv0)) * c.lv0.w;
+        *dp += s * gsym(xik, sqrt(r2), me.lv, c.lv0);
     }
 }
 
@@ -674,19 +702,19 @@ struct Pair {
     inside: bool,
     lvj: vec4<f32>,
 }
-fn pair_of(r2: f32, hi: f32, j: u32) -> Pair {
-    if (live.single_level != 0u) { return Pair(true, prm.lv[0]); }
+fn pair_of(k: K, r2: f32, hi: f32, j: u32) -> Pair {
+    if (k.single) { return Pair(true, k.lv0); }
     let lvj = lv_of(level_of(j));
     let hm = max(hi, lvj.x);
     return Pair(r2 < hm * hm, lvj);
 }
 // W and grad W of eq. 19 (level 0 alone: the same values without the per-level selects)
-fn pair_w(r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> f32 {
-    if (live.single_level != 0u) { return w0(r2); }
+fn pair_w(k: K, r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> f32 {
+    if (k.single) { return w0(r2, k); }
     return wsym(r2, lvi, lvj);
 }
-fn pair_g(xij: vec3<f32>, r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> vec3<f32> {
-    if (live.single_level != 0u) { return gw0(xij, sqrt(r2)); }
+fn pair_g(k: K, xij: vec3<f32>, r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> vec3<f32> {
+    if (k.single) { return gw0(xij, sqrt(r2), k); }
     return gsym(xij, sqrt(r2), lvi, lvj);
 }
 
@@ -701,9 +729,7 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let hi = lvi.x;
     var w = vec3<f32>(0.0);
     let c = cell_coord(p, grid);
-    let inv = 1.0 / grid.domain_size;
-    // every radius is <= h0: pairs beyond it are rejected before their level is loaded
-    let h02 = prm.h0 * prm.h0;
+    let k = pass_consts();
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
             let rows = row_entries(p, c, dy, dz, grid);
@@ -712,15 +738,16 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) {
-                    let xij = min_image_r(p - pred[j].xyz, inv);
+                    let xij = min_image_k(p - pred[j].xyz, k);
                     let r2 = dot(xij, xij);
-                    if (r2 >= h02) { continue; }
-                    let pk = pair_of(r2, hi, j);
+                    // every radius is <= h0: pairs beyond it are rejected before their level is loaded
+                    if (r2 >= k.h0sq) { continue; }
+                    let pk = pair_of(k, r2, hi, j);
                     if (!pk.inside) { continue; }
                     let lvj = pk.lvj;
                     let rho_j = density[j];
                     let vj = lvj.w / rho_j;
-                    w += vj * cross(vi - scratch[j].xyz, pair_g(xij, r2, lvi, pk.lvj));
+                    w += vj * cross(vi - scratch[j].xyz, pair_g(k, xij, r2, lvi, pk.lvj));
                 }
             }
         }
@@ -746,34 +773,36 @@ struct Vi {
     lv: vec4<f32>,
     rho: f32,
     w: f32,
-    inv: vec3<f32>,
     vort: bool,
+    k: K,
 }
 fn visc_pair(a: ptr<function, Visc>, me: Vi, j: u32) {
-    let xij = min_image_r(me.p - pred[j].xyz, me.inv);
+    let k = me.k;
+    let xij = min_image_k(me.p - pred[j].xyz, k);
     let r2 = dot(xij, xij);
     // every radius is <= h0: pairs beyond it are rejected before their level is loaded
-    if (r2 >= prm.h0 * prm.h0) { return; }
-    let pk = pair_of(r2, me.lv.x, j);
+    if (r2 >= k.h0sq) { return; }
+    let pk = pair_of(k, r2, me.lv.x, j);
     if (!pk.inside) { return; }
     let lvj = pk.lvj;
     let rho_j = density[j];
     // 2 m_j / (rho_i + rho_j): pairwise symmetric, so XSPH conserves momentum
     let vs = 2.0 * lvj.w / (me.rho + rho_j);
-    let w = pair_w(r2, me.lv, lvj);
+    let w = pair_w(k, r2, me.lv, lvj);
     (*a).acc += vs * w * (scratch[j].xyz - me.v);
     (*a).rho += lvj.w * w;
     if (me.vort) {
-        (*a).eta += (lvj.w / rho_j) * (pos[j].w - me.w) * pair_g(xij, r2, me.lv, lvj);
+        (*a).eta += (lvj.w / rho_j) * (pos[j].w - me.w) * pair_g(k, xij, r2, me.lv, lvj);
     }
 }
 // A wall particle's share of the density (lam_wall's).
 fn visc_wall(a: ptr<function, Visc>, me: Vi, k: u32) {
-    let xik = min_image_r(me.p - bpos[k].xyz, me.inv);
+    let c = me.k;
+    let xik = min_image_k(me.p - bpos[k].xyz, c);
     let r2 = dot(xik, xik);
-    let hm = max(me.lv.x, prm.h0);
+    let hm = max(me.lv.x, c.h0);
     if (r2 < hm * hm) {
-        (*a).rho += prm.lv[0].w * wsym(r2, me.lv, prm.lv[0]);
+        (*a).rho += c.lv0.w * wsym(r2, me.lv, c.lv0);
     }
 }
 fn visc_scan(a: ptr<function, Visc>, me: Vi) {
@@ -831,7 +860,7 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     let vw = scratch[i];
     let xm = pos[i];
     let me = Vi(pred[i].xyz, vw.xyz, lv_of(level_of(i)), density[i], select(0.0, xm.w, use_vort),
-        1.0 / grid.domain_size, use_vort);
+        use_vort, pass_consts());
     var a = Visc(vec3<f32>(0.0), vec3<f32>(0.0), 0.0);
     var an = Anchor(vec3<i32>(0), vec3<i32>(0), false);
     if (!use_vort) { an = anchor_of(xm.xyz, bitcast<u32>(xm.w)); }
