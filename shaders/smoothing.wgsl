@@ -51,6 +51,49 @@ fn radius_of_level(level: u32) -> f32 {
     return S.h0 * exp2(-f32(level) / 3.0);
 }
 
+// A level's (h, spiky factor, volume), and what the pair loops need of the uniforms, computed once
+// per invocation by the same expressions (so the same values); the pair loops select a
+// neighbour's row instead of computing three exp2 and reading the uniforms for every pair
+// (docs/PERFORMANCE.md "PBF / Session 12").
+struct Pc {
+    // level l: (radius_of_level(l), spiky_factor(f0, l), volume0 2^-l)
+    lv: array<vec3<f32>, 8>,
+    h02: f32,
+    eps: f32,
+    per_x: bool,
+    per_z: bool,
+    size: vec3<f32>,
+    inv: vec3<f32>,
+}
+fn pair_consts() -> Pc {
+    let f0 = spiky_factor0();
+    var lv: array<vec3<f32>, 8>;
+    for (var l = 0u; l < 8u; l++) {
+        lv[l] = vec3<f32>(radius_of_level(l), spiky_factor(f0, l), S.volume0 * exp2(-f32(l)));
+    }
+    return Pc(lv, S.h0 * S.h0, S.epsilon, (grid.periodic & 1u) != 0u, (grid.periodic & 4u) != 0u,
+        grid.domain_size, 1.0 / grid.domain_size);
+}
+// Row l of the table by selects (a per-lane indexed read is a scalar loop on SIMD CPUs).
+fn level_row(pc: Pc, l: u32) -> vec3<f32> {
+    var v = pc.lv[0];
+    v = select(v, pc.lv[1], l == 1u);
+    v = select(v, pc.lv[2], l == 2u);
+    v = select(v, pc.lv[3], l == 3u);
+    v = select(v, pc.lv[4], l == 4u);
+    v = select(v, pc.lv[5], l == 5u);
+    v = select(v, pc.lv[6], l == 6u);
+    return select(v, pc.lv[7], l >= 7u);
+}
+// min_image by the reciprocal: the same image for every pair closer than half the domain (every
+// pair that counts: a periodic axis holds at least 3 cells of edge >= h0)
+fn min_image_pc(d: vec3<f32>, pc: Pc) -> vec3<f32> {
+    var r = d;
+    if (pc.per_x) { r.x = r.x - pc.size.x * round(r.x * pc.inv.x); }
+    if (pc.per_z) { r.z = r.z - pc.size.z * round(r.z * pc.inv.z); }
+    return r;
+}
+
 // Spiky gradient factor -45 / (pi h^6) of level 0 (once per particle, not per pair).
 fn spiky_factor0() -> f32 {
     return -45.0 / (PI * pow(S.h0, 6.0));
@@ -69,10 +112,10 @@ fn radial_spiky(r: f32, h: f32, f: f32) -> f32 {
 
 // Coefficient a_ij = V_j (x_ij . gradW_ij) / (r^2 + eps) with eq. 19's symmetric gradient; 0
 // outside both kernel radii. (h, spiky factor) of i and j are passed in: no pow per pair.
-fn laplacian_coefficient(r2: f32, hi: f32, fi: f32, hj: f32, fj: f32, volume: f32) -> f32 {
+fn laplacian_coefficient(r2: f32, hi: f32, fi: f32, hj: f32, fj: f32, volume: f32, eps: f32) -> f32 {
     let r = sqrt(r2);
     let g = 0.5 * (radial_spiky(r, hi, fi) + radial_spiky(r, hj, fj));
-    return volume * g / (r2 + S.epsilon);
+    return volume * g / (r2 + eps);
 }
 
 // sum_j e_ij |a_ij| of particle i over its fluid neighbours (the vapor-mixing pairs).
@@ -83,7 +126,7 @@ fn vapor_demand(i: u32) -> f32 {
     let cloudy_i = thermo_in[i].z > 0.0;
     let f0 = spiky_factor0();
     let fi = spiky_factor(f0, li);
-    let h02 = S.h0 * S.h0;
+    let pc = pair_consts();
     let ci = cell_coord(xi, grid);
     var sum = 0.0;
     for (var dz = -1; dz <= 1; dz++) {
@@ -94,14 +137,13 @@ fn vapor_demand(i: u32) -> f32 {
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) {
-                    let xij = min_image(xi - pos[j].xyz, grid);
+                    let xij = min_image_pc(xi - pos[j].xyz, pc);
                     let r2 = dot(xij, xij);
-                    if (j == i || r2 >= h02 || !(cloudy_i || thermo_in[j].z > 0.0)) { continue; }
-                    let lj = info[j].y;
-                    let hj = radius_of_level(lj);
-                    let hm = max(hi, hj);
+                    if (j == i || r2 >= pc.h02 || !(cloudy_i || thermo_in[j].z > 0.0)) { continue; }
+                    let lvj = level_row(pc, info[j].y);
+                    let hm = max(hi, lvj.x);
                     if (r2 >= hm * hm) { continue; }
-                    sum += abs(laplacian_coefficient(r2, hi, fi, hj, spiky_factor(f0, lj), S.volume0 * exp2(-f32(lj))));
+                    sum += abs(laplacian_coefficient(r2, hi, fi, lvj.x, lvj.y, lvj.z, pc.eps));
                 }
             }
         }
@@ -137,7 +179,7 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
     var c = 0.0;
     let f0 = spiky_factor0();
     let fi = spiky_factor(f0, li);
-    let h02 = S.h0 * S.h0;
+    let pc = pair_consts();
     let ci = cell_coord(xi, grid);
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
@@ -147,15 +189,14 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) {
-                    let xij = min_image(xi - pos[j].xyz, grid);
+                    let xij = min_image_pc(xi - pos[j].xyz, pc);
                     let r2 = dot(xij, xij);
                     // every radius is <= h0: farther pairs are rejected before the level load
-                    if (j == i || r2 >= h02) { continue; }
-                    let lj = info[j].y;
-                    let hj = radius_of_level(lj);
-                    let hm = max(hi, hj);
+                    if (j == i || r2 >= pc.h02) { continue; }
+                    let lvj = level_row(pc, info[j].y);
+                    let hm = max(hi, lvj.x);
                     if (r2 >= hm * hm) { continue; }
-                    let a = laplacian_coefficient(r2, hi, fi, hj, spiky_factor(f0, lj), S.volume0 * exp2(-f32(lj)));
+                    let a = laplacian_coefficient(r2, hi, fi, lvj.x, lvj.y, lvj.z, pc.eps);
                     sum_a += a;
                     sum_a2 += a * a;
                     let tj = thermo_in[j];
@@ -171,10 +212,10 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                 let k_end = bcell_start[we.y];
                 for (var k = bcell_start[we.x]; k < k_end; k++) {
                     let b = bpos[k];
-                    let xik = min_image(xi - b.xyz, grid);
+                    let xik = min_image_pc(xi - b.xyz, pc);
                     let r2 = dot(xik, xik);
-                    if (r2 >= h02) { continue; }
-                    let a = laplacian_coefficient(r2, hi, fi, S.h0, f0, S.volume0);
+                    if (r2 >= pc.h02) { continue; }
+                    let a = laplacian_coefficient(r2, hi, fi, S.h0, f0, S.volume0, pc.eps);
                     sum_a += a;
                     sum_a2 += a * a;
                     c += a * (ti - b.w);
