@@ -178,7 +178,10 @@ fn openjd_timeout_stops_a_wedge_at_a_checkpoint_and_a_retry_resumes_it() {
     local_run(&config, &local, &[]);
 
     // 11 s per task: a 6 s timeout, then SIGTERM and 5 s to finish the frame and checkpoint
-    // (a loaded machine needs more than 2); the shot takes longer than 6 s
+    // (a loaded machine needs more than 2). The shot takes longer than 6 s on any machine:
+    // every frame sleeps 100 ms (NIMBUS_FAULT=slow, which changes no output), inherited by the
+    // tasks `openjd run` starts.
+    const SLOW: &str = "slow:100";
     let farm = base.join("farm");
     let o = nimbus()
         .args(["farm", "submit", "--backend", "openjd", "--run-local"])
@@ -187,6 +190,7 @@ fn openjd_timeout_stops_a_wedge_at_a_checkpoint_and_a_retry_resumes_it() {
         .arg("--out")
         .arg(&farm)
         .env("NIMBUS_OPENJD", &openjd)
+        .env("NIMBUS_FAULT", SLOW)
         .output()
         .unwrap();
     assert_eq!(
@@ -211,6 +215,7 @@ fn openjd_timeout_stops_a_wedge_at_a_checkpoint_and_a_retry_resumes_it() {
             .arg("run")
             .arg(farm.join("template.json"))
             .args(["--step", "Report", "--run-dependencies"])
+            .env("NIMBUS_FAULT", SLOW)
             .output()
             .unwrap();
         tries += 1;
@@ -232,9 +237,17 @@ fn openjd_timeout_stops_a_wedge_at_a_checkpoint_and_a_retry_resumes_it() {
                 .unwrap()
         })
         .collect();
-    assert_eq!(exits.len(), tries, "{exits:?}");
+    // A timeout notice that lands during the last frame lets nimbus finish the run (exit 0),
+    // yet OpenJD fails the timed-out action all the same; the retry then finds the run complete
+    // and records no attempt. Every try is one of the two.
+    let nothing_to_do = output.matches("is complete; nothing to do").count();
+    assert!(nothing_to_do <= 1, "{output}");
+    assert_eq!(exits.len() + nothing_to_do, tries, "{exits:?}\n{output}");
     assert_eq!(exits.last(), Some(&0), "{exits:?}");
-    assert!(exits[..tries - 1].iter().all(|e| *e == 130), "{exits:?}");
+    assert!(
+        exits[..exits.len() - 1].iter().all(|e| *e == 130),
+        "{exits:?}"
+    );
     assert!(output.contains("TIMEOUT"), "{output}");
     // each frame simulated (so written) once across the tries
     let mut seen = vec![0; FRAMES + 1];
