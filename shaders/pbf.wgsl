@@ -65,8 +65,8 @@ struct PbfParams {
 @group(0) @binding(11) var<storage, read> live: Live;
 
 // The uniforms the pair terms use, read once per invocation and passed along: read where they are
-// used, inside the neighbour loops, they made the density iterations of the block bench ~12%
-// slower on llvmpipe (docs/PERFORMANCE.md "PBF / Session 12").
+// used, inside the neighbour loops, they made the block bench's PBF 5-12% slower on llvmpipe
+// (docs/PERFORMANCE.md "PBF / Session 12").
 struct K {
     h0: f32,
     h0sq: f32,
@@ -77,24 +77,11 @@ struct K {
     scorr_dq: f32,
     // live.single_level
     single: bool,
-    per_x: bool,
-    per_z: bool,
-    size: vec3<f32>,
-    inv: vec3<f32>,
+    image: Image,
 }
 fn pass_consts() -> K {
     return K(prm.h0, prm.h0 * prm.h0, prm.rest_density, prm.lv[0], prm.scorr_k, prm.scorr_dq,
-        live.single_level != 0u, (grid.periodic & 1u) != 0u, (grid.periodic & 4u) != 0u,
-        grid.domain_size, 1.0 / grid.domain_size);
-}
-
-// min_image with a reciprocal (one multiply instead of a divide per pair; the rounded image is the
-// same for every pair closer than half the domain, i.e. every pair that counts)
-fn min_image_k(d: vec3<f32>, k: K) -> vec3<f32> {
-    var r = d;
-    if (k.per_x) { r.x = r.x - k.size.x * round(r.x * k.inv.x); }
-    if (k.per_z) { r.z = r.z - k.size.z * round(r.z * k.inv.z); }
-    return r;
+        live.single_level != 0u, image_of(grid));
 }
 
 fn level_of(i: u32) -> u32 {
@@ -235,7 +222,7 @@ fn gw0(xij: vec3<f32>, r: f32, k: K) -> vec3<f32> {
 // Adds candidate j; returns whether it is closer than h0 (a neighbour for the mask).
 fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) -> bool {
     let k = me.k;
-    let xij = min_image_k(me.p - pred[j].xyz, k);
+    let xij = min_image_by_reciprocal(me.p - pred[j].xyz, k.image);
     let r2 = dot(xij, xij);
     if (k.single) {
         // no branch: both kernels are exactly 0 beyond h0 (adding 0 changes no sum), and on SIMD
@@ -268,7 +255,7 @@ fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) -> bool {
 // from the wall instead of 0.5 and was never pushed off it).
 fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
     let c = me.k;
-    let xik = min_image_k(me.p - bpos[k].xyz, c);
+    let xik = min_image_by_reciprocal(me.p - bpos[k].xyz, c.image);
     let r2 = dot(xik, xik);
     let hm = max(me.hi, c.h0);
     if (r2 < hm * hm) {
@@ -580,7 +567,7 @@ fn scorr_me(me: Me, r2: f32, lj: u32, lvj: vec4<f32>) -> f32 {
 fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
     let k = me.k;
     let pj = scratch[j];
-    let xij = min_image_k(me.p - pj.xyz, k);
+    let xij = min_image_by_reciprocal(me.p - pj.xyz, k.image);
     let r2 = dot(xij, xij);
     if (k.single) {
         // no branch (see lam_fluid): gw0 is exactly 0 beyond h0
@@ -607,7 +594,7 @@ fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
 }
 fn delta_wall(dp: ptr<function, vec3<f32>>, me: Me, k: u32) {
     let c = me.k;
-    let xik = min_image_k(me.p - bpos[k].xyz, c);
+    let xik = min_image_by_reciprocal(me.p - bpos[k].xyz, c.image);
     let r2 = dot(xik, xik);
     let hm = max(me.hi, c.h0);
     if (r2 < hm * hm) {
@@ -738,7 +725,7 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) {
-                    let xij = min_image_k(p - pred[j].xyz, k);
+                    let xij = min_image_by_reciprocal(p - pred[j].xyz, k.image);
                     let r2 = dot(xij, xij);
                     // every radius is <= h0: pairs beyond it are rejected before their level is loaded
                     if (r2 >= k.h0sq) { continue; }
@@ -778,7 +765,7 @@ struct Vi {
 }
 fn visc_pair(a: ptr<function, Visc>, me: Vi, j: u32) {
     let k = me.k;
-    let xij = min_image_k(me.p - pred[j].xyz, k);
+    let xij = min_image_by_reciprocal(me.p - pred[j].xyz, k.image);
     let r2 = dot(xij, xij);
     // every radius is <= h0: pairs beyond it are rejected before their level is loaded
     if (r2 >= k.h0sq) { return; }
@@ -798,7 +785,7 @@ fn visc_pair(a: ptr<function, Visc>, me: Vi, j: u32) {
 // A wall particle's share of the density (lam_wall's).
 fn visc_wall(a: ptr<function, Visc>, me: Vi, k: u32) {
     let c = me.k;
-    let xik = min_image_k(me.p - bpos[k].xyz, c);
+    let xik = min_image_by_reciprocal(me.p - bpos[k].xyz, c.image);
     let r2 = dot(xik, xik);
     let hm = max(me.lv.x, c.h0);
     if (r2 < hm * hm) {

@@ -60,10 +60,7 @@ struct Pc {
     lv: array<vec3<f32>, 8>,
     h02: f32,
     eps: f32,
-    per_x: bool,
-    per_z: bool,
-    size: vec3<f32>,
-    inv: vec3<f32>,
+    image: Image,
 }
 fn pair_consts() -> Pc {
     let f0 = spiky_factor0();
@@ -71,8 +68,7 @@ fn pair_consts() -> Pc {
     for (var l = 0u; l < 8u; l++) {
         lv[l] = vec3<f32>(radius_of_level(l), spiky_factor(f0, l), S.volume0 * exp2(-f32(l)));
     }
-    return Pc(lv, S.h0 * S.h0, S.epsilon, (grid.periodic & 1u) != 0u, (grid.periodic & 4u) != 0u,
-        grid.domain_size, 1.0 / grid.domain_size);
+    return Pc(lv, S.h0 * S.h0, S.epsilon, image_of(grid));
 }
 // Row l of the table by selects (a per-lane indexed read is a scalar loop on SIMD CPUs).
 fn level_row(pc: Pc, l: u32) -> vec3<f32> {
@@ -85,15 +81,6 @@ fn level_row(pc: Pc, l: u32) -> vec3<f32> {
     v = select(v, pc.lv[6], l == 6u);
     return select(v, pc.lv[7], l >= 7u);
 }
-// min_image by the reciprocal: the same image for every pair closer than half the domain (every
-// pair that counts: a periodic axis holds at least 3 cells of edge >= h0)
-fn min_image_pc(d: vec3<f32>, pc: Pc) -> vec3<f32> {
-    var r = d;
-    if (pc.per_x) { r.x = r.x - pc.size.x * round(r.x * pc.inv.x); }
-    if (pc.per_z) { r.z = r.z - pc.size.z * round(r.z * pc.inv.z); }
-    return r;
-}
-
 // Spiky gradient factor -45 / (pi h^6) of level 0 (once per particle, not per pair).
 fn spiky_factor0() -> f32 {
     return -45.0 / (PI * pow(S.h0, 6.0));
@@ -137,7 +124,7 @@ fn vapor_demand(i: u32) -> f32 {
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) {
-                    let xij = min_image_pc(xi - pos[j].xyz, pc);
+                    let xij = min_image_by_reciprocal(xi - pos[j].xyz, pc.image);
                     let r2 = dot(xij, xij);
                     if (j == i || r2 >= pc.h02 || !(cloudy_i || thermo_in[j].z > 0.0)) { continue; }
                     let lvj = level_row(pc, info[j].y);
@@ -189,7 +176,7 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) {
-                    let xij = min_image_pc(xi - pos[j].xyz, pc);
+                    let xij = min_image_by_reciprocal(xi - pos[j].xyz, pc.image);
                     let r2 = dot(xij, xij);
                     // every radius is <= h0: farther pairs are rejected before the level load
                     if (j == i || r2 >= pc.h02) { continue; }
@@ -212,7 +199,7 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                 let k_end = bcell_start[we.y];
                 for (var k = bcell_start[we.x]; k < k_end; k++) {
                     let b = bpos[k];
-                    let xik = min_image_pc(xi - b.xyz, pc);
+                    let xik = min_image_by_reciprocal(xi - b.xyz, pc.image);
                     let r2 = dot(xik, xik);
                     if (r2 >= pc.h02) { continue; }
                     let a = laplacian_coefficient(r2, hi, fi, S.h0, f0, S.volume0, pc.eps);

@@ -75,6 +75,27 @@ fn min_image(d: vec3<f32>, g: GridParams) -> vec3<f32> {
     return r;
 }
 
+// The periodic image of a grid, for neighbour loops: read from the uniform once per invocation,
+// then min_image_by_reciprocal per pair (one multiply instead of a divide; the rounded image is the
+// same for every pair closer than half the domain, i.e. every pair within h0: a periodic axis
+// holds at least 3 cells of edge >= h0).
+struct Image {
+    per_x: bool,
+    per_z: bool,
+    size: vec3<f32>,
+    inv: vec3<f32>,
+}
+fn image_of(g: GridParams) -> Image {
+    return Image((g.periodic & 1u) != 0u, (g.periodic & 4u) != 0u, g.domain_size,
+        1.0 / g.domain_size);
+}
+fn min_image_by_reciprocal(d: vec3<f32>, im: Image) -> vec3<f32> {
+    var r = d;
+    if (im.per_x) { r.x = r.x - im.size.x * round(r.x * im.inv.x); }
+    if (im.per_z) { r.z = r.z - im.size.z * round(r.z * im.inv.z); }
+    return r;
+}
+
 // Integer cell of a position (clamped into the grid).
 fn cell_coord(p: vec3<f32>, g: GridParams) -> vec3<i32> {
     let c = vec3<i32>(floor((p - g.domain_min) / g.cell_size));
