@@ -266,11 +266,6 @@ fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
     }
 }
 
-// Rows of cells a wall particle can be in (walls are binned into the first and last y cells).
-fn wall_row(ny: i32) -> bool {
-    return ny == 0 || ny == i32(grid.dims.y) - 1;
-}
-
 // The old search around the current position (no mask): particles whose substep moved them more
 // than a cell from their start (no anchor).
 fn lam_scan(a: ptr<function, LamAcc>, me: Me) {
@@ -283,7 +278,7 @@ fn lam_scan(a: ptr<function, LamAcc>, me: Me) {
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) { _ = lam_fluid(a, me, j); }
-                if (!wall_row(c.y + dy)) { continue; }
+                if (!wall_reach(c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
                 let we = e - vec2<u32>(wall_shift(c.y + dy, c.z + dz, grid));
                 let k_end = bcell_start[we.y];
                 for (var k = bcell_start[we.x]; k < k_end; k++) { lam_wall(a, me, k); }
@@ -454,7 +449,7 @@ fn lam_build(a: ptr<function, LamAcc>, me: Me, an: Anchor) -> Mask {
                 }
                 mask_put(&m, off, bits, seg_bits(off, j1 - j0));
                 off += j1 - j0;
-                if (!wall_row(an.c.y + dy)) { continue; }
+                if (!wall_reach(an.c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
                 let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
                 let k_end = bcell_start[we.y];
                 for (var k = bcell_start[we.x]; k < k_end; k++) { lam_wall(a, me, k); }
@@ -484,7 +479,7 @@ fn lam_masked(a: ptr<function, LamAcc>, me: Me, an: Anchor, m: Mask) {
                     if (k2.y != 0u) { _ = lam_fluid(a, me, j0 + k2.x); }
                 }
                 for (var j = j0 + nb; j < j1; j++) { _ = lam_fluid(a, me, j); }
-                if (!wall_row(an.c.y + dy)) { continue; }
+                if (!wall_reach(an.c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
                 let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
                 let k_end = bcell_start[we.y];
                 for (var k = bcell_start[we.x]; k < k_end; k++) { lam_wall(a, me, k); }
@@ -613,7 +608,7 @@ fn delta_scan(dp: ptr<function, vec3<f32>>, me: Me) {
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) { delta_fluid(dp, me, j); }
-                if (!wall_row(c.y + dy)) { continue; }
+                if (!wall_reach(c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
                 let we = e - vec2<u32>(wall_shift(c.y + dy, c.z + dz, grid));
                 let k_end = bcell_start[we.y];
                 for (var k = bcell_start[we.x]; k < k_end; k++) { delta_wall(dp, me, k); }
@@ -642,7 +637,7 @@ fn delta_masked(dp: ptr<function, vec3<f32>>, me: Me, an: Anchor, m: Mask) {
                     if (k2.y != 0u) { delta_fluid(dp, me, j0 + k2.x); }
                 }
                 for (var j = j0 + nb; j < j1; j++) { delta_fluid(dp, me, j); }
-                if (!wall_row(an.c.y + dy)) { continue; }
+                if (!wall_reach(an.c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
                 let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
                 let k_end = bcell_start[we.y];
                 for (var k = bcell_start[we.x]; k < k_end; k++) { delta_wall(dp, me, k); }
@@ -802,7 +797,7 @@ fn visc_scan(a: ptr<function, Visc>, me: Vi) {
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) { visc_pair(a, me, j); }
-                if (!wall_row(c.y + dy)) { continue; }
+                if (!wall_reach(c.y + dy, me.p.y, max(me.lv.x, me.k.h0), grid)) { continue; }
                 let we = e - vec2<u32>(wall_shift(c.y + dy, c.z + dz, grid));
                 let k_end = bcell_start[we.y];
                 for (var k = bcell_start[we.x]; k < k_end; k++) { visc_wall(a, me, k); }
@@ -831,7 +826,7 @@ fn visc_masked(a: ptr<function, Visc>, me: Vi, an: Anchor, m: Mask) {
                     if (k2.y != 0u) { visc_pair(a, me, j0 + k2.x); }
                 }
                 for (var j = j0 + nb; j < j1; j++) { visc_pair(a, me, j); }
-                if (!wall_row(an.c.y + dy)) { continue; }
+                if (!wall_reach(an.c.y + dy, me.p.y, max(me.lv.x, me.k.h0), grid)) { continue; }
                 let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
                 let k_end = bcell_start[we.y];
                 for (var k = bcell_start[we.x]; k < k_end; k++) { visc_wall(a, me, k); }

@@ -192,9 +192,8 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                         cv += min(limit_i, vapor_limit_of[j]) * a * (vi - tj.y);
                     }
                 }
-                // wall particles lie only in the first and the last row (the wall table's rows)
                 let ny = ci.y + dy;
-                if (S.fixed_walls == 0u || (ny != 0 && ny != i32(grid.dims.y) - 1)) { continue; }
+                if (S.fixed_walls == 0u || !wall_reach(ny, xi.y, S.h0, grid)) { continue; }
                 let we = e - vec2<u32>(wall_shift(ny, ci.z + dz, grid));
                 let k_end = bcell_start[we.y];
                 for (var k = bcell_start[we.x]; k < k_end; k++) {
