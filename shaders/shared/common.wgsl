@@ -167,8 +167,8 @@ fn row_entries(p: vec3<f32>, c: vec3<i32>, dy: i32, dz: i32, g: GridParams) -> v
 // are binned into the first and the last y row, the floor's below y = 0 and the ceiling's above
 // y = size, at least d / 2 beyond the plane (sim::init::boundary_particles): a particle hm or
 // more from the plane has none closer than hm, so its lane skips the row's wall loop with every
-// sum unchanged. About half of the wall rows walked before were such rows: those of the
-// particles in the second and the last-but-one row of cells, at least a cell (>= h0) away.
+// sum unchanged. The particles of the second and the last-but-one row of cells, at least a cell
+// (>= h0) away, walked the wall row next to them before and rejected every candidate.
 fn wall_reach(ny: i32, py: f32, hm: f32, g: GridParams) -> bool {
     return (ny == 0 && py < hm) || (ny == i32(g.dims.y) - 1 && py > g.domain_size.y - hm);
 }
