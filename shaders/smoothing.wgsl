@@ -108,12 +108,11 @@ fn laplacian_coefficient(r2: f32, hi: f32, fi: f32, hj: f32, fj: f32, volume: f3
 // sum_j e_ij |a_ij| of particle i over its fluid neighbours (the vapor-mixing pairs).
 fn vapor_demand(i: u32) -> f32 {
     let xi = pos[i].xyz;
-    let li = info[i].y;
-    let hi = radius_of_level(li);
-    let cloudy_i = thermo_in[i].z > 0.0;
-    let f0 = spiky_factor0();
-    let fi = spiky_factor(f0, li);
     let pc = pair_consts();
+    let lvi = level_row(pc, info[i].y);
+    let hi = lvi.x;
+    let fi = lvi.y;
+    let cloudy_i = thermo_in[i].z > 0.0;
     let ci = cell_coord(xi, grid);
     var sum = 0.0;
     for (var dz = -1; dz <= 1; dz++) {
@@ -152,8 +151,10 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
     if (i >= live.count) { return; }
     let th = thermo_in[i];
     let xi = pos[i].xyz;
-    let li = info[i].y;
-    let hi = radius_of_level(li);
+    let pc = pair_consts();
+    let lvi = level_row(pc, info[i].y);
+    let hi = lvi.x;
+    let fi = lvi.y;
     let ti = th.x;
     let vi = th.y;
     let cloudy_i = th.z > 0.0;
@@ -164,9 +165,6 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
     var sum_a = 0.0;
     var sum_a2 = 0.0;
     var c = 0.0;
-    let f0 = spiky_factor0();
-    let fi = spiky_factor(f0, li);
-    let pc = pair_consts();
     let ci = cell_coord(xi, grid);
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
@@ -201,7 +199,8 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
                     let xik = min_image_by_reciprocal(xi - b.xyz, pc.image);
                     let r2 = dot(xik, xik);
                     if (r2 >= pc.h02) { continue; }
-                    let a = laplacian_coefficient(r2, hi, fi, S.h0, f0, S.volume0, pc.eps);
+                    // wall particles continue the level-0 lattice
+                    let a = laplacian_coefficient(r2, hi, fi, pc.lv[0].x, pc.lv[0].y, pc.lv[0].z, pc.eps);
                     sum_a += a;
                     sum_a2 += a * a;
                     c += a * (ti - b.w);
