@@ -96,7 +96,10 @@ fn scan_matches_mirror(ctx: &Context, rng: &mut impl Rng) {
         (4_200_000, 4_194_305),
     ] {
         let values: Vec<u32> = (0..len).map(|_| rng.random_range(0..16u32)).collect();
-        let input = storage_init(&ctx.device, "scan input", &values);
+        // the input covers whole quads; what lies past `len` must not count
+        let mut padded = values.clone();
+        padded.resize(len.next_multiple_of(4) as usize, 15);
+        let input = storage_init(&ctx.device, "scan input", &padded);
         let live = LiveBuffer::new(ctx, &Live::new(ctx, live_n, 0, true));
         let modes = [ScanOf::Values, ScanOf::LiveFlags(4)];
         let scan = PrefixScan::new(ctx, &Span::whole(&input), None, len, &live, &modes).unwrap();

@@ -1,8 +1,10 @@
-//! The one exclusive prefix scan (shaders/scan.wgsl): blocks of `SCAN_BLOCK` values scanned in
-//! workgroup memory by `WG_SCAN` threads (a full workgroup on GPUs, one SIMD batch on CPUs), the
-//! block sums scanned recursively by the next level and added back. The grid build scans its
-//! per-entry counts into the cell table with it, the adaptive stage its flag bits. Integer adds
-//! only: exact, and the same on every run. Mirror: `sim::reference::scan`.
+//! The one exclusive prefix scan (shaders/scan.wgsl), reduce-then-scan in blocks of
+//! `SCAN_BLOCK` values: `scan_reduce` writes each block's total, the next level scans those
+//! totals (recursively), and `scan_blocks` scans each block from its scanned total. `WG_SCAN`
+//! threads a block (a full workgroup on GPUs, one SIMD batch on CPUs) read their values straight
+//! from the input, four at a time. The grid build scans its per-entry counts into the cell table
+//! with it, the adaptive stage its flag bits. Integer adds only: exact, and the same on every
+//! run. Mirror: `sim::reference::scan`.
 use crate::error::Result;
 use crate::gpu::buffers::{storage_zeroed, ParamSlots, Span};
 use crate::gpu::live::LiveBuffer;
@@ -18,7 +20,7 @@ struct ScanParams {
     n: u32,
     mask: u32,
     live_only: u32,
-    _pad: u32,
+    offsets_on: u32,
 }
 
 /// What a scan counts at each position of its input.
@@ -26,16 +28,15 @@ struct ScanParams {
 pub enum ScanOf {
     /// The values themselves, all `max_len` of them.
     Values,
-    /// 1 where `value & mask` is non-zero, for the live particles only (the rest count 0).
+    /// 1 where `value & mask` is non-zero, for the live particles only (the rest count 0, and
+    /// the output past the live count is left as it was).
     LiveFlags(u32),
 }
 
 struct Level {
-    /// Workgroups of `scan_blocks` and `scan_add` (one per block of values).
+    /// Workgroups of `scan_reduce` and `scan_blocks` (one per block of values).
     groups: u32,
-    blocks: wgpu::BindGroup,
-    /// Adds the next level's scanned sums back (absent on the last level).
-    add: Option<wgpu::BindGroup>,
+    bind: wgpu::BindGroup,
 }
 
 /// An exclusive scan of the first `max_len` u32 of one input array into an output array (its
@@ -54,7 +55,9 @@ pub struct PrefixScan {
 }
 
 impl PrefixScan {
-    /// A scan of `input` into `output` (`max_len` u32 each; `None`: a buffer of its own).
+    /// A scan of `input` into `output` (`max_len` u32 each; `None`: a buffer of its own). The
+    /// input span must cover `max_len` rounded up to a multiple of 4 (the shader reads quads;
+    /// what lies past `max_len` is not counted).
     pub fn new(
         ctx: &Context,
         input: &Span,
@@ -63,13 +66,19 @@ impl PrefixScan {
         live: &LiveBuffer,
         modes: &[ScanOf],
     ) -> Result<Self> {
-        let stage = Stage::new(ctx, SHADER, &["scan_blocks", "scan_add"])?;
+        let stage = Stage::new(ctx, SHADER, &["scan_reduce", "scan_blocks"])?;
         let block = crate::gpu::shaders::SCAN_BLOCK;
-        // level k scans lens[k] values into lens[k].div_ceil(block) block sums
+        // level k scans lens[k] values; its block totals are level k + 1's values
         let mut lens = vec![max_len.max(1)];
         while *lens.last().unwrap() > block {
             lens.push(lens.last().unwrap().div_ceil(block));
         }
+        // the shader reads its input in quads
+        let quads = |n: u32| n.next_multiple_of(4) as usize;
+        assert!(
+            input.size >= quads(max_len) as u64 * 4,
+            "scan input span must cover whole quads"
+        );
         let dev = &ctx.device;
         let own_output =
             |n: u32| Span::whole(&storage_zeroed::<u32>(dev, "scan output", n as usize));
@@ -85,7 +94,7 @@ impl PrefixScan {
         let input = input.clone();
         let sums: Vec<wgpu::Buffer> = lens
             .iter()
-            .map(|&n| storage_zeroed::<u32>(dev, "scan sums", n.div_ceil(block) as usize))
+            .map(|&n| storage_zeroed::<u32>(dev, "scan sums", quads(n.div_ceil(block))))
             .collect();
         let mut slots = Vec::new();
         for mode in modes {
@@ -98,7 +107,7 @@ impl PrefixScan {
                     n,
                     mask,
                     live_only,
-                    _pad: 0,
+                    offsets_on: (k + 1 < lens.len()) as u32,
                 });
             }
         }
@@ -110,23 +119,19 @@ impl PrefixScan {
             } else {
                 Span::whole(&sums[k - 1])
             };
-            // scan_blocks reads `input`; scan_add adds the next level's output back
-            let level = |input: &Span| {
-                let own = [
-                    ("live", live.binding()),
-                    ("input", input.binding()),
-                    ("output", outputs[k].binding()),
-                    ("sums", sums[k].as_entire_binding()),
-                ];
-                stage.bind(ctx, &[&own])
-            };
-            let blocks = level(&src)?;
-            let add = outputs.get(k + 1).map(level).transpose()?;
-            let groups = len.div_ceil(block);
+            // the next level's output offsets the blocks; the last level has none (its
+            // input stands in for the binding, unread)
+            let offsets = outputs.get(k + 1).unwrap_or(&src);
+            let own = [
+                ("live", live.binding()),
+                ("input", src.binding()),
+                ("output", outputs[k].binding()),
+                ("sums", sums[k].as_entire_binding()),
+                ("offsets", offsets.binding()),
+            ];
             levels.push(Level {
-                groups,
-                blocks,
-                add,
+                groups: len.div_ceil(block),
+                bind: stage.bind(ctx, &[&own])?,
             });
         }
         // the per-dispatch parameters: group 1, a dynamic offset picks mode and level
@@ -153,23 +158,22 @@ impl PrefixScan {
         assert!(mode < self.modes, "scan mode {mode} of {}", self.modes);
         let group = &self.param_group;
         let slot = |k: usize| self.params.offset((mode * self.levels.len() + k) as u32);
-        for (k, lv) in self.levels.iter().enumerate() {
+        let last = self.levels.len() - 1;
+        for (k, lv) in self.levels[..last].iter().enumerate() {
             self.stage.dispatch(
                 pass,
-                "scan_blocks",
-                &[(&lv.blocks, 0), (group, slot(k))],
+                "scan_reduce",
+                &[(&lv.bind, 0), (group, slot(k))],
                 Dispatch::Groups(lv.groups),
             );
         }
         for (k, lv) in self.levels.iter().enumerate().rev() {
-            if let Some(add) = &lv.add {
-                self.stage.dispatch(
-                    pass,
-                    "scan_add",
-                    &[(add, 0), (group, slot(k))],
-                    Dispatch::Groups(lv.groups),
-                );
-            }
+            self.stage.dispatch(
+                pass,
+                "scan_blocks",
+                &[(&lv.bind, 0), (group, slot(k))],
+                Dispatch::Groups(lv.groups),
+            );
         }
     }
 

@@ -43,11 +43,13 @@ impl GridStage {
         // fits one of its arrays (every filled box: ~0.25 entries per particle), the scatter
         let arr = b.slots as u64 * 4;
         let counts_bytes = table_len as u64 * 4;
-        let counts_own = (counts_bytes > arr)
-            .then(|| storage_zeroed::<u32>(&ctx.device, "cell counts", table_len as usize));
+        // the scan reads its input in quads (arr is a multiple of 256 bytes)
+        let quad_bytes = counts_bytes.next_multiple_of(16);
+        let counts_own = (quad_bytes > arr)
+            .then(|| storage_zeroed::<u32>(&ctx.device, "cell counts", quad_bytes as usize / 4));
         let counts = match &counts_own {
-            Some(buf) => Span::new(buf, 0, counts_bytes),
-            None => Span::new(&b.pairs, 2 * arr, counts_bytes),
+            Some(buf) => Span::new(buf, 0, quad_bytes),
+            None => Span::new(&b.pairs, 2 * arr, quad_bytes),
         };
         let scan = PrefixScan::new(
             ctx,

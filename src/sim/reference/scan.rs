@@ -1,7 +1,7 @@
-//! Mirror of shaders/scan.wgsl (`scan_blocks`, `scan_add`): the exclusive u32 prefix scan in
-//! blocks of `SCAN_BLOCK` (2048), composed over levels as the GPU's `PrefixScan`
-//! runs them. A nonzero `mask` scans `(v & mask) != 0` as 0/1 instead of the values (the
-//! adaptive stage's flag scans).
+//! Mirror of shaders/scan.wgsl (`scan_reduce`, `scan_blocks`): the exclusive u32 prefix scan,
+//! reduce-then-scan in blocks of `SCAN_BLOCK` (2048), composed over levels as the GPU's
+//! `PrefixScan` runs them. A nonzero `mask` scans `(v & mask) != 0` as 0/1 instead of the values
+//! (the adaptive stage's flag scans).
 pub const BLOCK: usize = crate::gpu::shaders::SCAN_BLOCK as usize;
 
 /// The value a scan with `mask` adds for `v`.
@@ -13,39 +13,35 @@ pub fn masked(v: u32, mask: u32) -> u32 {
     }
 }
 
-/// Exclusive scan of each block of `BLOCK` (of the masked values) in place; returns the block
-/// sums.
-pub fn scan_blocks(data: &mut [u32], mask: u32) -> Vec<u32> {
-    data.chunks_mut(BLOCK)
-        .map(|b| {
-            let mut s = 0u32;
-            for v in b.iter_mut() {
-                let x = masked(*v, mask);
-                *v = s;
-                s = s.wrapping_add(x);
-            }
-            s
-        })
+/// The total of each block of `BLOCK` (of the masked values).
+pub fn scan_reduce(data: &[u32], mask: u32) -> Vec<u32> {
+    data.chunks(BLOCK)
+        .map(|b| b.iter().fold(0u32, |s, &v| s.wrapping_add(masked(v, mask))))
         .collect()
 }
 
-/// Adds the scanned block sums back to each block.
-pub fn scan_add(data: &mut [u32], sums: &[u32]) {
-    for (b, s) in data.chunks_mut(BLOCK).zip(sums) {
-        for v in b {
-            *v = v.wrapping_add(*s);
+/// Exclusive scan of each block in place, block g starting from `offsets[g]` (from 0 without).
+pub fn scan_blocks(data: &mut [u32], mask: u32, offsets: Option<&[u32]>) {
+    for (g, b) in data.chunks_mut(BLOCK).enumerate() {
+        let mut s = offsets.map_or(0, |o| o[g]);
+        for v in b.iter_mut() {
+            let x = masked(*v, mask);
+            *v = s;
+            s = s.wrapping_add(x);
         }
     }
 }
 
-/// Multi-level exclusive scan in place: the mask applies to the data, the block sums are
+/// Multi-level exclusive scan in place: the mask applies to the data, the block totals are
 /// scanned as values.
 pub fn prefix_scan(data: &mut [u32], mask: u32) {
-    let mut sums = scan_blocks(data, mask);
-    if sums.len() > 1 {
-        prefix_scan(&mut sums, 0);
-        scan_add(data, &sums);
+    if data.len() <= BLOCK {
+        scan_blocks(data, mask, None);
+        return;
     }
+    let mut totals = scan_reduce(data, mask);
+    prefix_scan(&mut totals, 0);
+    scan_blocks(data, mask, Some(&totals));
 }
 
 /// Exclusive scan of the first `n` values (mask 0) or of `(v & mask) != 0`.
