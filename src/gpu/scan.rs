@@ -50,6 +50,8 @@ pub struct PrefixScan {
     outputs: Vec<Span>,
     /// Level 0's output is a span the caller lent.
     lent_output: bool,
+    /// Block totals of each level, the next level's input (the last level's is bound but never
+    /// written: a few bytes, so that every level binds the same layout).
     sums: Vec<wgpu::Buffer>,
     modes: usize,
 }
