@@ -25,7 +25,8 @@ struct ScanParams {
     offsets_on: u32,
 }
 
-// The input is read as quads; its binding covers whole quads (PrefixScan pads it).
+// The input is read as quads, so its binding covers whole quads (PrefixScan checks that the
+// caller's span does, and pads the sums it owns).
 @group(0) @binding(0) var<storage, read> live: Live;
 @group(0) @binding(1) var<storage, read> input: array<vec4<u32>>;
 @group(0) @binding(2) var<storage, read_write> output: array<u32>;
