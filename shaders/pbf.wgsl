@@ -671,11 +671,14 @@ fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
 fn update_velocity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= live.count) { return; }
-    // w: the height gained in this substep, for the adiabatic cooling of eq. 7 (thermo.wgsl).
-    // Into the scratch (free after the last compute_lambda): vel still holds the mask, which
-    // viscosity_confine reads before it writes the final velocity there.
+    // v and the density into the scratch (free after the last compute_lambda), so that the
+    // velocity passes gather a neighbour's v and rho with one load: vel still holds the mask,
+    // which viscosity_confine reads before it writes the final velocity there. The height
+    // gained in this substep (eq. 7's adiabatic cooling, thermo.wgsl) waits in `density`, which
+    // only particle i reads from here on.
     let d = min_image(pred[i].xyz - pos[i].xyz, grid);
-    scratch[i] = vec4<f32>(d * prm.inv_dt, d.y);
+    scratch[i] = vec4<f32>(d * prm.inv_dt, density[i]);
+    density[i] = d.y;
 }
 
 // Pair terms of the velocity passes for a candidate j with r2 < h0^2: j's level constants and
@@ -727,9 +730,9 @@ fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
                     let pk = pair_of(k, r2, hi, j);
                     if (!pk.inside) { continue; }
                     let lvj = pk.lvj;
-                    let rho_j = density[j];
-                    let vj = lvj.w / rho_j;
-                    w += vj * cross(vi - scratch[j].xyz, pair_g(k, xij, r2, lvi, pk.lvj));
+                    let sj = scratch[j];
+                    let vj = lvj.w / sj.w;
+                    w += vj * cross(vi - sj.xyz, pair_g(k, xij, r2, lvi, pk.lvj));
                 }
             }
         }
@@ -767,14 +770,15 @@ fn visc_pair(a: ptr<function, Visc>, me: Vi, j: u32) {
     let pk = pair_of(k, r2, me.lv.x, j);
     if (!pk.inside) { return; }
     let lvj = pk.lvj;
-    let rho_j = density[j];
+    // (v_j, rho_j)
+    let sj = scratch[j];
     // 2 m_j / (rho_i + rho_j): pairwise symmetric, so XSPH conserves momentum
-    let vs = 2.0 * lvj.w / (me.rho + rho_j);
+    let vs = 2.0 * lvj.w / (me.rho + sj.w);
     let w = pair_w(k, r2, me.lv, lvj);
-    (*a).acc += vs * w * (scratch[j].xyz - me.v);
+    (*a).acc += vs * w * (sj.xyz - me.v);
     (*a).rho += lvj.w * w;
     if (me.vort) {
-        (*a).eta += (lvj.w / rho_j) * (pos[j].w - me.w) * pair_g(k, xij, r2, me.lv, lvj);
+        (*a).eta += (lvj.w / sj.w) * (pos[j].w - me.w) * pair_g(k, xij, r2, me.lv, lvj);
     }
 }
 // A wall particle's share of the density (lam_wall's).
@@ -841,7 +845,7 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     let use_vort = prm.vorticity > 0.0;
     let vw = scratch[i];
     let xm = pos[i];
-    let me = Vi(pred[i].xyz, vw.xyz, lv_of(level_of(i)), density[i], select(0.0, xm.w, use_vort),
+    let me = Vi(pred[i].xyz, vw.xyz, lv_of(level_of(i)), vw.w, select(0.0, xm.w, use_vort),
         use_vort, pass_consts());
     var a = Visc(vec3<f32>(0.0), vec3<f32>(0.0), 0.0);
     var an = Anchor(vec3<i32>(0), vec3<i32>(0), false);
@@ -857,18 +861,15 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     if (use_vort && le > 0.0) {
         v += prm.dt * prm.vorticity * cross(a.eta / le, xm.xyz);
     }
-    vel[i] = vec4<f32>(clamp_speed(v), vw.w);
-    // the new density waits in the scratch's w (the neighbours read density[j] and the scratch's
-    // xyz) until finish_positions
-    scratch[i].w = a.rho;
+    vel[i] = vec4<f32>(clamp_speed(v), density[i]);
+    // no neighbour reads density[i] here (they read rho_j from the scratch)
+    density[i] = a.rho;
 }
 
-// x = p* at the end of the substep (w = 0: pred.w held the neighbour mask), and the density
-// at x that viscosity_confine summed.
+// x = p* at the end of the substep (w = 0: pos.w held the neighbour mask's anchor, or omega).
 @compute @workgroup_size(WG_PARTICLES)
 fn finish_positions(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= live.count) { return; }
     pos[i] = vec4<f32>(pred[i].xyz, 0.0);
-    density[i] = scratch[i].w;
 }

@@ -169,8 +169,9 @@ impl PbfStage {
         rec.end_phase(Phase::Solve)
     }
 
-    /// v = (p* - x) / dt (w = the height gained) into the scratch, vorticity confinement (if
-    /// on), XSPH (the final v into vel, and the density at p*), x = p*.
+    /// v = (p* - x) / dt and the density into the scratch (the height gained waits in
+    /// `density`), vorticity confinement (if on), XSPH (the final v and the height gained into
+    /// vel, and the density at p* into `density`), x = p*.
     pub fn update_velocity(
         &self,
         rec: &mut Recorder,
@@ -189,8 +190,7 @@ impl PbfStage {
         rec.end_phase(Phase::Velocity)
     }
 
-    /// The close of a substep: x = p* (w = 0: pred.w and pos.w held the neighbour mask), the
-    /// density viscosity_confine summed.
+    /// The close of a substep: x = p* (w = 0: pos.w held the neighbour mask's anchor).
     pub fn finish(&self, pass: &mut wgpu::ComputePass, live: &LiveBuffer) {
         self.run(pass, "finish_positions", live);
     }
