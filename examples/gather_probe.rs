@@ -4,10 +4,10 @@
 //!
 //! Every variant runs the same loop: per particle, 33-40 neighbours at PBF-like index offsets
 //! (9 rows: the particle's own, +-1 row, +-1 plane, each +-8 around it), a poly6-like term per
-//! neighbour. Only the neighbour's load differs: one vec4 from a storage buffer, one vec2
-//! (a packed position), three f32 loads, a `textureLoad` from an rgba32float texture, a load
-//! from workgroup memory staged from the buffer (after a barrier), or no load at all (the
-//! loop and the arithmetic alone). Prints the median ms per dispatch of each.
+//! neighbour. Only the neighbour's load differs: one vec4 from a storage buffer (or only its
+//! xyz), one vec2 (a packed position), three f32 loads, a `textureLoad` from an rgba32float
+//! texture, a load from workgroup memory staged from the buffer (after a barrier), or no load
+//! at all (the loop and the arithmetic alone). Prints the median ms per dispatch of each.
 use std::time::Instant;
 use wgpu::util::DeviceExt;
 
@@ -46,87 +46,55 @@ fn me_of(i: u32) -> vec4<f32> {
     if (prm.n == 0u) { me += textureLoad(tex, vec2<u32>(0u), 0); }
     return me;
 }
-@compute @workgroup_size(64)
-fn buffer_vec4(@builtin(global_invocation_id) g: vec3<u32>) {
-    let i = g.x;
-    if (i >= prm.n) { return; }
-    let me = me_of(i);
-    var acc = vec4<f32>(0.0);
-    for (var k = 0u; k < count(i); k++) { acc += term(me, data[neighbour(i, k)]); }
-    outp[i] = acc;
+// 21 bits per axis in two words, as a packed position would be
+fn packed(j: u32) -> vec4<f32> {
+    let q = data2[j];
+    let p = vec3<u32>(q.x & 0x1fffffu, (q.x >> 21u) | ((q.y & 0x3ffu) << 11u), q.y >> 10u);
+    return vec4<f32>(vec3<f32>(p) * 1e-7, 1.0);
 }
-@compute @workgroup_size(64)
-fn buffer_vec2(@builtin(global_invocation_id) g: vec3<u32>) {
-    let i = g.x;
-    if (i >= prm.n) { return; }
-    let me = me_of(i);
-    var acc = vec4<f32>(0.0);
-    for (var k = 0u; k < count(i); k++) {
-        // 21 bits per axis in two words, as a packed position would be
-        let q = data2[neighbour(i, k)];
-        let p = vec3<u32>(q.x & 0x1fffffu, (q.x >> 21u) | ((q.y & 0x3ffu) << 11u), q.y >> 10u);
-        acc += term(me, vec4<f32>(vec3<f32>(p) * 1e-7, 1.0));
-    }
-    outp[i] = acc;
-}
-@compute @workgroup_size(64)
-fn buffer_3xf32(@builtin(global_invocation_id) g: vec3<u32>) {
-    let i = g.x;
-    if (i >= prm.n) { return; }
-    let me = me_of(i);
-    var acc = vec4<f32>(0.0);
-    for (var k = 0u; k < count(i); k++) {
-        let j = neighbour(i, k);
-        acc += term(me, vec4<f32>(data1[4u * j], data1[4u * j + 1u], data1[4u * j + 2u], 1.0));
-    }
-    outp[i] = acc;
-}
-@compute @workgroup_size(64)
-fn texture_load(@builtin(global_invocation_id) g: vec3<u32>) {
-    let i = g.x;
-    if (i >= prm.n) { return; }
-    let me = me_of(i);
-    var acc = vec4<f32>(0.0);
+fn texel(j: u32) -> vec4<f32> {
     let m = (1u << prm.logw) - 1u;
-    for (var k = 0u; k < count(i); k++) {
-        let j = neighbour(i, k);
-        acc += term(me, textureLoad(tex, vec2<u32>(j & m, j >> prm.logw), 0));
-    }
-    outp[i] = acc;
+    return textureLoad(tex, vec2<u32>(j & m, j >> prm.logw), 0);
 }
-@compute @workgroup_size(64)
-fn workgroup_tile(@builtin(global_invocation_id) g: vec3<u32>, @builtin(local_invocation_index) l: u32,
-        @builtin(workgroup_id) wg: vec3<u32>) {
-    let base = wg.x * 64u;
+// staged by the workgroup behind a barrier
+fn stage(base: u32, l: u32) {
     for (var k = 0u; k < 16u; k++) { tile[k * 64u + l] = data[min(base + k * 64u + l, prm.n - 1u)]; }
     workgroupBarrier();
-    let i = g.x;
-    if (i >= prm.n) { return; }
-    let me = me_of(i);
-    var acc = vec4<f32>(0.0);
-    for (var k = 0u; k < count(i); k++) { acc += term(me, tile[neighbour(i, k) & 1023u]); }
-    outp[i] = acc;
 }
+"#;
+
+/// One entry point per variant: `PROLOGUE` runs first in every invocation, `LOAD` is the
+/// neighbour j's data.
+const ENTRY: &str = r#"
 @compute @workgroup_size(64)
-fn no_load(@builtin(global_invocation_id) g: vec3<u32>) {
+fn NAME(@builtin(global_invocation_id) g: vec3<u32>, @builtin(local_invocation_index) l: u32,
+        @builtin(workgroup_id) wg: vec3<u32>) {
+    PROLOGUE
     let i = g.x;
     if (i >= prm.n) { return; }
     let me = me_of(i);
     var acc = vec4<f32>(0.0);
     for (var k = 0u; k < count(i); k++) {
-        acc += term(me, vec4<f32>(f32(neighbour(i, k)) * 1e-6, me.y, me.z, 1.0));
+        let j = neighbour(i, k);
+        acc += term(me, LOAD);
     }
     outp[i] = acc;
 }
 "#;
 
-const VARIANTS: [&str; 6] = [
-    "buffer_vec4",
-    "buffer_vec2",
-    "buffer_3xf32",
-    "texture_load",
-    "workgroup_tile",
-    "no_load",
+/// (entry point, prologue, the neighbour's load)
+const VARIANTS: [(&str, &str, &str); 7] = [
+    ("buffer_vec4", "", "data[j]"),
+    ("buffer_xyz", "", "vec4<f32>(data[j].xyz, 1.0)"),
+    ("buffer_vec2", "", "packed(j)"),
+    (
+        "buffer_3xf32",
+        "",
+        "vec4<f32>(data1[4u * j], data1[4u * j + 1u], data1[4u * j + 2u], 1.0)",
+    ),
+    ("texture_load", "", "texel(j)"),
+    ("workgroup_tile", "stage(wg.x * 64u, l);", "tile[j & 1023u]"),
+    ("no_load", "", "vec4<f32>(f32(j) * 1e-6, me.y, me.z, 1.0)"),
 ];
 
 fn main() {
@@ -201,13 +169,20 @@ fn main() {
         contents: bytemuck::cast_slice(&[n, 2000u32, 74, logw]),
         usage: wgpu::BufferUsages::UNIFORM,
     });
+    let mut source = SHADER.to_string();
+    for (name, prologue, load) in VARIANTS {
+        source += &ENTRY
+            .replace("NAME", name)
+            .replace("PROLOGUE", prologue)
+            .replace("LOAD", load);
+    }
     let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: None,
-        source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
     });
     let pipelines: Vec<_> = VARIANTS
         .iter()
-        .map(|entry| {
+        .map(|(entry, _, _)| {
             let p = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: None,
                 layout: None,
@@ -254,7 +229,7 @@ fn main() {
             }
         }
     }
-    for (name, mut t) in VARIANTS.iter().zip(times) {
+    for ((name, _, _), mut t) in VARIANTS.iter().zip(times) {
         t.sort_by(f64::total_cmp);
         println!(
             "{name:>15}: {:7.2} ms per dispatch (median of {})",
