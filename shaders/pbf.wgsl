@@ -844,6 +844,8 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     if (i >= live.count) { return; }
     let use_vort = prm.vorticity > 0.0;
     let vw = scratch[i];
+    // the height gained in this substep (update_velocity), kept in vel.w for thermo.wgsl
+    let gained = density[i];
     let xm = pos[i];
     let me = Vi(pred[i].xyz, vw.xyz, lv_of(level_of(i)), vw.w, select(0.0, xm.w, use_vort),
         use_vort, pass_consts());
@@ -861,7 +863,7 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     if (use_vort && le > 0.0) {
         v += prm.dt * prm.vorticity * cross(a.eta / le, xm.xyz);
     }
-    vel[i] = vec4<f32>(clamp_speed(v), density[i]);
+    vel[i] = vec4<f32>(clamp_speed(v), gained);
     // no neighbour reads density[i] here (they read rho_j from the scratch)
     density[i] = a.rho;
 }
