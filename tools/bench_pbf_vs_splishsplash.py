@@ -2,15 +2,17 @@
 """nimbus's PBF against SPlisHSPlasH's PBF on the same CPU, one after the other, in one command.
 
     tools/bench_pbf_vs_splishsplash.py [--particles 100000,300000] [--warmups 1,30] [--steps 20]
-        [--threads 2] [--write-docs]
+        [--threads 2] [--rounds 1] [--write-docs]
 
 Builds the same scene for both solvers (a block of liquid at rest in a closed box, gravity,
 spacing 0.05 m, kernel support 2 spacings = ~33 neighbours, 4 PBF iterations, fixed dt 2 ms,
 XSPH 0.01, no s_corr/vorticity/viscosity) and times each one after the other in this process
 tree: nimbus (`nimbus bench pbf --scene block`, lavapipe with LP_NUM_THREADS threads) and
 SPlisHSPlasH 2.19 (PyPI `pysplishsplash`, OMP_NUM_THREADS threads), at every particle count and
-warm-up (1: from rest; 30: 30 steps into the fall, disordered). Prints a markdown table with both
-ms per step, ms per million particle-steps and the ratio; `--write-docs` puts it into
+warm-up (1: from rest; 30: 30 steps into the fall, disordered). With --rounds N each size and
+warm-up runs N pairs, the two solvers' order swapped every round (a noisy machine's slow minute
+then falls on both), and the table gives the medians and the range of the N pairs' ratios.
+Prints a markdown table with both ms per step, ms per million particle-steps and the ratio; `--write-docs` puts it into
 docs/PERFORMANCE.md ("Side by side with SPlisHSPlasH") with the command, date and machine.
 
 SPlisHSPlasH is installed into a venv if missing: $NIMBUS_SPL_VENV or /opt/nimbus/splvenv
@@ -31,6 +33,7 @@ import math
 import os
 import platform
 import re
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -190,6 +193,8 @@ def main():
     ap.add_argument("--threads", type=int, default=2, help="CPU threads for both solvers")
     ap.add_argument("--spacing", type=float, default=0.05)
     ap.add_argument("--iterations", type=int, default=4)
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="pairs of runs per size and warm-up, the order swapped every round")
     ap.add_argument("--dt", type=float, default=0.002)
     ap.add_argument("--nimbus", default=os.path.join(ROOT, "target", "release", "nimbus"))
     ap.add_argument("--venv", default=os.environ.get("NIMBUS_SPL_VENV", "/opt/nimbus/splvenv"))
@@ -213,27 +218,47 @@ def main():
     adapter = ""
     for particles in [int(p) for p in a.particles.split(",")]:
         for warmup in [max(1, int(w)) for w in a.warmups.split(",")]:
-            nb = run_nimbus(a, particles, warmup)
-            sp = run_spl(a, py, particles, warmup)
-            if nb["particles"] != sp["particles"]:
-                sys.exit(f"particle counts differ: nimbus {nb['particles']}, SPlisHSPlasH {sp['particles']}")
-            adapter = nb["adapter"]
-            n = nb["particles"]
-            row = {"particles": n, "warmup": warmup, "nimbus_ms": nb["pbf_step_ms"],
-                   "nimbus_substep_ms": nb["ms_per_substep_wall"], "spl_ms": sp["ms_per_step"],
-                   "phase_ms": nb["phase_ms"]}
-            row["speedup"] = row["spl_ms"] / row["nimbus_ms"]
+            pairs = []
+            for k in range(max(1, a.rounds)):
+                if k % 2 == 0:
+                    nb = run_nimbus(a, particles, warmup)
+                    sp = run_spl(a, py, particles, warmup)
+                else:
+                    sp = run_spl(a, py, particles, warmup)
+                    nb = run_nimbus(a, particles, warmup)
+                if nb["particles"] != sp["particles"]:
+                    sys.exit(f"particle counts differ: nimbus {nb['particles']}, SPlisHSPlasH {sp['particles']}")
+                adapter = nb["adapter"]
+                pairs.append((nb, sp))
+                print(json.dumps({"particles": nb["particles"], "warmup": warmup, "round": k + 1,
+                                  "nimbus_ms": nb["pbf_step_ms"], "spl_ms": sp["ms_per_step"],
+                                  "speedup": sp["ms_per_step"] / nb["pbf_step_ms"]}), file=sys.stderr)
+            med = statistics.median
+            ratios = sorted(sp["ms_per_step"] / nb["pbf_step_ms"] for nb, sp in pairs)
+            phases = {k: med(nb["phase_ms"].get(k, 0.0) for nb, _ in pairs)
+                      for k in pairs[0][0]["phase_ms"]}
+            row = {"particles": pairs[0][0]["particles"], "warmup": warmup,
+                   "nimbus_ms": med(nb["pbf_step_ms"] for nb, _ in pairs),
+                   "nimbus_substep_ms": med(nb["ms_per_substep_wall"] for nb, _ in pairs),
+                   "spl_ms": med(sp["ms_per_step"] for _, sp in pairs), "phase_ms": phases,
+                   "speedup": med(ratios), "speedup_range": [ratios[0], ratios[-1]]}
             rows.append(row)
             print(json.dumps(row), file=sys.stderr)
     cmd = "tools/bench_pbf_vs_splishsplash.py " + " ".join(
         x for x in sys.argv[1:] if x != "--write-docs")
+    rounds = ""
+    ratio_range = ""
+    if a.rounds > 1:
+        rounds = (f"; {a.rounds} rounds, the order swapped every round: times are medians, the "
+                  "speed-up is the median of the rounds' speed-ups, with their range")
+        ratio_range = " | range"
     lines = [
         f"`{cmd.strip()}` ({started}; {host}; nimbus on {adapter}, SPlisHSPlasH {SPL_VERSION} "
         f"PBF, {a.spl_boundary} walls, {a.spl_kernel} kernels; {a.threads} threads each; "
-        f"{a.steps} steps timed):\n\n",
+        f"{a.steps} steps timed{rounds}):\n\n",
         "| particles | state | nimbus PBF step ms | (grid / pbf / velocity) | SPlisHSPlasH ms/step "
-        "| nimbus ms per M particle-steps | SPlisHSPlasH | nimbus speed-up |\n",
-        "|---|---|---|---|---|---|---|---|\n",
+        f"| nimbus ms per M particle-steps | SPlisHSPlasH | nimbus speed-up{ratio_range} |\n",
+        f"|---|---|---|---|---|---|---|---|{'---|' if a.rounds > 1 else ''}\n",
     ]
     for r in rows:
         state = "from rest" if r["warmup"] <= 1 else f"after {r['warmup']} steps"
@@ -242,7 +267,9 @@ def main():
         m = r["particles"] / 1e6
         lines.append(f"| {r['particles']:,} | {state} | {r['nimbus_ms']:.0f} | {split} | "
                      f"{r['spl_ms']:.0f} | {r['nimbus_ms'] / m:.0f} | {r['spl_ms'] / m:.0f} | "
-                     f"**{r['speedup']:.2f}x** |\n")
+                     f"**{r['speedup']:.2f}x** |" + (
+                         f" {r['speedup_range'][0]:.2f}-{r['speedup_range'][1]:.2f}x |"
+                         if a.rounds > 1 else "") + "\n")
     text = "".join(lines)
     print(text)
     if a.write_docs:
