@@ -13,7 +13,8 @@ warm-up (1: from rest; 30: 30 steps into the fall, disordered). With --rounds N 
 warm-up runs N pairs, the two solvers' order swapped every round (a noisy machine's slow minute
 then falls on both); the table gives median times and the median and range of the N pairs'
 speed-ups. Prints a markdown table with both ms per step, ms per million particle-steps and the
-ratio; `--write-docs` puts it into docs/PERFORMANCE.md ("Side by side with SPlisHSPlasH") with the command, date and machine.
+ratio; `--write-docs` puts it into docs/PERFORMANCE.md ("Side by side with SPlisHSPlasH") with
+the command, date and machine.
 
 SPlisHSPlasH is installed into a venv if missing: $NIMBUS_SPL_VENV or /opt/nimbus/splvenv
 (`python3 -m venv` + `pip install pysplishsplash==2.19.0`; Debian needs python3-venv). The
