@@ -219,12 +219,14 @@ fn w0(r2: f32, k: K) -> f32 {
 fn gw0(xij: vec3<f32>, r: f32, k: K) -> vec3<f32> {
     return gw_lv(xij, r, k.lv0);
 }
-// Adds candidate j; returns whether it is closer than h0 (a neighbour for the mask).
-fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) -> bool {
+// Adds candidate j; returns whether it is closer than h0 (a neighbour for the mask). `packed`:
+// j's level comes from the top bits of pred[j].w (`store_mask`, multi-level only), loaded with its
+// position; the first compute_lambda, which writes pred.w, reads it from `info`.
+fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32, packed: bool) -> bool {
     let k = me.k;
-    let xij = min_image_by_reciprocal(me.p - pred[j].xyz, k.image);
-    let r2 = dot(xij, xij);
     if (k.single) {
+        let xij = min_image_by_reciprocal(me.p - pred[j].xyz, k.image);
+        let r2 = dot(xij, xij);
         // no branch: both kernels are exactly 0 beyond h0 (adding 0 changes no sum), and on SIMD
         // CPUs a branch costs lane-mask bookkeeping for every pair
         let m = k.lv0.w;
@@ -234,9 +236,13 @@ fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32) -> bool {
         (*a).g2 += dot(g, g);
         return r2 < k.h0sq;
     }
-    // every radius is <= h0: farther pairs are rejected before their level is loaded
+    let pj = pred[j];
+    let xij = min_image_by_reciprocal(me.p - pj.xyz, k.image);
+    let r2 = dot(xij, xij);
+    // every radius is <= h0: farther pairs are rejected before their level is looked up
     if (r2 < k.h0sq) {
-        let lj = level_of(j);
+        var lj: u32;
+        if (packed) { lj = packed_level(pj.w); } else { lj = level_of(j); }
         let lvj = lv_of(lj);
         let hm = max(me.hi, lvj.x);
         if (r2 < hm * hm) {
@@ -268,7 +274,7 @@ fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
 
 // The old search around the current position (no mask): particles whose substep moved them more
 // than a cell from their start (no anchor).
-fn lam_scan(a: ptr<function, LamAcc>, me: Me) {
+fn lam_scan(a: ptr<function, LamAcc>, me: Me, packed: bool) {
     let c = cell_coord(me.p, grid);
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
@@ -277,7 +283,7 @@ fn lam_scan(a: ptr<function, LamAcc>, me: Me) {
                 let e = select(rows.xy, rows.zw, s == 1u);
                 if (e.x == e.y) { continue; }
                 let j_end = cell_start[e.y];
-                for (var j = cell_start[e.x]; j < j_end; j++) { _ = lam_fluid(a, me, j); }
+                for (var j = cell_start[e.x]; j < j_end; j++) { _ = lam_fluid(a, me, j, packed); }
                 if (!wall_reach(c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
                 let we = e - vec2<u32>(wall_shift(c.y + dy, c.z + dz, grid));
                 let k_end = bcell_start[we.y];
@@ -295,17 +301,22 @@ const META_BITS: u32 = 17u;
 const NO_ANCHOR: u32 = 31u;
 // 128 bits in vel, 32 in pred.w, 15 in pos.w above the anchor
 const MASK_BITS: u32 = 175u;
+// With more than one level, pred.w's top 3 bits carry the particle's level, so the passes after
+// the first gather a neighbour's level with its position instead of from `info` (one load per
+// neighbour fewer), and the mask has 3 bits fewer: words 4 and 5 are pred.w's low 29 bits and
+// pos.w's 15 (`mask_of`, `store_mask`).
+const LEVEL_SHIFT: u32 = 29u;
+const MASK_BITS_MULTI: u32 = 172u;
 
 struct Anchor {
     c: vec3<i32>,
     s: vec3<i32>,
     ok: bool,
 }
+// Mask bits 0-127, 128-159 and 160-174 (160-171 with more than one level) as words.
 struct Mask {
     w: vec4<u32>,
-    // pred.w
     w4: u32,
-    // pos.w >> META_BITS
     w5: u32,
 }
 
@@ -414,8 +425,32 @@ fn mask_put(m: ptr<function, Mask>, off: u32, bits: vec2<u32>, nb: u32) {
     (*m).w5 |= select(0u, va, wi == 5u) | select(0u, vb, wi + 1u == 5u) | select(0u, vc, wi + 2u == 5u);
 }
 // Mask bits a segment of n candidates starting at bit `off` has (the rest are tested each pass).
-fn seg_bits(off: u32, n: u32) -> u32 {
-    return min(min(n, 64u), MASK_BITS - min(off, MASK_BITS));
+fn seg_bits(off: u32, n: u32, single: bool) -> u32 {
+    let cap = select(MASK_BITS_MULTI, MASK_BITS, single);
+    return min(min(n, 64u), cap - min(off, cap));
+}
+// Where the first compute_lambda leaves the mask: words 0-3 in vel; all level 0, word 4 in pred.w
+// and word 5 (15 bits) above the anchor in pos.w; otherwise pred.w = word 4's low 29 bits and
+// the level li on top, pos.w = the anchor and word 4's top 3 bits and word 5's 12 (mask_put never
+// sets a bit past MASK_BITS_MULTI then). Returns (pred.w, pos.w).
+fn store_mask(m: Mask, li: u32, tag: u32, single: bool) -> vec2<f32> {
+    let low = (1u << LEVEL_SHIFT) - 1u;
+    let pw = select((m.w4 & low) | (li << LEVEL_SHIFT), m.w4, single);
+    let hi = select((m.w4 >> LEVEL_SHIFT) | (m.w5 << 3u), m.w5, single);
+    return vec2<f32>(bitcast<f32>(pw), bitcast<f32>(tag | (hi << META_BITS)));
+}
+// The level in pred.w (more than one level only).
+fn packed_level(w: f32) -> u32 {
+    return bitcast<u32>(w) >> LEVEL_SHIFT;
+}
+// The mask from vel, pred.w and pos.w (`store_mask`).
+fn mask_of(v: vec4<f32>, pw: f32, tag: u32, single: bool) -> Mask {
+    let p = bitcast<u32>(pw);
+    let hi = tag >> META_BITS;
+    let low = (1u << LEVEL_SHIFT) - 1u;
+    let w4 = select((p & low) | (hi << LEVEL_SHIFT), p, single);
+    let w5 = select(hi >> 3u, hi, single);
+    return Mask(bitcast<vec4<u32>>(v), w4, w5);
 }
 
 // Takes the lowest set bit of a row's 64-bit mask: (candidate offset, whether there was one).
@@ -441,13 +476,13 @@ fn lam_build(a: ptr<function, LamAcc>, me: Me, an: Anchor) -> Mask {
                 let j1 = cell_start[e.y];
                 var bits = vec2<u32>(0u);
                 for (var j = j0; j < j1; j++) {
-                    if (lam_fluid(a, me, j)) {
+                    if (lam_fluid(a, me, j, false)) {
                         let k = j - j0;
                         bits.x |= select(0u, 1u << (k & 31u), k < 32u);
                         bits.y |= select(0u, 1u << (k & 31u), k >= 32u && k < 64u);
                     }
                 }
-                mask_put(&m, off, bits, seg_bits(off, j1 - j0));
+                mask_put(&m, off, bits, seg_bits(off, j1 - j0, me.k.single));
                 off += j1 - j0;
                 if (!wall_reach(an.c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
                 let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
@@ -468,17 +503,17 @@ fn lam_masked(a: ptr<function, LamAcc>, me: Me, an: Anchor, m: Mask) {
                 if (e.x == e.y) { continue; }
                 let j0 = cell_start[e.x];
                 let j1 = cell_start[e.y];
-                let nb = seg_bits(off, j1 - j0);
+                let nb = seg_bits(off, j1 - j0, me.k.single);
                 var bits = mask_get(m, off, nb);
                 off += j1 - j0;
                 // one loop over both words, two neighbours per trip (each trip costs lane-mask bookkeeping)
                 while (any(bits != vec2<u32>(0u))) {
                     let k1 = pop_bit(&bits);
                     let k2 = pop_bit(&bits);
-                    _ = lam_fluid(a, me, j0 + k1.x);
-                    if (k2.y != 0u) { _ = lam_fluid(a, me, j0 + k2.x); }
+                    _ = lam_fluid(a, me, j0 + k1.x, true);
+                    if (k2.y != 0u) { _ = lam_fluid(a, me, j0 + k2.x, true); }
                 }
-                for (var j = j0 + nb; j < j1; j++) { _ = lam_fluid(a, me, j); }
+                for (var j = j0 + nb; j < j1; j++) { _ = lam_fluid(a, me, j, true); }
                 if (!wall_reach(an.c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
                 let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
                 let k_end = bcell_start[we.y];
@@ -489,7 +524,8 @@ fn lam_masked(a: ptr<function, LamAcc>, me: Me, an: Anchor, m: Mask) {
 }
 
 // The first iteration's lambda: builds the neighbour mask (vel, pred.w, pos.w; pred.w alone,
-// the other threads read only pred's xyz).
+// the other threads read only pred's xyz) and, with more than one level, puts the level into
+// pred.w.
 @compute @workgroup_size(WG_PARTICLES)
 fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
@@ -503,11 +539,12 @@ fn compute_lambda(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
     if (an.ok) {
         m = lam_build(&a, me, an);
     } else {
-        lam_scan(&a, me);
+        lam_scan(&a, me, false);
     }
     vel[i] = bitcast<vec4<f32>>(m.w);
-    pred[i].w = bitcast<f32>(m.w4);
-    pos[i] = vec4<f32>(x, bitcast<f32>(tag | (m.w5 << META_BITS)));
+    let st = store_mask(m, me.li, tag, me.k.single);
+    pred[i].w = st.x;
+    pos[i] = vec4<f32>(x, st.y);
     lambda_out(i, me, a);
 }
 
@@ -523,9 +560,9 @@ fn compute_lambda_masked(@builtin(global_invocation_id) gid: vec3<u32>, @builtin
     let tag = bitcast<u32>(xm.w);
     let an = anchor_of(xm.xyz, tag);
     if (an.ok) {
-        lam_masked(&a, me, an, Mask(bitcast<vec4<u32>>(vel[i]), bitcast<u32>(pi.w), tag >> META_BITS));
+        lam_masked(&a, me, an, mask_of(vel[i], pi.w, tag, me.k.single));
     } else {
-        lam_scan(&a, me);
+        lam_scan(&a, me, true);
     }
     lambda_out(i, me, a);
 }
@@ -626,7 +663,7 @@ fn delta_masked(dp: ptr<function, vec3<f32>>, me: Me, an: Anchor, m: Mask) {
                 if (e.x == e.y) { continue; }
                 let j0 = cell_start[e.x];
                 let j1 = cell_start[e.y];
-                let nb = seg_bits(off, j1 - j0);
+                let nb = seg_bits(off, j1 - j0, me.k.single);
                 var bits = mask_get(m, off, nb);
                 off += j1 - j0;
                 // one loop over both words, two neighbours per trip (each trip costs lane-mask bookkeeping)
@@ -659,11 +696,11 @@ fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
     let an = anchor_of(xm.xyz, tag);
     let w4 = pred[i].w;
     if (an.ok) {
-        delta_masked(&dp, me, an, Mask(bitcast<vec4<u32>>(vel[i]), bitcast<u32>(w4), tag >> META_BITS));
+        delta_masked(&dp, me, an, mask_of(vel[i], w4, tag, me.k.single));
     } else {
         delta_scan(&dp, me);
     }
-    // pred.w: the mask's word 4, kept
+    // pred.w: the mask's word 4 (and the level), kept
     pred[i] = vec4<f32>(confine(me.p + dp / prm.rest_density), w4);
 }
 
@@ -689,7 +726,12 @@ struct Pair {
 }
 fn pair_of(k: K, r2: f32, hi: f32, j: u32) -> Pair {
     if (k.single) { return Pair(true, k.lv0); }
-    let lvj = lv_of(level_of(j));
+    return pair_at(k, r2, hi, level_of(j));
+}
+// The same for a level already known (lj is not used when all are level 0).
+fn pair_at(k: K, r2: f32, hi: f32, lj: u32) -> Pair {
+    if (k.single) { return Pair(true, k.lv0); }
+    let lvj = lv_of(lj);
     let hm = max(hi, lvj.x);
     return Pair(r2 < hm * hm, lvj);
 }
@@ -763,13 +805,26 @@ struct Vi {
 }
 fn visc_pair(a: ptr<function, Visc>, me: Vi, j: u32) {
     let k = me.k;
-    let xij = min_image_by_reciprocal(me.p - pred[j].xyz, k.image);
+    // every radius is <= h0: pairs beyond it are rejected before their level is looked up
+    if (k.single) {
+        let xij = min_image_by_reciprocal(me.p - pred[j].xyz, k.image);
+        let r2 = dot(xij, xij);
+        if (r2 >= k.h0sq) { return; }
+        visc_add(a, me, j, xij, r2, k.lv0);
+        return;
+    }
+    // with more than one level, j's level comes with its position (`store_mask`)
+    let pj = pred[j];
+    let xij = min_image_by_reciprocal(me.p - pj.xyz, k.image);
     let r2 = dot(xij, xij);
-    // every radius is <= h0: pairs beyond it are rejected before their level is loaded
     if (r2 >= k.h0sq) { return; }
-    let pk = pair_of(k, r2, me.lv.x, j);
+    let pk = pair_at(k, r2, me.lv.x, packed_level(pj.w));
     if (!pk.inside) { return; }
-    let lvj = pk.lvj;
+    visc_add(a, me, j, xij, r2, pk.lvj);
+}
+// The XSPH, density and vorticity terms of a pair within reach (level constants lvj).
+fn visc_add(a: ptr<function, Visc>, me: Vi, j: u32, xij: vec3<f32>, r2: f32, lvj: vec4<f32>) {
+    let k = me.k;
     // (v_j, rho_j)
     let sj = scratch[j];
     // 2 m_j / (rho_i + rho_j): pairwise symmetric, so XSPH conserves momentum
@@ -819,7 +874,7 @@ fn visc_masked(a: ptr<function, Visc>, me: Vi, an: Anchor, m: Mask) {
                 if (e.x == e.y) { continue; }
                 let j0 = cell_start[e.x];
                 let j1 = cell_start[e.y];
-                let nb = seg_bits(off, j1 - j0);
+                let nb = seg_bits(off, j1 - j0, me.k.single);
                 var bits = mask_get(m, off, nb);
                 off += j1 - j0;
                 // one loop over both words, two neighbours per trip (each trip costs lane-mask bookkeeping)
@@ -853,8 +908,7 @@ fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
     var an = Anchor(vec3<i32>(0), vec3<i32>(0), false);
     if (!use_vort) { an = anchor_of(xm.xyz, bitcast<u32>(xm.w)); }
     if (an.ok) {
-        let m = Mask(bitcast<vec4<u32>>(vel[i]), bitcast<u32>(pred[i].w), bitcast<u32>(xm.w) >> META_BITS);
-        visc_masked(&a, me, an, m);
+        visc_masked(&a, me, an, mask_of(vel[i], pred[i].w, bitcast<u32>(xm.w), me.k.single));
     } else {
         visc_scan(&a, me);
     }

@@ -362,6 +362,75 @@ fn later_passes_keep_the_first_lambdas_neighbours() {
     assert!(e < TOL, "viscosity_confine density: {e}");
 }
 
+/// With more than one level the passes after the first compute_lambda take a neighbour's level
+/// from the top bits of its pred.w, and the mask's last 44 bits are split between pred.w and
+/// pos.w (shaders/pbf.wgsl `store_mask`, `mask_of`). At the positions the mask was built at,
+/// compute_lambda_masked must give back compute_lambda's lambda and density bit for bit (the same
+/// pairs, the same order, the same levels), and viscosity_confine (no vorticity: the masked walk)
+/// the same density; some masks must reach into pos.w, or the split is not tested.
+#[test]
+fn masked_passes_read_the_level_packed_with_the_position() {
+    let cfg = config(
+        [9.0, 8.0, 10.0],
+        "solver: {gravity: 9.81, scorr_k: 0.001, xsph: 0.1}\n",
+    );
+    let state = random_state(&cfg, fresh_seed(), 2);
+    let mut sim = Simulation::from_state(ctx(), &cfg, &state, SimClock::default()).unwrap();
+    assert_eq!(sim.live().unwrap().single_level, 0);
+    let n = sim.count();
+    sim.run_step(Step::Predict).unwrap();
+    sim.run_step(Step::Grid).unwrap();
+    sim.run_step(Step::Lambda).unwrap();
+    let first = sim.read_vec4(Buf::Scratch).unwrap();
+    let rho = sim.read_f32(Buf::Density).unwrap();
+    let level: Vec<u32> = sim.read_u32(Buf::Info, 2 * n).unwrap()[1..]
+        .iter()
+        .step_by(2)
+        .map(|&l| l.min(7))
+        .collect();
+    let pred = sim.read_vec4(Buf::Pred).unwrap();
+    for (i, p) in pred.iter().enumerate().take(n) {
+        assert_eq!(
+            p[3].to_bits() >> 29,
+            level[i],
+            "particle {i}: level in pred.w"
+        );
+    }
+    let pos = sim.read_vec4(Buf::Pos).unwrap();
+    let deep = pos
+        .iter()
+        .take(n)
+        .filter(|p| p[3].to_bits() >> 17 != 0)
+        .count();
+    assert!(deep > 0, "no mask reached past pred.w");
+
+    sim.run_step(Step::LambdaMasked).unwrap();
+    let again = sim.read_vec4(Buf::Scratch).unwrap();
+    let rho_again = sim.read_f32(Buf::Density).unwrap();
+    for i in 0..n {
+        assert_eq!(
+            again[i][3].to_bits(),
+            first[i][3].to_bits(),
+            "particle {i}: lambda"
+        );
+        assert_eq!(
+            rho_again[i].to_bits(),
+            rho[i].to_bits(),
+            "particle {i}: density"
+        );
+    }
+
+    sim.run_step(Step::UpdateVelocity).unwrap();
+    sim.run_step(Step::ViscosityConfine).unwrap();
+    let rho_visc = sim.read_f32(Buf::Density).unwrap();
+    let e = rel_err(
+        &as3(&rho_visc[..n].iter().map(|&v| v as f64).collect::<Vec<_>>()),
+        &as3(&rho[..n].iter().map(|&v| v as f64).collect::<Vec<_>>()),
+    );
+    assert!(e < 1e-6, "viscosity_confine density: {e}");
+    eprintln!("{deep} of {n} masks reach into pos.w");
+}
+
 /// The solver alone (heating and buoyancy off) on a box filled at rest density, walls top and
 /// bottom, periodic in x/z, under gravity: 4 iterations, dt 5 ms, XSPH 0.1 to let the lattice's
 /// rearrangement die down. Over the last second of 3 s every frame must hold mean |rho/rho0 - 1|

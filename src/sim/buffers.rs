@@ -5,7 +5,8 @@
 //! `predict` and `update_velocity` the velocity array is dead (PBF recomputes v from the
 //! positions), so the neighbour grid's permutation gathers into it and then, with `pred.w` and
 //! the upper bits of `pos.w`, it holds the substep's neighbour mask (from the first
-//! compute_lambda to viscosity_confine, shaders/pbf.wgsl); the grid build's sort arrays
+//! compute_lambda to viscosity_confine, shaders/pbf.wgsl; with more than one level `pred.w`'s top
+//! 3 bits hold the particle's level then); the grid build's sort arrays
 //! and the PBF solve's vec4 scratch share `pairs`. The later stages take their
 //! scratch from arrays dead while they run: smoothing the whole of `pairs` (and its vapor limiter
 //! a quarter of `pred`), split and merge their flags and holes from `pred` and their ranks from
@@ -32,7 +33,8 @@ pub struct ParticleBuffers {
     pub thermo: wgpu::Buffer,
     /// `vec2<u32>`: (id, level)
     pub info: wgpu::Buffer,
-    /// `vec4<f32>`: the predicted position p*
+    /// `vec4<f32>`: the predicted position p* (w: during the PBF solve, part of the neighbour
+    /// mask and, with more than one level, the level)
     pub pred: wgpu::Buffer,
     /// Four u32 arrays of `slots` for the grid build's sort, or one `vec4<f32>` array of scratch.
     pub pairs: wgpu::Buffer,
