@@ -728,9 +728,8 @@ fn pair_of(k: K, r2: f32, hi: f32, j: u32) -> Pair {
     if (k.single) { return Pair(true, k.lv0); }
     return pair_at(k, r2, hi, level_of(j));
 }
-// The same for a level already known (lj is not used when all are level 0).
+// The same for a level already known (more than one level).
 fn pair_at(k: K, r2: f32, hi: f32, lj: u32) -> Pair {
-    if (k.single) { return Pair(true, k.lv0); }
     let lvj = lv_of(lj);
     let hm = max(hi, lvj.x);
     return Pair(r2 < hm * hm, lvj);
