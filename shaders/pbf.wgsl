@@ -584,8 +584,23 @@ fn lambda_out(i: u32, me: Me, a: LamAcc) {
         if (a.near_wall) { w = 0.0; }
         if (me.li > 0u) { constraint = constraint * w; }
     }
-    scratch[i] = vec4<f32>(me.p, -constraint / (a.g2 + dot(a.grad, a.grad) + prm.eps));
+    let lam = -constraint / (a.g2 + dot(a.grad, a.grad) + prm.eps);
+    scratch[i] = vec4<f32>(me.p, lam_pack(lam, me.li, me.k.single));
     density[i] = a.rho;
+}
+
+// With more than one level, lambda's 3 low mantissa bits carry the particle's level from the
+// lambda passes to the delta passes, which then gather a neighbour's level with its lambda
+// instead of loading info[j] (lambda loses 3 bits: under 1e-6 of itself). One level: lambda whole.
+const LAM_LEVEL_MASK: u32 = 7u;
+fn lam_pack(lam: f32, li: u32, single: bool) -> f32 {
+    return select(bitcast<f32>((bitcast<u32>(lam) & ~LAM_LEVEL_MASK) | li), lam, single);
+}
+fn lam_value(w: f32) -> f32 {
+    return bitcast<f32>(bitcast<u32>(w) & ~LAM_LEVEL_MASK);
+}
+fn lam_level(w: f32) -> u32 {
+    return bitcast<u32>(w) & LAM_LEVEL_MASK;
 }
 
 // s_corr with W(dq h_i) precomputed for same-level pairs
@@ -614,12 +629,12 @@ fn delta_fluid(dp: ptr<function, vec3<f32>>, me: Me, j: u32) {
         return;
     }
     if (r2 < k.h0sq) {
-        let lj = level_of(j);
+        let lj = lam_level(pj.w);
         let lvj = lv_of(lj);
         let hm = max(me.hi, lvj.x);
         if (r2 < hm * hm) {
             let mj = lvj.w;
-            let s = me.lam * mj + pj.w * me.mi + scorr_me(me, r2, lj, lvj) * mj;
+            let s = me.lam * mj + lam_value(pj.w) * me.mi + scorr_me(me, r2, lj, lvj) * mj;
             *dp += s * gsym(xij, sqrt(r2), me.lv, lvj);
         }
     }
@@ -689,7 +704,8 @@ fn delta_masked(dp: ptr<function, vec3<f32>>, me: Me, an: Anchor, m: Mask) {
 fn compute_delta(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= live.count) { return; }
-    let me = me_of(i, scratch[i]);
+    var me = me_of(i, scratch[i]);
+    if (!me.k.single) { me.lam = lam_value(me.lam); }
     var dp = vec3<f32>(0.0);
     let xm = pos[i];
     let tag = bitcast<u32>(xm.w);

@@ -194,7 +194,20 @@ fn kernels_match_the_mirror(levels: u32) {
         pred,
         "scratch p*"
     );
-    let glam: Vec<f64> = scratch.iter().map(|v| v[3] as f64).collect();
+    let single = levels == 0;
+    if !single {
+        for (i, v) in scratch.iter().enumerate() {
+            assert_eq!(
+                v[3].to_bits() & 7,
+                level[i].min(7),
+                "particle {i}: level in lambda"
+            );
+        }
+    }
+    let glam: Vec<f64> = scratch
+        .iter()
+        .map(|v| mirror::lambda_of_word(v[3], single))
+        .collect();
     let gden: Vec<f64> = density(&sim);
     let e = rel_err(&as3(&glam), &as3(&lam));
     assert!(e < TOL, "compute_lambda lambda: {e}");

@@ -182,6 +182,15 @@ pub fn compute_lambda_in(
     (lam, den)
 }
 
+/// The lambda in a scratch word written by compute_lambda (shaders/pbf.wgsl `lam_pack`): with
+/// more than one level its 3 low mantissa bits carry the particle's level, cleared here.
+pub fn lambda_of_word(w: f32, single_level: bool) -> f64 {
+    if single_level {
+        return w as f64;
+    }
+    f32::from_bits(w.to_bits() & !7) as f64
+}
+
 /// Returns the corrected predicted positions p* + delta p (confined).
 pub fn compute_delta(sc: &Scene, pred: &[V3], lambda: &[f64]) -> Vec<V3> {
     compute_delta_in(sc, pred, lambda, None)
