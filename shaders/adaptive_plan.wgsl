@@ -1,5 +1,6 @@
 // Adaptive stage 2a: which cells the merge visits. `merge_cells` (a thread per cell) appends
-// every cell holding a merge-marked particle to its colour's list (the order within a list does
+// every cell holding a merge-marked particle with a merge-marked partner in reach (`may_merge`)
+// to its colour's list (the order within a list does
 // not matter: cells of one colour are independent) and checks that the cooperative merge of
 // adaptive_merge.wgsl stays within the device's loop budget for it; `merge_dispatch` (one thread)
 // writes each colour's indirect dispatch arguments: one workgroup per listed cell. The host
@@ -31,6 +32,44 @@ struct ColourMap {
 // words 0..4 what the frame saw (the host zeroes them when a frame starts): an error (1: a cell
 // whose merge would run past the loop budget), the largest loop estimate, the most listed cells
 @group(0) @binding(8) var<storage, read_write> load: array<atomic<u32>>;
+@group(0) @binding(9) var<uniform> params: AdaptiveParams;
+@group(0) @binding(10) var<storage, read> pos: array<vec4<f32>>;
+@group(0) @binding(11) var<storage, read> info: array<vec2<u32>>;
+
+// Loop trips `may_merge` takes at most before it lists a cell unchecked (well within the loop
+// budget with merge_cells' own walks).
+const PARTNER_SCAN_CAP: u32 = 8192u;
+
+// Whether a merge-marked slot of the cell [begin, end) has a merge-marked partner on its level
+// closer than h (adaptive_merge's partner test, the same f32 expression). Merges only take marks
+// away (MERGED, DEAD) and move only the particles they merge, so a cell without such a pair now
+// merges nothing in any colour pass: it is not listed, and its workgroup is not launched.
+fn may_merge(begin: u32, end: u32, cc: vec3<i32>) -> bool {
+    var tested = 0u;
+    for (var kc = 0u; kc < 27u; kc++) {
+        let off = vec3<i32>(i32(kc % 3u) - 1, i32((kc / 3u) % 3u) - 1, i32(kc / 9u) - 1);
+        let n = neighbor_cell(cc, off, grid);
+        if (n < 0) { continue; }
+        let k_end = cell_start[cell_entry(u32(n) + 1u, grid)];
+        for (var k = cell_start[cell_entry(u32(n), grid)]; k < k_end; k++) {
+            tested++;
+            if (tested > PARTNER_SCAN_CAP) { return true; }
+            if (flags[k] != FLAG_MERGE) { continue; }
+            let lk = info[k].y;
+            let xk = pos[k].xyz;
+            for (var i = begin; i < end; i++) {
+                tested++;
+                if (tested > PARTNER_SCAN_CAP) { return true; }
+                if (i == k || flags[i] != FLAG_MERGE || info[i].y != lk) { continue; }
+                let xi = pos[i].xyz;
+                let h = level_radius(params.h0, lk);
+                let dk = min_image(xk - xi, grid);
+                if (dot(dk, dk) < h * h) { return true; }
+            }
+        }
+    }
+    return false;
+}
 
 fn axis_class(x: u32, split: u32) -> u32 {
     if (x < split) { return x % 3u; }
@@ -49,6 +88,7 @@ fn merge_cells(@builtin(global_invocation_id) gid: vec3<u32>,
     if (marked == 0u) { return; }
     let d = grid.dims;
     let cc = vec3<u32>(cell % d.x, (cell / d.x) % d.y, cell / (d.x * d.y));
+    if (!may_merge(begin, end, vec3<i32>(cc))) { return; }
     var nb = 0u;
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {

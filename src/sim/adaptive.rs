@@ -5,7 +5,8 @@
 //! ([`AdaptiveStage::split_and_merge`]):
 //! 1. `adaptive_mark`: E = kp (1 - exp(-kc w)) into `thermo.w`; merge marks (E < beta, l > 0);
 //!    split marks (E > alpha, l < max_level) where both children fit (min_distance);
-//! 2. `merge_cells` lists, per grid colour, the cells holding merge marks and `merge_dispatch`
+//! 2. `merge_cells` lists, per grid colour, the cells holding a merge mark with a merge-marked
+//!    partner on its level in reach (no other cell can merge) and `merge_dispatch`
 //!    writes one indirect dispatch per colour; `adaptive_merge`, a workgroup per listed cell:
 //!    pairs of marked same-level neighbours become one particle of level l-1 in the lower slot,
 //!    the other slot dies;
