@@ -57,12 +57,12 @@ fn may_merge(begin: u32, end: u32, cc: vec3<i32>) -> bool {
             if (flags[k] != FLAG_MERGE) { continue; }
             let lk = info[k].y;
             let xk = pos[k].xyz;
+            let h = level_radius(params.h0, lk);
             for (var i = begin; i < end; i++) {
                 tested++;
                 if (tested > PARTNER_SCAN_CAP) { return true; }
                 if (i == k || flags[i] != FLAG_MERGE || info[i].y != lk) { continue; }
                 let xi = pos[i].xyz;
-                let h = level_radius(params.h0, lk);
                 let dk = min_image(xk - xi, grid);
                 if (dot(dk, dk) < h * h) { return true; }
             }
