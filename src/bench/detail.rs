@@ -12,7 +12,9 @@
 //!   rest frame: each active voxel of frame f+1 against the point of frame f with the same rest
 //!   coordinate, frame f's detail evaluated exactly there from the particles (`PointSplat`,
 //!   `exact_correlation`; also the older figure that interpolates frame f's grid, `RestMatch`,
-//!   and the modulation detailed / undetailed - 1 alone); and at the same material points:
+//!   the modulation detailed / undetailed - 1 alone, and the cosine similarity of the undetailed
+//!   density itself at the matched points, the cloud's own change that bounds the detail's
+//!   correlation); and at the same material points:
 //!   each particle present in frames f and f+1 (matched by id) and 26 points a quarter spacing
 //!   around it, sampled at its position in each frame (trilinear). Pearson correlation, for the
 //!   rest-frame noise and for the same noise evaluated in world space;
@@ -208,13 +210,14 @@ pub fn bench_detail(
                 };
                 if let (Some(k), Some((ps_a, noises, norm))) = (k, &prev_ps) {
                     let ps_b = PointSplat::new(&fr, &base, codec);
-                    let [cr, cw, mr, mw] = exact_correlation(
+                    let [cr, cw, mr, mw, own] = exact_correlation(
                         ps_a, &noises[0], &noises[1], *norm, k, &ps_b, &d0, &d1, &dw,
                     );
                     row["detail_correlation_rest_exact"] = json!(cr);
                     row["detail_correlation_world_exact"] = json!(cw);
                     row["modulation_correlation_rest_exact"] = json!(mr);
                     row["modulation_correlation_world_exact"] = json!(mw);
+                    row["undetailed_cosine_rest_exact"] = json!(own);
                 }
                 if let Some(k) = k {
                     let m = RestMatch {
@@ -309,6 +312,8 @@ pub fn bench_detail(
             "detail_correlation_world_exact_mean": mean("detail_correlation_world_exact"),
             "detail_correlation_world_exact_min": min("detail_correlation_world_exact"),
             "detail_correlation_world_exact_max": max("detail_correlation_world_exact"),
+            "undetailed_cosine_rest_exact_min": min("undetailed_cosine_rest_exact"),
+            "undetailed_cosine_rest_exact_mean": mean("undetailed_cosine_rest_exact"),
             "energy_below_spacing_ratio_world_min": min("energy_below_spacing_ratio_world"),
             "particle_correlation_rest_mean": mean("particle_correlation_rest"),
             "particle_correlation_world_mean": mean("particle_correlation_world"),
@@ -758,7 +763,10 @@ impl PointSplat {
 /// rest_k,f(x) = rest_k,f+1(y) (Newton on the exact rest map from x = y), then frame f's detail
 /// component d0(x) (g_f F_f(x) - 1), F the noise factor and g_f the frame's normalisation,
 /// against the voxel's own detailed - undetailed value. Returns the rest-frame and world-noise
-/// correlations, then the same for the modulation alone (detailed / undetailed - 1).
+/// correlations, then the same for the modulation alone (detailed / undetailed - 1), then the
+/// cosine similarity of the undetailed density itself at the same matched points: the cloud's
+/// own change, which bounds the detail's correlation (for a noise n matched exactly and
+/// independent of d0, corr(n d0_f, n d0_f+1) is that cosine).
 #[allow(clippy::too_many_arguments)]
 fn exact_correlation(
     ps: &PointSplat,
@@ -770,9 +778,10 @@ fn exact_correlation(
     b0: &SparseGrid<f32>,
     b1: &SparseGrid<f32>,
     bw: &SparseGrid<f32>,
-) -> [f64; 4] {
+) -> [f64; 5] {
     let t = b0.transform;
     let (mut xs, mut ys, mut xw, mut yw) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut own_xy, mut own_xx, mut own_yy) = (0.0, 0.0, 0.0);
     let (mut ms, mut my, mut mw, mut mwy) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for ijk in b0.active_voxels() {
         let y = t.index_to_world(ijk.map(|v| v as f64));
@@ -799,6 +808,9 @@ fn exact_correlation(
             continue;
         };
         let v0 = b0.get(ijk) as f64;
+        own_xy += d0 * v0;
+        own_xx += d0 * d0;
+        own_yy += v0 * v0;
         xs.push(d0 * (norm[0] * noise_rest.factor(x, r) - 1.0));
         ys.push(b1.get(ijk) as f64 - v0);
         xw.push(d0 * (norm[1] * noise_world.factor(x, r) - 1.0));
@@ -815,6 +827,7 @@ fn exact_correlation(
         pearson(&xw, &yw),
         pearson(&ms, &my),
         pearson(&mw, &mwy),
+        own_xy / (own_xx * own_yy).sqrt(),
     ]
 }
 
