@@ -8,8 +8,9 @@
 //! xyz), one vec2 (a packed position), three f32 loads, a `textureLoad` from an rgba32float
 //! texture, a load from workgroup memory staged from the buffer (after a barrier), or no load
 //! at all (the loop and the arithmetic alone). Prints the median ms per dispatch of each.
-use std::time::Instant;
 use wgpu::util::DeviceExt;
+
+mod probe;
 
 const SHADER: &str = r#"
 @group(0) @binding(0) var<storage, read> data: array<vec4<f32>>;
@@ -98,32 +99,10 @@ const VARIANTS: [(&str, &str, &str); 7] = [
 ];
 
 fn main() {
-    let arg = |k: usize, d: u32| {
-        std::env::args()
-            .nth(k)
-            .and_then(|s| s.parse().ok())
-            .unwrap_or(d)
-    };
-    let n = arg(1, 100_000).max(64);
-    let rounds = arg(2, 8).max(1);
-    let instance =
-        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-    let Some(adapter) =
-        pollster::block_on(instance.enumerate_adapters(wgpu::Backends::VULKAN)).pop()
-    else {
-        eprintln!("error: no Vulkan adapter");
-        std::process::exit(4);
-    };
+    let n = probe::arg(1, 100_000).max(64);
+    let rounds = probe::arg(2, 8).max(1);
+    let (adapter, device, queue) = probe::device(wgpu::Features::empty());
     println!("adapter: {}, {n} particles", adapter.get_info().name);
-    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-        label: None,
-        required_features: wgpu::Features::empty(),
-        required_limits: adapter.limits(),
-        experimental_features: wgpu::ExperimentalFeatures::disabled(),
-        memory_hints: wgpu::MemoryHints::Performance,
-        trace: wgpu::Trace::Off,
-    }))
-    .expect("device");
     let logw = 10u32;
     let (w, h) = (1u32 << logw, n.div_ceil(1 << logw));
     let values: Vec<f32> = (0..w * h)
@@ -180,61 +159,22 @@ fn main() {
         label: None,
         source: wgpu::ShaderSource::Wgsl(source.into()),
     });
-    let pipelines: Vec<_> = VARIANTS
-        .iter()
-        .map(|(entry, _, _)| {
-            let p = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: None,
-                layout: None,
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            });
-            let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
-            let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: None,
-                layout: &p.get_bind_group_layout(0),
-                entries: &[
-                    bind(0, data.as_entire_binding()),
-                    bind(1, outp.as_entire_binding()),
-                    bind(2, wgpu::BindingResource::TextureView(&view)),
-                    bind(3, prm.as_entire_binding()),
-                    bind(4, data.as_entire_binding()),
-                    bind(5, data.as_entire_binding()),
-                ],
-            });
-            (p, group)
-        })
-        .collect();
-    let reps = 20;
-    let mut times = vec![Vec::new(); VARIANTS.len()];
-    for round in 0..rounds {
-        for (v, (p, group)) in pipelines.iter().enumerate() {
-            let mut enc = device.create_command_encoder(&Default::default());
-            for _ in 0..reps {
-                let mut pass = enc.begin_compute_pass(&Default::default());
-                pass.set_pipeline(p);
-                pass.set_bind_group(0, group, &[]);
-                pass.dispatch_workgroups(n.div_ceil(64), 1, 1);
-            }
-            let t = Instant::now();
-            queue.submit([enc.finish()]);
-            device
-                .poll(wgpu::PollType::wait_indefinitely())
-                .expect("poll");
-            // the first round compiles and warms up
-            if round > 0 || rounds == 1 {
-                times[v].push(t.elapsed().as_secs_f64() * 1e3 / f64::from(reps));
-            }
-        }
-    }
-    for ((name, _, _), mut t) in VARIANTS.iter().zip(times) {
-        t.sort_by(f64::total_cmp);
-        println!(
-            "{name:>15}: {:7.2} ms per dispatch (median of {})",
-            t[t.len() / 2],
-            t.len()
-        );
+    let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
+    let names: Vec<&str> = VARIANTS.iter().map(|v| v.0).collect();
+    let pipelines = probe::pipelines(
+        &device,
+        &module,
+        &names,
+        &[
+            bind(0, data.as_entire_binding()),
+            bind(1, outp.as_entire_binding()),
+            bind(2, wgpu::BindingResource::TextureView(&view)),
+            bind(3, prm.as_entire_binding()),
+            bind(4, data.as_entire_binding()),
+            bind(5, data.as_entire_binding()),
+        ],
+    );
+    for (name, ms, k) in probe::time(&device, &queue, &pipelines, n.div_ceil(64), rounds) {
+        println!("{name:>15}: {ms:7.2} ms per dispatch (median of {k})");
     }
 }

@@ -11,8 +11,9 @@
 //! - `broadcast_index`: the index through `subgroupBroadcastFirst`, with a per-lane fallback
 //!   when not every lane agrees (`subgroupAll`);
 //! - `constant_index`: one fixed row (no dependent load: the floor).
-use std::time::Instant;
 use wgpu::util::DeviceExt;
+
+mod probe;
 
 const SHADER: &str = r#"
 @group(0) @binding(0) var<storage, read> table: array<u32>;
@@ -62,36 +63,10 @@ const VARIANTS: [(&str, &str); 3] = [
 ];
 
 fn main() {
-    let arg = |k: usize, d: u32| {
-        std::env::args()
-            .nth(k)
-            .and_then(|s| s.parse().ok())
-            .unwrap_or(d)
-    };
-    let n = arg(1, 100_000).max(64);
-    let rounds = arg(2, 8).max(1);
-    let instance =
-        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-    let Some(adapter) =
-        pollster::block_on(instance.enumerate_adapters(wgpu::Backends::VULKAN)).pop()
-    else {
-        eprintln!("error: no Vulkan adapter");
-        std::process::exit(4);
-    };
-    if !adapter.features().contains(wgpu::Features::SUBGROUP) {
-        eprintln!("error: the adapter has no subgroup operations");
-        std::process::exit(4);
-    }
+    let n = probe::arg(1, 100_000).max(64);
+    let rounds = probe::arg(2, 8).max(1);
+    let (adapter, device, queue) = probe::device(wgpu::Features::SUBGROUP);
     println!("adapter: {}, {n} invocations", adapter.get_info().name);
-    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-        label: None,
-        required_features: wgpu::Features::SUBGROUP,
-        required_limits: adapter.limits(),
-        experimental_features: wgpu::ExperimentalFeatures::disabled(),
-        memory_hints: wgpu::MemoryHints::Performance,
-        trace: wgpu::Trace::Off,
-    }))
-    .expect("device");
     let values: Vec<u32> = (0..n).map(|i| i.wrapping_mul(2654435761)).collect();
     let table = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: None,
@@ -104,73 +79,34 @@ fn main() {
         usage: wgpu::BufferUsages::STORAGE,
         mapped_at_creation: false,
     });
+    let mut source = SHADER.to_string();
+    for (name, index) in VARIANTS {
+        source += &ENTRY.replace("NAME", name).replace("INDEX", index);
+    }
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: None,
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let names: Vec<&str> = VARIANTS.iter().map(|v| v.0).collect();
     for group in [8u32, 4, 1] {
         let prm = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: None,
             contents: bytemuck::cast_slice(&[n, group, 2000u32, 74]),
             usage: wgpu::BufferUsages::UNIFORM,
         });
-        let mut source = SHADER.to_string();
-        for (name, index) in VARIANTS {
-            source += &ENTRY.replace("NAME", name).replace("INDEX", index);
-        }
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: None,
-            source: wgpu::ShaderSource::Wgsl(source.into()),
-        });
-        let pipelines: Vec<_> = VARIANTS
-            .iter()
-            .map(|(entry, _)| {
-                let p = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: None,
-                    layout: None,
-                    module: &module,
-                    entry_point: Some(entry),
-                    compilation_options: Default::default(),
-                    cache: None,
-                });
-                let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
-                let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: None,
-                    layout: &p.get_bind_group_layout(0),
-                    entries: &[
-                        bind(0, table.as_entire_binding()),
-                        bind(1, outp.as_entire_binding()),
-                        bind(2, prm.as_entire_binding()),
-                    ],
-                });
-                (p, group)
-            })
-            .collect();
-        let reps = 20;
-        let mut times = vec![Vec::new(); VARIANTS.len()];
-        for round in 0..rounds {
-            for (v, (p, bg)) in pipelines.iter().enumerate() {
-                let mut enc = device.create_command_encoder(&Default::default());
-                for _ in 0..reps {
-                    let mut pass = enc.begin_compute_pass(&Default::default());
-                    pass.set_pipeline(p);
-                    pass.set_bind_group(0, bg, &[]);
-                    pass.dispatch_workgroups(n.div_ceil(64), 1, 1);
-                }
-                let t = Instant::now();
-                queue.submit([enc.finish()]);
-                device
-                    .poll(wgpu::PollType::wait_indefinitely())
-                    .expect("poll");
-                // the first round compiles and warms up
-                if round > 0 || rounds == 1 {
-                    times[v].push(t.elapsed().as_secs_f64() * 1e3 / f64::from(reps));
-                }
-            }
-        }
-        for ((name, _), mut t) in VARIANTS.iter().zip(times) {
-            t.sort_by(f64::total_cmp);
-            println!(
-                "group {group}: {name:>15}: {:7.3} ms per dispatch (median of {})",
-                t[t.len() / 2],
-                t.len()
-            );
+        let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
+        let pipelines = probe::pipelines(
+            &device,
+            &module,
+            &names,
+            &[
+                bind(0, table.as_entire_binding()),
+                bind(1, outp.as_entire_binding()),
+                bind(2, prm.as_entire_binding()),
+            ],
+        );
+        for (name, ms, k) in probe::time(&device, &queue, &pipelines, n.div_ceil(64), rounds) {
+            println!("group {group}: {name:>15}: {ms:7.3} ms per dispatch (median of {k})");
         }
     }
 }
