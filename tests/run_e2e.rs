@@ -139,3 +139,41 @@ fn no_gpu_adapter_is_exit_4_with_a_remedy() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("mesa-vulkan-drivers"), "{err}");
 }
+
+/// A node without a Vulkan driver falls back to OpenGL and says so, with the remedy: on a CPU
+/// that path ran the PBF step about 4x slower (docs/PERFORMANCE.md "PBF / Session 19"). With
+/// Vulkan there, no warning.
+#[test]
+fn an_opengl_fallback_warns_with_the_remedy() {
+    let bench = [
+        "bench",
+        "pbf",
+        "--particles",
+        "1000",
+        "--steps",
+        "1",
+        "--warmup",
+        "1",
+    ];
+    // the Vulkan loader finds no driver when its driver list names a file that does not exist
+    let no_icd = "/nonexistent/nimbus-test-no-icd.json";
+    let o = nimbus()
+        .args(bench)
+        .env("VK_ICD_FILENAMES", no_icd)
+        .env("VK_DRIVER_FILES", no_icd)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let (out, err) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    assert!(out.contains("(Gl)\""), "{out}");
+    assert!(err.contains("no Vulkan adapter found"), "{err}");
+    assert!(err.contains("mesa-vulkan-drivers"), "{err}");
+
+    let o = nimbus().args(bench).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("(Vulkan)\""));
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("no Vulkan adapter"));
+}

@@ -14,6 +14,7 @@ set -euo pipefail
 farm=0
 packages=(
   mesa-vulkan-drivers libvulkan1   # Vulkan: lavapipe CPU device where there is no GPU
+  libegl1 libegl-mesa0 libgl1-mesa-dri # OpenGL through EGL: the fallback without Vulkan (tests/run_e2e.rs)
   libopenvdb-tools python3-openvdb # vdb_print + pyopenvdb: tests read our VDBs with real OpenVDB
   openexr                          # exrheader: tests read our EXRs with the reference tools
   python3-numpy                    # the OpenVDB comparison benchmark

@@ -61,6 +61,11 @@ impl Context {
             info.device_type,
             info.backend
         );
+        // GL is only tried when Vulkan, asked for as well, found nothing: a node without a
+        // Vulkan driver then runs, but slower, and its operator should know why.
+        if info.backend == wgpu::Backend::Gl && backends.contains(wgpu::Backends::VULKAN) {
+            log::warn!("{}", gl_fallback_warning(&info.name));
+        }
         let wanted = wgpu::Features::TIMESTAMP_QUERY;
         let features = adapter.features() & wanted;
         let limits = adapter.limits();
@@ -118,6 +123,17 @@ impl Context {
             self.adapter_info.name, self.adapter_info.backend
         )
     }
+}
+
+/// The warning for a run that fell back to OpenGL because no Vulkan adapter was found. On a
+/// CPU, llvmpipe's OpenGL ran the 100k-particle PBF step 3.8x slower than Vulkan's lavapipe on
+/// the same machine (docs/PERFORMANCE.md "PBF / Session 19").
+fn gl_fallback_warning(adapter: &str) -> String {
+    format!(
+        "no Vulkan adapter found: running on {adapter} through OpenGL, which is slower (on a CPU \
+         about 4x); install a Vulkan driver (Debian: mesa-vulkan-drivers, as tools/setup.sh \
+         does), or set gpu.backend: gl to choose OpenGL"
+    )
 }
 
 fn pick_adapter(adapters: Vec<wgpu::Adapter>, wanted: &str) -> Result<wgpu::Adapter> {
