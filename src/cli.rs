@@ -162,8 +162,9 @@ pub enum BenchTopic {
         #[arg(long, default_value_t = 0)]
         threads: usize,
     },
-    /// The `export.detail` figures (mass, energy below the spacing, frame-to-frame correlation,
-    /// time) on a run's particle caches (docs/RENDERING.md "Sub-particle detail").
+    /// The `export.detail` figures (mass, the surface: change inside, energy below the spacing in
+    /// the shell, boundary thickness; frame-to-frame correlation, time) on a run's particle
+    /// caches (docs/RENDERING.md "Detail at the surface").
     Detail {
         run_dir: PathBuf,
         /// Frames A-B (default: all the run has).
@@ -175,6 +176,14 @@ pub enum BenchTopic {
         /// `export.detail.*` overrides of the run's settings.
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
+        /// Only the mass and the surface figures (inside change, shell energy, boundary
+        /// thickness): no frame-to-frame correlation, no timing.
+        #[arg(long)]
+        surface: bool,
+        /// Density of the boundary the surface figures measure from, in the density grid's
+        /// units (the undetailed grid's iso-surface).
+        #[arg(long, default_value_t = 0.1)]
+        boundary: f64,
     },
     /// Checkpoint size and write time.
     Checkpoint {

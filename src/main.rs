@@ -144,9 +144,17 @@ fn bench(topic: BenchTopic) -> Result<()> {
             frames,
             voxel,
             set,
+            surface,
+            boundary,
         } => {
             let frames = frames.map(|f| reexport::parse_frames(&f)).transpose()?;
-            bench::detail::bench_detail(&run_dir, frames, voxel, &set)?
+            let opts = bench::detail::DetailBench {
+                frames,
+                voxel,
+                surface_only: surface,
+                boundary,
+            };
+            bench::detail::bench_detail(&run_dir, &opts, &set)?
         }
         BenchTopic::Checkpoint { particles } => bench::checkpoint::bench_checkpoint(particles)?,
         BenchTopic::Table1 {

@@ -28,7 +28,8 @@ use crate::pipeline::records::Manifest;
 use crate::pipeline::writer::{FrameJob, FrameWriter};
 use crate::sim::rest::{RestClock, RestCodec, RestFrame};
 use crate::sim::ParticleState;
-use crate::splat::detail::NoiseSpace;
+use super::surface::{self, fft};
+use crate::splat::detail::{DetailNoise, EdgeSums, NoiseSpace};
 use crate::splat::{splat_with_rest, RestInput, SparseGrid, SplatFields, SplatParams};
 use serde_json::json;
 use std::path::Path;
@@ -40,12 +41,25 @@ struct Frame {
     rest: RestFrame,
 }
 
+/// What `nimbus bench detail` measures.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetailBench {
+    /// Frames A-B (default: all the run has).
+    pub frames: Option<(u32, u32)>,
+    /// Voxel size (m); default: spacing / 4.
+    pub voxel: Option<f64>,
+    /// Only the mass and the surface figures.
+    pub surface_only: bool,
+    /// Density of the boundary the surface figures measure from (density grid units).
+    pub boundary: f64,
+}
+
 pub fn bench_detail(
     run_dir: &Path,
-    frames: Option<(u32, u32)>,
-    voxel: Option<f64>,
+    opts: &DetailBench,
     sets: &[String],
 ) -> Result<serde_json::Value> {
+    let (frames, voxel) = (opts.frames, opts.voxel);
     crate::pipeline::reexport::check_sets(sets)?;
     let manifest = Manifest::load(run_dir)?;
     let text =
@@ -162,7 +176,7 @@ pub fn bench_detail(
     );
     let mut prev: Option<Prev> = None;
     let mut prev_rest: Option<[SparseGrid<[f32; 3]>; 2]> = None;
-    type PrevPs = (PointSplat, [crate::splat::detail::DetailNoise; 2], [f64; 2]);
+    type PrevPs = (PointSplat, [DetailNoise; 2], [f64; 2]);
     let mut prev_ps: Option<PrevPs> = None;
     for f in a..=b {
         let fr = read(f)?;
@@ -179,6 +193,26 @@ pub fn bench_detail(
             let ew = high_energy(&dw, spacing);
             row["energy_below_spacing_ratio"] = json!(e1 / e0);
             row["energy_below_spacing_ratio_world"] = json!(ew / e0);
+            if let Some(sf) = surface::surface_figures(
+                &d0,
+                &d1,
+                opts.boundary,
+                2.0 * spacing,
+                spacing,
+                spacing,
+            ) {
+                row["inside_rms_change"] = json!(sf.inside_rms_change);
+                row["inside_voxels"] = json!(sf.inside_voxels);
+                row["shell_energy_ratio"] = json!(sf.shell_energy_ratio);
+                row["shell_voxels"] = json!(sf.shell_voxels);
+                row["thickness_undetailed_voxels"] = json!(sf.thickness_undetailed);
+                row["thickness_detailed_voxels"] = json!(sf.thickness_detailed);
+            }
+        }
+        if opts.surface_only {
+            eprintln!("{row}");
+            rows.push(row);
+            continue;
         }
         let rg = rest_grids(&fr, f)?;
         if let (Some((_, pfr, ..)), Some(pr)) = (&prev, &prev_rest) {
@@ -239,11 +273,12 @@ pub fn bench_detail(
             let mk = |sp: NoiseSpace| {
                 let mut d = detail.clone();
                 d.space = sp;
-                crate::splat::detail::DetailNoise::new(
+                DetailNoise::new(
                     &d,
                     base.domain_size,
                     voxel,
                     clock.weights(f),
+                    base.cloud_scale,
                 )
             };
             let noises = [mk(NoiseSpace::Rest), mk(NoiseSpace::World)];
@@ -295,11 +330,14 @@ pub fn bench_detail(
         "voxel_size": voxel,
         "spacing": spacing,
         "detail": serde_json::to_value(&cfg.export.detail).unwrap_or_default(),
+        "boundary": opts.boundary,
         "frames": [a, b],
         "summary": {
             "mass_ratio_min": min("mass_ratio"),
             "mass_ratio_max": max("mass_ratio"),
             "block_mass_deviation_mean": mean("block_mass_deviation"),
+            "inside_rms_change_max": max("inside_rms_change"),
+            "shell_energy_ratio_min": min("shell_energy_ratio"),
             "energy_below_spacing_ratio_min": min("energy_below_spacing_ratio"),
             "energy_below_spacing_ratio_mean": mean("energy_below_spacing_ratio"),
             "detail_correlation_rest_min": min("detail_correlation_rest"),
@@ -471,45 +509,6 @@ fn high_energy(g: &SparseGrid<f32>, spacing: f64) -> f64 {
     e
 }
 
-/// In-place radix-2 FFT (length a power of two).
-fn fft(re: &mut [f64], im: &mut [f64]) {
-    let n = re.len();
-    if n < 2 {
-        return;
-    }
-    let mut j = 0;
-    for i in 1..n {
-        let mut bit = n >> 1;
-        while j & bit != 0 {
-            j ^= bit;
-            bit >>= 1;
-        }
-        j |= bit;
-        if i < j {
-            re.swap(i, j);
-            im.swap(i, j);
-        }
-    }
-    let mut len = 2;
-    while len <= n {
-        let ang = -2.0 * std::f64::consts::PI / len as f64;
-        for start in (0..n).step_by(len) {
-            for k in 0..len / 2 {
-                let (s, c) = (ang * k as f64).sin_cos();
-                let a = start + k;
-                let b = a + len / 2;
-                let tr = re[b] * c - im[b] * s;
-                let ti = re[b] * s + im[b] * c;
-                re[b] = re[a] - tr;
-                im[b] = im[a] - ti;
-                re[a] += tr;
-                im[a] += ti;
-            }
-        }
-        len <<= 1;
-    }
-}
-
 /// Trilinear value at a world position (background 0 outside the active voxels).
 fn sample(g: &SparseGrid<f32>, p: [f64; 3]) -> f64 {
     let x = g.transform.world_to_index(p);
@@ -638,9 +637,11 @@ struct PointSplat {
 
 struct PointSource {
     x: [f64; 3],
+    h: f64,
     h2: f64,
     c: f64,
     cloud: f64,
+    share: f64,
     disp: [[f64; 3]; 2],
 }
 
@@ -688,9 +689,14 @@ impl PointSplat {
                 .push(parts.len());
             parts.push(PointSource {
                 x,
+                h,
                 h2: h * h,
                 c,
                 cloud: fr.state.thermo[j][2] as f64 * p.cloud_scale,
+                share: crate::splat::detail::cloud_share(
+                    fr.state.thermo[j][2] as f64,
+                    crate::splat::detail::EDGE_WATER,
+                ),
                 disp,
             });
         }
@@ -706,6 +712,11 @@ impl PointSplat {
     /// (undetailed density, rest coordinates of field A and B) at `x`; `None` outside every
     /// support.
     fn eval(&self, x: [f64; 3]) -> Option<(f64, [[f64; 3]; 2])> {
+        self.eval_sums(x).map(|(s, r)| (s.dens, r))
+    }
+
+    /// The detail's kernel sums at `x` and the rest coordinates of field A and B.
+    fn eval_sums(&self, x: [f64; 3]) -> Option<(EdgeSums, [[f64; 3]; 2])> {
         let mut xx = x;
         for a in 0..3 {
             if self.periodic[a] {
@@ -714,7 +725,7 @@ impl PointSplat {
         }
         let b = xx.map(|v| (v / self.cell).floor() as i64);
         let n = [0, 1, 2].map(|a| (self.size[a] / self.cell).ceil() as i64);
-        let (mut cov, mut dens) = (0.0, 0.0);
+        let mut sums = EdgeSums::default();
         let mut d = [0.0f64; 6];
         for dx in -1..=1 {
             for dy in -1..=1 {
@@ -731,17 +742,18 @@ impl PointSplat {
                     for &j in list {
                         let s = &self.parts[j];
                         let mut r2 = 0.0;
+                        let mut e = [0.0; 3];
                         for a in 0..3 {
-                            let mut e = xx[a] - s.x[a];
+                            e[a] = xx[a] - s.x[a];
                             if self.periodic[a] {
-                                e -= (e / self.size[a]).round() * self.size[a];
+                                e[a] -= (e[a] / self.size[a]).round() * self.size[a];
                             }
-                            r2 += e * e;
+                            r2 += e[a] * e[a];
                         }
                         if r2 < s.h2 {
-                            let w = s.c * (s.h2 - r2).powi(3);
-                            cov += w;
-                            dens += w * s.cloud;
+                            let dd = s.h2 - r2;
+                            let w = s.c * dd * dd * dd;
+                            sums.add(w, -6.0 * s.c * dd * dd, e, s.cloud, s.share, s.h);
                             for a in 0..3 {
                                 d[a] += w * s.disp[0][a];
                                 d[3 + a] += w * s.disp[1][a];
@@ -751,9 +763,9 @@ impl PointSplat {
                 }
             }
         }
-        (cov > 0.0).then(|| {
-            let r = |k: usize| [0, 1, 2].map(|a| x[a] - d[k + a] / cov);
-            (dens, [r(0), r(3)])
+        (sums.cov > 0.0).then(|| {
+            let r = |k: usize| [0, 1, 2].map(|a| x[a] - d[k + a] / sums.cov);
+            (sums, [r(0), r(3)])
         })
     }
 }
@@ -770,8 +782,8 @@ impl PointSplat {
 #[allow(clippy::too_many_arguments)]
 fn exact_correlation(
     ps: &PointSplat,
-    noise_rest: &crate::splat::detail::DetailNoise,
-    noise_world: &crate::splat::detail::DetailNoise,
+    noise_rest: &DetailNoise,
+    noise_world: &DetailNoise,
     norm: [f64; 2],
     k: usize,
     ps_b: &PointSplat,
@@ -804,21 +816,28 @@ fn exact_correlation(
         if last.is_none() {
             continue;
         }
-        let Some((d0, r)) = ps.eval(x) else {
+        let Some((sums, r)) = ps.eval_sums(x) else {
             continue;
         };
+        let d0 = sums.dens;
+        let detailed = |noise: &DetailNoise, k: f64| {
+            noise
+                .edge(&sums, x, r)
+                .map_or(0.0, |(v, m)| v * (1.0 + k * m).max(0.0))
+        };
+        let (dr, dw) = (detailed(noise_rest, norm[0]), detailed(noise_world, norm[1]));
         let v0 = b0.get(ijk) as f64;
         own_xy += d0 * v0;
         own_xx += d0 * d0;
         own_yy += v0 * v0;
-        xs.push(d0 * (norm[0] * noise_rest.factor(x, r) - 1.0));
+        xs.push(dr - d0);
         ys.push(b1.get(ijk) as f64 - v0);
-        xw.push(d0 * (norm[1] * noise_world.factor(x, r) - 1.0));
+        xw.push(dw - d0);
         yw.push(bw.get(ijk) as f64 - v0);
         if d0 > 0.0 && v0 > 0.0 {
-            ms.push(norm[0] * noise_rest.factor(x, r) - 1.0);
+            ms.push(dr / d0 - 1.0);
             my.push(b1.get(ijk) as f64 / v0 - 1.0);
-            mw.push(norm[1] * noise_world.factor(x, r) - 1.0);
+            mw.push(dw / d0 - 1.0);
             mwy.push(bw.get(ijk) as f64 / v0 - 1.0);
         }
     }
@@ -831,28 +850,23 @@ fn exact_correlation(
     ]
 }
 
-/// The frame's normalisation g = sum(undetailed active) / sum(detailed before the threshold),
-/// recomputed at the voxels of the undetailed grid (the sub-threshold voxels left out: within
-/// a fraction of a percent of the splat's own factor).
-fn normalisation(
-    ps: &PointSplat,
-    noise: &crate::splat::detail::DetailNoise,
-    d0: &SparseGrid<f32>,
-) -> f64 {
+/// The frame's mass factor k (`splat::edge_factor`), recomputed at the voxels of the
+/// undetailed grid (the sub-threshold voxels left out: within a fraction of a percent of the
+/// splat's own factor).
+fn normalisation(ps: &PointSplat, noise: &DetailNoise, d0: &SparseGrid<f32>) -> f64 {
     let t = d0.transform;
-    let (mut s0, mut s1) = (0.0, 0.0);
+    let (mut s0, mut s1, mut sm) = (0.0, 0.0, 0.0);
     for ijk in d0.active_voxels() {
         let x = t.index_to_world(ijk.map(|v| v as f64));
-        if let Some((d, r)) = ps.eval(x) {
-            s0 += d;
-            s1 += d * noise.factor(x, r);
+        if let Some((sums, r)) = ps.eval_sums(x) {
+            s0 += sums.dens;
+            if let Some((v, m)) = noise.edge(&sums, x, r) {
+                s1 += v;
+                sm += v * m;
+            }
         }
     }
-    if s1 > 0.0 {
-        s0 / s1
-    } else {
-        1.0
-    }
+    crate::splat::edge_factor(s0, s1, sm)
 }
 
 /// Trilinear value of a vec3 grid; `None` where a corner is inactive.

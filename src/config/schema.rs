@@ -58,6 +58,11 @@ pub struct OutputConfig {
     /// Digits of the frame number in file names.
     #[serde(default = "d_padding")]
     pub frame_padding: u32,
+    /// Simulated seconds before the first written frame (`preroll_frames`: rounded up to whole
+    /// frames); the state is simulated, not written. Left out of the serialisation when 0, so
+    /// the hashes and manifests of shots without it are unchanged.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub preroll: f64,
     #[serde(default)]
     pub preview: PreviewConfig,
 }
@@ -128,6 +133,9 @@ pub struct PreviewConfig {
 }
 fn is_false(b: &bool) -> bool {
     !*b
+}
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 fn d_preview_res() -> [u32; 2] {
     [640, 360]
@@ -632,6 +640,11 @@ pub struct ExportConfig {
     pub particles: bool,
     /// Sub-particle procedural detail, evaluated in the particles' rest frame (`splat::detail`).
     pub detail: DetailConfig,
+    /// The physical meaning of the density grid: what turns it into extinction
+    /// (`export::optics`). Left out of the serialisation at its defaults, so the hashes and
+    /// manifests of shots that do not set it are unchanged.
+    #[serde(skip_serializing_if = "OpticsConfig::is_default")]
+    pub optics: OpticsConfig,
     pub grids: GridNames,
     pub vdb: VdbConfig,
     pub exr: ExrConfig,
@@ -654,6 +667,7 @@ impl Default for ExportConfig {
             velocity_time: None,
             particles: false,
             detail: DetailConfig::default(),
+            optics: OpticsConfig::default(),
             grids: GridNames::default(),
             vdb: VdbConfig::default(),
             exr: ExrConfig::default(),
@@ -691,14 +705,39 @@ impl Default for GridNames {
     }
 }
 
+/// `export.optics`: the cloud's droplets and air, from which the density grid's extinction
+/// follows (beta = 3 LWC / (2 rho_w r_e), docs/RENDERING.md "Physical optics").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OpticsConfig {
+    /// Droplet effective radius r_e (micrometres): 5-15 in cumulus.
+    pub effective_radius: f64,
+    /// Air density (kg/m^3) that turns cloud water in kg/kg into liquid water content in kg/m^3.
+    pub air_density: f64,
+}
+impl OpticsConfig {
+    pub fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
+}
+impl Default for OpticsConfig {
+    fn default() -> Self {
+        Self {
+            effective_radius: 10.0,
+            // the standard atmosphere at about 1 km, where cumulus grow
+            air_density: 1.1,
+        }
+    }
+}
+
 /// `export.detail`: procedural noise finer than the particles, stuck to the flow.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DetailConfig {
     pub enabled: bool,
-    /// Wavelength of the first (largest) octave (m).
-    pub scale: f64,
-    /// Relative density change of the noise: density x max(0, 1 + amplitude n), n in [-1, 1].
+    /// Wavelength of the first (largest) octave (m); unset: two particle spacings.
+    pub scale: Option<f64>,
+    /// Displacement of the cloud's surface by each octave, as a fraction of its wavelength.
     pub amplitude: f64,
     /// Octaves, each half the wavelength of the one before and half its weight.
     pub octaves: u32,
@@ -715,8 +754,8 @@ impl Default for DetailConfig {
     fn default() -> Self {
         Self {
             enabled: false,
-            scale: 40.0,
-            amplitude: 0.6,
+            scale: None,
+            amplitude: 0.25,
             octaves: 3,
             character: DetailCharacter::Billowy,
             rest_period: 8,
@@ -824,6 +863,18 @@ pub struct CheckpointConfig {
 impl Default for CheckpointConfig {
     fn default() -> Self {
         Self { every: 10, keep: 3 }
+    }
+}
+
+impl OutputConfig {
+    /// Frames simulated before `frames.start` and not written: `preroll` rounded up to whole
+    /// frames of `frame_seconds` (a part frame would need a frame of another length).
+    pub fn preroll_frames(&self) -> u32 {
+        if !(self.preroll > 0.0 && self.frame_seconds > 0.0) {
+            return 0;
+        }
+        let n = (self.preroll / self.frame_seconds * (1.0 - 1e-12)).ceil();
+        n.clamp(0.0, u32::MAX as f64) as u32
     }
 }
 

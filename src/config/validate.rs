@@ -64,6 +64,7 @@ const fn open(key: &'static str, lo: f64, hi: f64) -> FloatRange {
 pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("output.fps", 1.0e-3, 1000.0),
     closed("output.frame_seconds", 1.0e-3, 3600.0),
+    closed("output.preroll", 0.0, 1.0e7),
     closed("output.preview.sun_direction", -1.0e6, 1.0e6),
     closed("output.preview.sun_color", 0.0, 1000.0),
     closed("output.preview.sun_intensity", 0.0, 1000.0),
@@ -141,6 +142,8 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     above("export.detail.scale", 0.0, 1.0e5),
     closed("export.detail.amplitude", 0.0, 1.0),
     closed("export.detail.rest_smoothing", 1.0, 4.0),
+    closed("export.optics.effective_radius", 0.5, 1000.0),
+    closed("export.optics.air_density", 0.01, 10.0),
     above("control.target.scale", 0.0, 1.0e5),
     closed("control.target.rotate_y", -360.0, 360.0),
     closed("control.target.translate", -1.0e5, 1.0e5),
@@ -204,6 +207,7 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
     let e = &c.export;
     one("output.fps", o.fps);
     one("output.frame_seconds", o.frame_seconds);
+    one("output.preroll", o.preroll);
     one("output.preview.sun_intensity", p.sun_intensity);
     one("output.preview.density_scale", p.density_scale);
     if let Some(cam) = &p.camera {
@@ -266,9 +270,10 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         ("export.threshold", e.threshold),
         ("export.density_scale", e.density_scale),
         ("export.scale", e.scale),
-        ("export.detail.scale", e.detail.scale),
         ("export.detail.amplitude", e.detail.amplitude),
         ("export.detail.rest_smoothing", e.detail.rest_smoothing),
+        ("export.optics.effective_radius", e.optics.effective_radius),
+        ("export.optics.air_density", e.optics.air_density),
     ] {
         one(key, x);
     }
@@ -290,6 +295,7 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         ("physics.environment.lapse_rate_above", env.lapse_rate_above),
         ("physics.environment.humidity_above", env.humidity_above),
         ("physics.bowen_ratio", ph.bowen_ratio),
+        ("export.detail.scale", c.export.detail.scale),
     ] {
         if let Some(x) = x {
             v.push((key.to_string(), key, x));
@@ -602,6 +608,18 @@ fn check_output(k: &mut Checks, o: &OutputConfig, sources: &[HeatSource]) {
             ),
         );
     }
+    if o.preroll.is_finite()
+        && o.frame_seconds > 0.0
+        && o.preroll / o.frame_seconds > MAX_PREROLL_FRAMES as f64
+    {
+        k.fail(
+            &["output.preroll", "output.frame_seconds"],
+            format!(
+                "{} s of pre-roll is more than {MAX_PREROLL_FRAMES} frames of {} s",
+                o.preroll, o.frame_seconds
+            ),
+        );
+    }
     k.uint_within("output.frame_padding", o.frame_padding, 1, 10);
     if (1..=10).contains(&o.frame_padding) && digits(o.frames.end) > o.frame_padding {
         k.fail(
@@ -634,6 +652,9 @@ fn check_output(k: &mut Checks, o: &OutputConfig, sources: &[HeatSource]) {
         }
     }
 }
+
+/// Most frames a pre-roll may take (`output.preroll` / `output.frame_seconds`).
+pub const MAX_PREROLL_FRAMES: u32 = 1_000_000;
 
 const AXES: [&str; 3] = ["x", "y", "z"];
 

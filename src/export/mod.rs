@@ -3,6 +3,7 @@
 //! profile. The simulation, the splat, the EXR atlas and the previews stay in nimbus's own frame
 //! (metres, y-up, m/s of simulated time); `ExportSpace` maps splat grids into the export frame
 //! exactly (an index permutation, no resampling) and back.
+pub mod optics;
 pub mod profile;
 
 use crate::config::{ShotConfig, UpAxis, VectorClass, VelocityTime};
@@ -26,6 +27,10 @@ pub struct ExportSpace {
     /// Simulated seconds per frame and playback frames per second.
     pub frame_seconds: f64,
     pub fps: f64,
+    /// The density grid's physical unit and extinction (`export.optics`); absent in manifests
+    /// written before it existed.
+    #[serde(default)]
+    pub optics: Option<optics::Optics>,
 }
 
 impl ExportSpace {
@@ -42,6 +47,7 @@ impl ExportSpace {
             velocity_class: e.grids.velocity_class.unwrap_or(d.velocity_class),
             frame_seconds: cfg.output.frame_seconds,
             fps: cfg.output.fps,
+            optics: Some(optics::Optics::from_config(cfg)),
         }
     }
 

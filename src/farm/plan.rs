@@ -78,6 +78,10 @@ pub struct FarmPlan {
     pub nimbus: PathBuf,
     pub frame_start: u32,
     pub frame_end: u32,
+    /// Frames each simulation task simulates before `frame_start` and does not write
+    /// (`output.preroll`); a task stopped at the time limit in its pre-roll checkpoints there too.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub preroll_frames: u32,
     pub slurm: SlurmSettings,
     pub wedges: Vec<Wedge>,
     /// Render stage: Blender script and its output (`render/<shot>.<frame>.png` per run).
@@ -154,6 +158,10 @@ impl FarmPlan {
 }
 
 /// `<farm>/runs/<wedge name>`: where a wedge's run directory lives.
+fn is_zero(n: &u32) -> bool {
+    *n == 0
+}
+
 pub fn run_dir(farm_dir: &Path, wedge: &Wedge) -> PathBuf {
     if wedge.run_dir.is_empty() {
         farm_dir.join("runs").join(&wedge.name)

@@ -52,6 +52,9 @@ pub struct FarmStatus {
     pub shot: String,
     pub frame_start: u32,
     pub frame_end: u32,
+    /// Frames simulated before `frame_start` (`output.preroll`): a task in its pre-roll has
+    /// written no frame yet.
+    pub preroll_frames: u32,
     pub jobs: Vec<JobStatus>,
     pub wedges: Vec<WedgeStatus>,
     /// True once every wedge is done and the report says complete.
@@ -163,6 +166,7 @@ pub fn collect(plan: &FarmPlan, farm_dir: &Path) -> FarmStatus {
         shot: plan.shot.clone(),
         frame_start: plan.frame_start,
         frame_end: plan.frame_end,
+        preroll_frames: plan.preroll_frames,
         jobs,
         complete: report_complete && wedges.iter().all(|w| w.state == "done"),
         wedges,
@@ -321,12 +325,17 @@ fn job_state(
 /// The human form: one line per job, one per wedge.
 pub fn render_text(s: &FarmStatus) -> String {
     let mut out = format!(
-        "farm {} (shot '{}', {} wedges, frames {}..={})\n",
+        "farm {} (shot '{}', {} wedges, frames {}..={}{})\n",
         s.farm_dir,
         s.shot,
         s.wedges.len(),
         s.frame_start,
-        s.frame_end
+        s.frame_end,
+        if s.preroll_frames > 0 {
+            format!(", after a pre-roll of {} frames", s.preroll_frames)
+        } else {
+            String::new()
+        }
     );
     if let Some(e) = &s.scheduler_error {
         out += &format!("warning: {e}\n");

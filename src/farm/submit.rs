@@ -163,6 +163,7 @@ pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
         nimbus,
         frame_start: cfg.output.frames.start,
         frame_end: cfg.output.frames.end,
+        preroll_frames: cfg.output.preroll_frames(),
         slurm: SlurmSettings {
             partition: opts.partition.clone(),
             time_limit: opts.time_limit.clone(),

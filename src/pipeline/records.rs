@@ -51,6 +51,10 @@ pub struct Manifest {
     /// (`sim::sources::records`); left out when the shot has none.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub sources: Vec<crate::sim::sources::SourceRecord>,
+    /// `output.preroll`: what was simulated before `frame_start` and not written; left out
+    /// when the shot has no pre-roll.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub preroll: Option<PrerollRecord>,
     /// The command line that resumes this run.
     pub resume_command: String,
     pub frames: Vec<FrameRecord>,
@@ -84,6 +88,29 @@ impl Manifest {
 
     pub fn frame(&self, frame: u32) -> Option<&FrameRecord> {
         self.frames.iter().find(|f| f.frame == frame)
+    }
+}
+
+/// The pre-roll of a run: whole frames of `frame_seconds` simulated before the first written
+/// frame (`output.preroll` rounded up to whole frames).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PrerollRecord {
+    pub frames: u32,
+    /// Simulated seconds of pre-roll: frames x frame_seconds.
+    pub seconds: f64,
+    /// Simulated time at the end of the first written frame (stats.jsonl `sim_time`).
+    pub first_frame_time: f64,
+}
+
+impl PrerollRecord {
+    pub fn of(cfg: &crate::config::ShotConfig) -> Option<Self> {
+        let frames = cfg.output.preroll_frames();
+        let fs = cfg.output.frame_seconds;
+        (frames > 0).then(|| Self {
+            frames,
+            seconds: frames as f64 * fs,
+            first_frame_time: (frames as f64 + 1.0) * fs,
+        })
     }
 }
 
@@ -197,6 +224,7 @@ mod tests {
             grid_origin: [0.0; 3],
             export: None,
             sources: vec![],
+            preroll: None,
             resume_command: String::new(),
             frames: vec![],
             complete: false,

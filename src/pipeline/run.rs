@@ -77,10 +77,35 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
         )?),
     };
 
+    // Frames simulated before the first written one (`output.preroll`), and how many of them a
+    // checkpoint taken during the pre-roll had done.
+    let preroll = cfg.output.preroll_frames();
+    let preroll_done = match &resumed {
+        None => 0,
+        Some(ck) => match preroll_progress(ck, preroll)? {
+            Some(done) => done,
+            None => preroll,
+        },
+    };
+    let in_preroll = preroll_done < preroll;
+
     let ctx = Arc::new(gpu::Context::new(&cfg.gpu)?);
     let adapter = ctx.adapter_name();
     let (mut sim, first_frame) = match &resumed {
         None => (Simulation::new(ctx.clone(), cfg)?, cfg.output.frames.start),
+        Some(ck) if ck.extra.contains_key(PREROLL_SECTION) => {
+            // A checkpoint of the pre-roll: no frame is written yet.
+            let clock = SimClock {
+                frame: cfg.output.frames.start,
+                step: ck.header.step,
+                time: ck.header.time,
+                next_id: ck.header.next_id,
+            };
+            (
+                Simulation::from_state(ctx.clone(), cfg, &ck.state, clock)?,
+                cfg.output.frames.start,
+            )
+        }
         Some(ck) => {
             if ck.header.adapter != adapter {
                 eprintln!(
@@ -108,6 +133,10 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     let mut rest = match (&resumed, cfg.export.tracks_rest()) {
         (_, false) => None,
         (None, true) => Some(RestTracker::default()),
+        // the rest positions start with the first written frame
+        (Some(ck), true) if ck.extra.contains_key(PREROLL_SECTION) => {
+            Some(RestTracker::default())
+        }
         (Some(ck), true) => match ck.extra.get(rest::CHECKPOINT_SECTION) {
             Some(bytes) => Some(RestTracker::from_bytes(bytes)?),
             None => {
@@ -195,6 +224,60 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     };
     let initial_layers = crate::sim::diagnostics::initial_layer_mass(cfg);
     let result = (|| -> Result<()> {
+        if in_preroll {
+            progress.note(
+                "preroll",
+                &format!(
+                    "pre-roll: {} of {preroll} frames ({} s of simulated time) before frame {}",
+                    preroll - preroll_done,
+                    preroll as f64 * cfg.output.frame_seconds,
+                    cfg.output.frames.start
+                ),
+            );
+        }
+        for done in preroll_done..preroll {
+            progress.phase(cfg.output.frames.start, "pre-roll", 0);
+            let (_, state) = sim.step_frame_with_state()?;
+            if let Some(what) = super::watchdog::check(&state, cfg) {
+                return Err(Error::Runtime(format!(
+                    "simulation diverged in pre-roll frame {} of {preroll}: {what}",
+                    done + 1
+                )));
+            }
+            let stop = interrupted.load(Ordering::SeqCst);
+            let due = cfg.checkpoint.every > 0 && (done + 1).is_multiple_of(cfg.checkpoint.every);
+            if due || stop {
+                let path = write_checkpoint(
+                    cfg,
+                    &ckpt_dir,
+                    &sim_hash,
+                    &adapter,
+                    &state,
+                    Some(PrerollMark {
+                        done: done + 1,
+                        frames: preroll,
+                    }),
+                    None,
+                    cfg.output.frames.start,
+                    &sim,
+                )?;
+                progress.note(
+                    "checkpoint",
+                    &format!(
+                        "checkpoint {} (pre-roll frame {} of {preroll})",
+                        path.display(),
+                        done + 1
+                    ),
+                );
+            }
+            if stop {
+                return Err(Error::Interrupted(format!(
+                    "stopped in pre-roll frame {} of {preroll}; resume with: {}",
+                    done + 1,
+                    resume_command(run_dir)
+                )));
+            }
+        }
         for frame in first_frame..=end {
             let t0 = Instant::now();
             progress.phase(frame, "simulate", 0);
@@ -261,6 +344,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                     &sim_hash,
                     &adapter,
                     &state,
+                    None,
                     rest.as_ref(),
                     frame,
                     &sim,
@@ -347,6 +431,40 @@ fn send(tx: &SyncSender<FrameJob>, job: FrameJob) -> Result<()> {
         .map_err(|_| Error::Runtime("the writer thread stopped unexpectedly".into()))
 }
 
+/// Checkpoint section of a checkpoint taken during the pre-roll: JSON `{"done": k, "frames":
+/// P}`, k of the P pre-roll frames simulated. Such a checkpoint is named after (and its header
+/// holds) `frames.start`, the frame the run writes first; the real checkpoint of that frame
+/// replaces it.
+pub const PREROLL_SECTION: &str = "preroll";
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+struct PrerollMark {
+    done: u32,
+    frames: u32,
+}
+
+/// How many pre-roll frames `ck` had simulated (`None`: it is a checkpoint of a written frame,
+/// after the pre-roll). A checkpoint of another pre-roll length cannot be resumed (the sim hash
+/// already refuses it; this names why).
+fn preroll_progress(ck: &checkpoint::Checkpoint, preroll: u32) -> Result<Option<u32>> {
+    let Some(bytes) = ck.extra.get(PREROLL_SECTION) else {
+        return Ok(None);
+    };
+    let mark: PrerollMark = serde_json::from_slice(bytes).map_err(|e| {
+        Error::InvalidInput(format!(
+            "checkpoint of frame {}: unreadable pre-roll section: {e}",
+            ck.header.frame
+        ))
+    })?;
+    if mark.frames != preroll || mark.done > mark.frames {
+        return Err(Error::InvalidInput(format!(
+            "checkpoint of frame {}: taken in pre-roll frame {} of {}, but the run's pre-roll is {preroll} frames",
+            ck.header.frame, mark.done, mark.frames
+        )));
+    }
+    Ok(Some(mark.done))
+}
+
 #[allow(clippy::too_many_arguments)]
 fn write_checkpoint(
     cfg: &ShotConfig,
@@ -354,6 +472,7 @@ fn write_checkpoint(
     sim_hash: &str,
     adapter: &str,
     state: &ParticleState,
+    preroll: Option<PrerollMark>,
     rest: Option<&RestTracker>,
     frame: u32,
     sim: &Simulation,
@@ -365,6 +484,12 @@ fn write_checkpoint(
     .into();
     if let Some(r) = rest {
         extra.insert(rest::CHECKPOINT_SECTION.to_string(), r.to_bytes());
+    }
+    if let Some(m) = preroll {
+        extra.insert(
+            PREROLL_SECTION.to_string(),
+            serde_json::to_vec(&m).map_err(|e| Error::Runtime(e.to_string()))?,
+        );
     }
     let clock = sim.clock();
     let ck = checkpoint::Checkpoint {

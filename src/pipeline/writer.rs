@@ -109,6 +109,7 @@ impl FrameWriter {
             grid_origin: self.space.transform(&self.transform).origin,
             export: Some(self.space.clone()),
             sources: crate::sim::sources::records(cfg),
+            preroll: super::records::PrerollRecord::of(cfg),
             resume_command: super::naming::resume_command(&self.run_dir),
             frames: Vec::new(),
             complete: false,
@@ -306,10 +307,13 @@ impl FrameWriter {
             (&names.vapor, grids.vapor),
         ] {
             if let (false, Some(g)) = (name.is_empty(), grid) {
-                out.push(with_aliases(VdbGrid::float(
-                    name.clone(),
-                    space.float_grid(g),
-                )));
+                let mut fg = VdbGrid::float(name.clone(), space.float_grid(g));
+                if std::ptr::eq(name, &names.density) {
+                    if let Some(o) = &space.optics {
+                        fg.metadata = o.metadata();
+                    }
+                }
+                out.push(with_aliases(fg));
             }
         }
         if let (false, Some(g)) = (names.velocity.is_empty(), grids.velocity) {

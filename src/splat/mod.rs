@@ -252,6 +252,10 @@ struct Source {
     /// V_j * poly6 normalisation: weight = c (h^2 - r^2)^3.
     c: f64,
     cloud: f64,
+    /// Share of "cloud" in the detail's cloud fraction (`detail::cloud_share`) and the radius
+    /// (m).
+    share: f64,
+    h: f64,
     vapor: f64,
     temp: f64,
     vel: [f64; 3],
@@ -389,6 +393,8 @@ pub fn splat_with_rest(
                             h2: h * h,
                             c,
                             cloud: th[2] as f64 * params.cloud_scale,
+                            share: detail::cloud_share(th[2] as f64, detail::EDGE_WATER),
+                            h,
                             vapor: th[1] as f64,
                             temp: th[0] as f64,
                             vel,
@@ -441,6 +447,7 @@ pub fn splat_with_rest(
             params.domain_size,
             v,
             r.weights,
+            params.cloud_scale,
         )),
         _ => None,
     };
@@ -459,20 +466,22 @@ pub fn splat_with_rest(
     };
     let mut leaves: Vec<LeafOut> = touched.par_iter().map(|&k| ctx.compute(k)).collect();
     if noise.is_some() {
-        // One factor per frame keeps the total: sums in leaf order (deterministic).
-        let (mut s0, mut s1) = (0.0f64, 0.0f64);
+        // One factor per frame on the edge keeps the total: sums in leaf order
+        // (deterministic).
+        let (mut s0, mut s1, mut sm) = (0.0f64, 0.0f64, 0.0f64);
         for l in &leaves {
             if let Some(d) = &l.detailed {
                 s0 += d.undetailed_sum;
                 s1 += d.detailed_sum;
+                sm += d.edge_sum;
             }
         }
-        let k = if s1 > 0.0 { s0 / s1 } else { 1.0 };
+        let k = edge_factor(s0, s1, sm);
         let thr = params.threshold;
         leaves.par_iter_mut().for_each(|l| {
             if let Some(d) = l.detailed.take() {
                 l.density = leaf_from(d.origin, |n| {
-                    let x = d.values[n] * k;
+                    let x = d.values[n] * (1.0 + k * d.edge[n]).max(0.0);
                     (x > 0.0 && x >= thr).then_some(x as f32)
                 });
             }
@@ -552,9 +561,23 @@ struct LeafOut {
 struct Detailed {
     origin: [i32; 3],
     values: Box<[f64; LEAF_VOXELS]>,
-    /// Sum of the undetailed active values and of the detailed values.
+    /// Each voxel's weight in the frame's mass factor (`detail::DetailNoise::edge`).
+    edge: Box<[f64; LEAF_VOXELS]>,
+    /// Sum of the undetailed active values, of the detailed values, and of the detailed values
+    /// times their edge weight.
     undetailed_sum: f64,
     detailed_sum: f64,
+    edge_sum: f64,
+}
+
+/// k of the frame's mass factor 1 + k m: the detailed total (s1, of which sm weighted by m)
+/// brought to the undetailed one (s0). 0 when there is no edge to scale.
+pub fn edge_factor(s0: f64, s1: f64, sm: f64) -> f64 {
+    if sm > 0.0 {
+        (s0 - s1) / sm
+    } else {
+        0.0
+    }
 }
 
 impl LeafCtx<'_> {
@@ -568,6 +591,11 @@ impl LeafCtx<'_> {
         let mut vnum = [[0.0f64; 3]; LEAF_VOXELS];
         let mut dnum = if self.rest {
             vec![[0.0f64; 6]; LEAF_VOXELS]
+        } else {
+            Vec::new()
+        };
+        let mut edge = if self.noise.is_some() {
+            vec![detail::EdgeSums::default(); LEAF_VOXELS]
         } else {
             Vec::new()
         };
@@ -604,6 +632,14 @@ impl LeafCtx<'_> {
                                     let n = Leaf::<f32>::offset(x as i32, y as i32, z as i32);
                                     let d = s.h2 - r2;
                                     let w = s.c * d * d * d;
+                                    if let Some(es) = edge.get_mut(n) {
+                                        let e = [
+                                            (x as f64 - s.p[0]) * self.voxel,
+                                            (y as f64 - s.p[1]) * self.voxel,
+                                            (z as f64 - s.p[2]) * self.voxel,
+                                        ];
+                                        es.add(w, -6.0 * s.c * d * d, e, s.cloud, s.share, s.h);
+                                    }
                                     if self.rest {
                                         let dn = &mut dnum[n];
                                         for a in 0..3 {
@@ -655,7 +691,8 @@ impl LeafCtx<'_> {
         let detailed = match (self.noise, f.density) {
             (Some(noise), true) => {
                 let mut values = Box::new([0.0f64; LEAF_VOXELS]);
-                let (mut s0, mut s1) = (0.0, 0.0);
+                let mut weights = Box::new([0.0f64; LEAF_VOXELS]);
+                let (mut s0, mut s1, mut sm) = (0.0, 0.0, 0.0);
                 for n in 0..LEAF_VOXELS {
                     let x = dens[n];
                     if x > 0.0 {
@@ -663,16 +700,21 @@ impl LeafCtx<'_> {
                             s0 += x;
                         }
                         let (c, r) = rest_of(n);
-                        let y = x * noise.factor(c, r);
-                        values[n] = y;
-                        s1 += y;
+                        if let Some((y, m)) = noise.edge(&edge[n], c, r) {
+                            values[n] = y;
+                            weights[n] = m;
+                            s1 += y;
+                            sm += y * m;
+                        }
                     }
                 }
                 Some(Detailed {
                     origin: o,
                     values,
+                    edge: weights,
                     undetailed_sum: s0,
                     detailed_sum: s1,
+                    edge_sum: sm,
                 })
             }
             _ => None,
