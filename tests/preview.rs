@@ -2,7 +2,7 @@
 use glam::DVec3;
 use nimbus::preview::particles::{render_particles, ParticleColor};
 use nimbus::preview::{
-    auto_camera, contact_sheet, png_bytes, render, sky, write_contact_sheet, write_frame_preview,
+    auto_camera, contact_sheet, png_bytes, render, write_contact_sheet, write_frame_preview,
     Camera, LinearImage, PreviewParams,
 };
 use nimbus::sim::ParticleState;
@@ -78,10 +78,11 @@ fn empty_grid_renders_the_sky_alone() {
     assert!(g.leaves.is_empty());
     let p = PreviewParams::defaults(auto_camera([100.0, 50.0, 100.0], 16.0 / 9.0, 45.0), 64, 36);
     let img = render(&g, &p).unwrap();
+    let sky = p.sky();
     let mut ground = 0;
     for y in 0..36 {
         for x in 0..64 {
-            let s = sky(&p, p.camera.position, p.ray(x, y));
+            let s = sky.radiance(p.ray(x, y));
             let v = img.pixel(x, y);
             assert_eq!(
                 [v[0], v[1], v[2], v[3]],
@@ -147,8 +148,8 @@ fn previews_are_deterministic_and_decode() {
     let a = run(1);
     let b = run(2);
     assert_eq!(a, b);
-    let pa = png_bytes(&a.to_srgb8(1.0)).unwrap();
-    let pb = png_bytes(&run(2).to_srgb8(1.0)).unwrap();
+    let pa = png_bytes(&a.to_srgb8(p.exposure)).unwrap();
+    let pb = png_bytes(&run(2).to_srgb8(p.exposure)).unwrap();
     assert_eq!(pa, pb);
     let img = image::load_from_memory(&pa).unwrap().to_rgb8();
     assert_eq!(img.dimensions(), (80, 45));
@@ -250,8 +251,9 @@ fn bad_preview_parameters_are_errors() {
         sun_direction: [0.0; 3],
         ..Default::default()
     };
-    assert!(PreviewParams::from_config(&cfg, [10.0; 3]).is_err());
-    let ok = PreviewParams::from_config(&Default::default(), [3000.0, 1500.0, 3000.0]).unwrap();
+    assert!(PreviewParams::from_config(&cfg, [10.0; 3], 0.165).is_err());
+    let ok =
+        PreviewParams::from_config(&Default::default(), [3000.0, 1500.0, 3000.0], 0.165).unwrap();
     let img: LinearImage = render(&g, &ok).unwrap();
     assert_eq!((img.width, img.height), (640, 360));
 }

@@ -1,7 +1,10 @@
 //! The preview shows what the Blender render shows: a run's preview of its last frame and
 //! `tools/render_blender.py`'s render of the same frame, at the same resolution, have cloud
 //! silhouettes that overlap with IoU >= 0.8 and cloud pixels of mean luminance within 15%.
-//! Skipped, with a note, when `blender` is not on PATH; under `CI=true` a missing Blender fails.
+//! Each image's cloud pixels are those that differ from its own sky: the preview's rendered
+//! without the cloud (`preview::sky_image`), Blender's the script's sky-only render
+//! (`--sky-png`). Skipped, with a note, when `blender` is not on PATH; under `CI=true` a missing
+//! Blender fails.
 //!
 //! `quickstart_last_frame` (ignored) measures the same on a full run:
 //!   nimbus run pipelines/quickstart.yaml --out /tmp/q16b
@@ -11,9 +14,9 @@ use common::blender_available;
 
 use std::path::{Path, PathBuf};
 
-/// A pixel belongs to the silhouette when its 8-bit RGB differs from the image's background
-/// (median of its four corners) by more than this, summed over the channels: render_blender.py's
-/// coverage test.
+/// A pixel belongs to the silhouette when its 8-bit RGB, averaged over 3x3 pixels, differs from
+/// the sky's there by more than this, summed over the channels: render_blender.py's coverage
+/// test.
 const THRESHOLD: i32 = 24;
 const MIN_IOU: f64 = 0.8;
 const MAX_LUMINANCE_DIFF: f64 = 0.15;
@@ -29,6 +32,9 @@ struct Comparison {
     blender_pixels: usize,
     preview_luminance: f64,
     blender_luminance: f64,
+    /// 5th and 95th percentile of the cloud pixels' luminance, preview and Blender.
+    preview_p5_p95: [f64; 2],
+    blender_p5_p95: [f64; 2],
 }
 
 fn srgb_to_linear(v: u8) -> f64 {
@@ -45,18 +51,10 @@ fn luminance(p: [u8; 3]) -> f64 {
     0.2126 * srgb_to_linear(p[0]) + 0.7152 * srgb_to_linear(p[1]) + 0.0722 * srgb_to_linear(p[2])
 }
 
-/// Pixels that differ from the background (the median of the four corners, per channel).
-/// Blender's Monte Carlo noise is averaged out first with a 3x3 box filter, so the silhouette is
-/// the cloud's, not its speckle's.
-fn silhouette(img: &image::RgbImage) -> Vec<bool> {
+/// Pixels that differ from the sky-only image. Blender's Monte Carlo noise is averaged out
+/// first with a 3x3 box filter, so the silhouette is the cloud's, not its speckle's.
+fn silhouette(img: &image::RgbImage, sky: &image::RgbImage) -> Vec<bool> {
     let (w, h) = img.dimensions();
-    let corners =
-        [(0, 0), (w - 1, 0), (0, h - 1), (w - 1, h - 1)].map(|(x, y)| img.get_pixel(x, y).0);
-    let bg: [i32; 3] = [0, 1, 2].map(|c| {
-        let mut v = corners.map(|p| p[c] as i32);
-        v.sort();
-        (v[1] + v[2]) / 2
-    });
     let mut mask = Vec::with_capacity((w * h) as usize);
     for y in 0..h {
         for x in 0..w {
@@ -69,31 +67,45 @@ fn silhouette(img: &image::RgbImage) -> Vec<bool> {
                     n += 1;
                 }
             }
-            let d: i32 = (0..3).map(|c| (sum[c] / n - bg[c]).abs()).sum();
+            let s = sky.get_pixel(x, y).0;
+            let d: i32 = (0..3).map(|c| (sum[c] / n - s[c] as i32).abs()).sum();
             mask.push(d > THRESHOLD);
         }
     }
     mask
 }
 
-fn compare(preview: &image::RgbImage, blender: &image::RgbImage) -> Comparison {
+fn percentiles(img: &image::RgbImage, m: &[bool]) -> (f64, [f64; 2]) {
+    let mut l: Vec<f64> = img
+        .pixels()
+        .zip(m)
+        .filter(|(_, &k)| k)
+        .map(|(p, _)| luminance(p.0))
+        .collect();
+    if l.is_empty() {
+        return (0.0, [0.0; 2]);
+    }
+    let mean = l.iter().sum::<f64>() / l.len() as f64;
+    l.sort_by(f64::total_cmp);
+    let at = |q: f64| l[((l.len() - 1) as f64 * q).round() as usize];
+    (mean, [at(0.05), at(0.95)])
+}
+
+fn compare(
+    preview: &image::RgbImage,
+    preview_sky: &image::RgbImage,
+    blender: &image::RgbImage,
+    blender_sky: &image::RgbImage,
+) -> Comparison {
     assert_eq!(
         preview.dimensions(),
         blender.dimensions(),
         "the two images must have the same size"
     );
-    let (a, b) = (silhouette(preview), silhouette(blender));
+    let (a, b) = (silhouette(preview, preview_sky), silhouette(blender, blender_sky));
     let inter = a.iter().zip(&b).filter(|(x, y)| **x && **y).count();
     let union = a.iter().zip(&b).filter(|(x, y)| **x || **y).count();
-    let mean_lum = |img: &image::RgbImage, m: &[bool]| {
-        let (s, n) = img
-            .pixels()
-            .zip(m)
-            .filter(|(_, &k)| k)
-            .fold((0.0, 0usize), |(s, n), (p, _)| (s + luminance(p.0), n + 1));
-        s / n.max(1) as f64
-    };
-    let (la, lb) = (mean_lum(preview, &a), mean_lum(blender, &b));
+    let ((la, pa), (lb, pb)) = (percentiles(preview, &a), percentiles(blender, &b));
     Comparison {
         iou: if union == 0 {
             0.0
@@ -105,12 +117,21 @@ fn compare(preview: &image::RgbImage, blender: &image::RgbImage) -> Comparison {
         blender_pixels: b.iter().filter(|&&k| k).count(),
         preview_luminance: la,
         blender_luminance: lb,
+        preview_p5_p95: pa,
+        blender_p5_p95: pb,
     }
 }
 
-/// Renders `run_dir`'s last frame with tools/render_blender.py to `png`.
-fn blender_render(run_dir: &Path, png: &Path, res: [u32; 2], samples: u32) -> serde_json::Value {
+/// Renders `run_dir`'s last frame with tools/render_blender.py to `png`, and its sky alone to
+/// `png` with `.sky.png` for `.png`.
+fn blender_render(
+    run_dir: &Path,
+    png: &Path,
+    res: [u32; 2],
+    samples: u32,
+) -> (serde_json::Value, PathBuf) {
     let (res, samples) = (res.map(|v| v.to_string()), samples.to_string());
+    let sky = png.with_extension("sky.png");
     let (out, summary) = common::render_blender([
         run_dir.as_os_str(),
         png.as_os_str(),
@@ -119,13 +140,15 @@ fn blender_render(run_dir: &Path, png: &Path, res: [u32; 2], samples: u32) -> se
         res[1].as_ref(),
         "--samples".as_ref(),
         samples.as_ref(),
+        "--sky-png".as_ref(),
+        sky.as_os_str(),
     ]);
     assert!(
         out.status.success(),
         "blender render failed ({}): {summary}",
         out.status
     );
-    summary
+    (summary, sky)
 }
 
 /// The preview PNG of the manifest's last frame.
@@ -143,6 +166,15 @@ fn last_preview(run_dir: &Path) -> PathBuf {
         })
         .unwrap_or_else(|| panic!("no preview PNG in the manifest record {last}"));
     run_dir.join(rec["path"].as_str().unwrap())
+}
+
+/// The preview's sky alone, for the run's preview settings, as its previews show it.
+fn preview_sky(run_dir: &Path) -> image::RgbImage {
+    let cfg = nimbus::pipeline::resume::config_of_run(run_dir, &[]).expect("the run's config");
+    let params = nimbus::preview::PreviewParams::for_shot(&cfg).expect("preview parameters");
+    nimbus::preview::sky_image(&params)
+        .expect("sky")
+        .to_srgb8(params.exposure)
 }
 
 fn load(p: &Path) -> image::RgbImage {
@@ -173,28 +205,34 @@ fn check(c: &Comparison) {
 
 #[test]
 fn silhouette_iou_and_luminance_measure_what_they_say() {
-    let bg = image::Rgb([111u8, 144, 196]);
+    // a sky that darkens upwards: no corner colour stands for it
+    let sky = image::RgbImage::from_fn(64, 48, |_, y| {
+        let v = 90 + 2 * y as u8;
+        image::Rgb([v, v + 30, 196])
+    });
     let disc = |cx: i32, r: i32, v: u8| {
         image::RgbImage::from_fn(64, 48, |x, y| {
             let (dx, dy) = (x as i32 - cx, y as i32 - 24);
             if dx * dx + dy * dy <= r * r {
                 image::Rgb([v, v, v])
             } else {
-                bg
+                *sky.get_pixel(x, y)
             }
         })
     };
     let a = disc(32, 10, 250);
-    let same = compare(&a, &a);
+    let same = compare(&a, &sky, &a, &sky);
     assert!((same.iou - 1.0).abs() < 1e-12 && (same.luminance_ratio - 1.0).abs() < 1e-12);
+    // the sky alone has no silhouette, however much it varies
+    assert_eq!(compare(&sky, &sky, &a, &sky).preview_pixels, 0);
     // shifted by one radius: the overlap of two discs at distance r is ~0.24 of their union
-    let shifted = compare(&a, &disc(42, 10, 250));
+    let shifted = compare(&a, &sky, &disc(42, 10, 250), &sky);
     assert!(shifted.iou > 0.15 && shifted.iou < 0.35, "{shifted:?}");
     // a grey cloud against a white one of the same shape
-    let grey = compare(&disc(32, 10, 180), &a);
+    let grey = compare(&disc(32, 10, 180), &sky, &a, &sky);
     assert!(grey.iou > 0.85, "{grey:?}");
     let want = luminance([180; 3]) / luminance([250; 3]);
-    // (the filtered silhouette takes in a ring of edge pixels that are background)
+    // (the filtered silhouette takes in a ring of edge pixels that are sky)
     assert!(
         (grey.luminance_ratio - want).abs() < 0.1,
         "{grey:?} vs {want}"
@@ -236,9 +274,14 @@ fn preview_matches_blender_render() {
         .expect("spawn nimbus");
     assert!(out.status.success(), "{}", common::text(&out));
     let png = base.join("blender.png");
-    let summary = blender_render(&run_dir, &png, RES, 16);
+    let (summary, sky) = blender_render(&run_dir, &png, RES, 16);
     assert_eq!(summary["frame"], 40, "{summary}");
-    let c = compare(&load(&last_preview(&run_dir)), &load(&png));
+    let c = compare(
+        &load(&last_preview(&run_dir)),
+        &preview_sky(&run_dir),
+        &load(&png),
+        &load(&sky),
+    );
     eprintln!("preview vs Blender, reduced quickstart frame 40 at {RES:?}: {c:?}");
     // a cloud, not a speck: the comparison means something
     assert!(c.blender_pixels > 500, "{c:?}");
@@ -256,12 +299,15 @@ fn quickstart_last_frame() {
     let png = std::env::var_os("NIMBUS_COMPARE_PNG")
         .map(PathBuf::from)
         .unwrap_or_else(|| Path::new(env!("CARGO_TARGET_TMPDIR")).join("quickstart_blender.png"));
-    let summary = blender_render(&run_dir, &png, [preview.width(), preview.height()], 16);
-    let c = compare(&preview, &load(&png));
-    eprintln!(
-        "preview vs Blender, {} frame {}: {c:?}",
-        run_dir.display(),
-        summary["frame"]
-    );
+    // NIMBUS_COMPARE_REUSE=1: compare with an earlier render at that path (and its .sky.png)
+    let sky = if std::env::var_os("NIMBUS_COMPARE_REUSE").is_some() {
+        png.with_extension("sky.png")
+    } else {
+        let (summary, sky) = blender_render(&run_dir, &png, [preview.width(), preview.height()], 16);
+        eprintln!("{} frame {}", run_dir.display(), summary["frame"]);
+        sky
+    };
+    let c = compare(&preview, &preview_sky(&run_dir), &load(&png), &load(&sky));
+    eprintln!("preview vs Blender, {}: {c:?}", run_dir.display());
     check(&c);
 }

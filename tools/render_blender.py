@@ -3,18 +3,24 @@
 Usage (Blender 3.4, Debian 12):
   blender -b --factory-startup --python-exit-code 1 -P tools/render_blender.py -- \
       RUN_DIR_OR_VDB OUT.png [--frame N] [--grid density] [--res W H] [--samples N] \
-      [--up auto|y|z] [--motion-blur] [--density-scale auto|X] [--min-coverage F] \
-      [--framing auto|domain|volume]
+      [--up auto|y|z] [--motion-blur] [--density-scale physical|X] [--min-coverage F] \
+      [--framing auto|domain|volume] [--volume-bounces N] [--sky-png PATH]
 
 RUN_DIR is a nimbus run directory: its manifest.json names the frames and their files (size and
 SHA-256 are checked). The whole `<shot>.<digits>.vdb` sequence is imported as one Volume object
 (Blender's own sequence detection) and the scene is set to the requested frame (default: the last
 frame in the manifest), so the .blend-equivalent scene is what an artist gets from File > Import.
 
+The cloud is rendered with its physical extinction (the density grid's `nimbus_extinction_per_unit`,
+docs/RENDERING.md "Physical optics"), forward scattering (Henyey-Greenstein g = 0.8), enough
+volume bounces for the shaded side to converge, under Cycles' Nishita sky with the sun of that
+sky as a sun lamp, through the Filmic view transform.
+
 Exit status 1 (through --python-exit-code 1) when the manifest or the file cannot be read, the
-density grid is missing or empty, or the image shows (almost) nothing but background.
+density grid is missing or empty, or the image shows (almost) nothing but sky.
 Exactly one line starting with 'NIMBUS_BLENDER ' is printed: a JSON summary (ok, error, timings,
-grids, density scale, coverage).
+grids, density scale, coverage, the optical depth through the core along the view and the sun,
+the luminance percentiles of the cloud pixels).
 """
 import argparse
 import hashlib
@@ -22,21 +28,39 @@ import json
 import math
 import os
 import re
-import struct
 import sys
 import time
-import zlib
 
 import bpy
 from mathutils import Vector
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import nimbus_look  # noqa: E402  (tools/, next to this script)
+
 T0 = time.time()
 TAG = "NIMBUS_BLENDER "
-# Optical depth aimed for along a chord through the core of the cloud: a few units gives a cloud
-# with a lit side, a shadowed side and soft edges, whatever density units the grid is in.
-CORE_OPTICAL_DEPTH = 4.0
-# Linear world colour (a pale sky blue) and the sun; both are fixed so the image is comparable.
-SKY_RGB = (0.16, 0.28, 0.55)
+# The sun: 40 degrees up, from the camera's right and a little behind it (a lit side and a
+# shaded side, the camera outside the forward-scattering lobe). Nishita's sun_rotation puts the
+# sun at azimuth 90 - rotation degrees from +x towards +y (checked in Blender 3.4.1).
+SUN_ELEVATION_DEG = 40.0
+SUN_ROTATION_DEG = 110.0
+# The Nishita sky's own sun at that elevation (air, dust and ozone 1, sea level), as a sun lamp:
+# its irradiance on a plane facing it, in Blender units, and its colour. Measured in Blender
+# 3.4.1 from two equirectangular renders of the sky, with and without its sun disc, the
+# difference summed over the disc's solid angle: (145.5, 118.2, 89.1). The sky without its disc
+# then adds 9.0 on a level surface (luminance): a diffuse share of 10%, as under a clear sky.
+SUN_STRENGTH = 145.5
+SUN_COLOR = (1.0, 0.812, 0.613)
+# Film exposure (stops) that puts a sunlit cloud face (about SUN_STRENGTH x 0.8 / pi) 5 stops
+# over Filmic's middle grey, below its white.
+EXPOSURE = -2.4
+# Henyey-Greenstein anisotropy of cloud droplets (0.85 for visible light; 0.8 keeps a little more
+# light on the shaded side, as a renderer's single lobe usually does).
+PHASE_G = 0.8
+# Volume bounces: where the shaded side of a thick cloud has converged (docs/RENDERING.md "Light
+# transport": quickstart's last frame, the darkest 5% of its cloud pixels 0.4% brighter at 512
+# than at 256, 6.5% between 128 and 256).
+VOLUME_BOUNCES = 256
 
 
 class RenderFailure(Exception):
@@ -67,9 +91,23 @@ def parse_args():
     )
     p.add_argument(
         "--density-scale",
-        default="auto",
-        help="Cycles extinction per unit of grid value per scene unit; 'auto' aims at an optical "
-        "depth of %g through the core from the grid's max and bbox" % CORE_OPTICAL_DEPTH,
+        default="physical",
+        help="Cycles extinction per unit of grid value per scene unit; 'physical' (default): the "
+        "density grid's own (nimbus_extinction_per_unit in the run's manifest or the file's "
+        "metadata, docs/RENDERING.md 'Physical optics')",
+    )
+    p.add_argument(
+        "--volume-bounces",
+        type=int,
+        default=VOLUME_BOUNCES,
+        help="Cycles volume bounces (default %d: the shaded side of a thick cloud converged)"
+        % VOLUME_BOUNCES,
+    )
+    p.add_argument(
+        "--sky-png",
+        default=None,
+        help="also keep the sky-only render (the volume hidden) that the cloud pixels are found "
+        "against, at this path",
     )
     p.add_argument(
         "--framing",
@@ -87,8 +125,8 @@ def parse_args():
         help="fail when fewer than this fraction of pixels differ from the background",
     )
     a = p.parse_args(argv)
-    if a.res[0] < 8 or a.res[1] < 8 or a.samples < 1:
-        p.error("--res needs at least 8x8 and --samples at least 1")
+    if a.res[0] < 8 or a.res[1] < 8 or a.samples < 1 or a.volume_bounces < 0:
+        p.error("--res needs at least 8x8, --samples at least 1, --volume-bounces at least 0")
     return a
 
 
@@ -131,6 +169,7 @@ def resolve_input(a, report):
     except (KeyError, TypeError, ValueError):
         report["domain_size"] = None
     report["grid_origin"] = man.get("grid_origin")
+    a.run_config = man.get("config")
     with_vdb = [
         fr for fr in frames if any(str(x.get("path", "")).endswith(".vdb") for x in fr.get("files", []))
     ]
@@ -288,40 +327,31 @@ def domain_bbox(report):
     return Vector((0.0, -sz / s, 0.0)), Vector((sx / s, 0.0, sy / s))
 
 
-def grid_max_pyopenvdb(path, grid):
-    import pyopenvdb  # Debian's blender runs the system python, where python3-openvdb lives
+def physical_scale(path, a, report):
+    """The density grid's extinction per unit per scene unit: the run's manifest
+    (`export.optics.extinction_per_unit`), else the file's density metadata, else (files
+    written before nimbus recorded it) export.optics' defaults with the run's density_scale and
+    scale."""
+    exp = report.get("export") if isinstance(report.get("export"), dict) else {}
+    optics = exp.get("optics") if isinstance(exp.get("optics"), dict) else None
+    if optics and optics.get("extinction_per_unit"):
+        report["optics"] = optics
+        return float(optics["extinction_per_unit"]), "manifest"
+    try:
+        import pyopenvdb
 
-    _, hi = pyopenvdb.read(path, grid).evalMinMax()
-    return float(hi)
-
-
-def grid_max_mesh(obj, grid):
-    """Max of the grid without pyopenvdb (e.g. Blender's own builds): bisect (on a log scale) the
-    iso-value at which Blender's Volume to Mesh modifier stops producing vertices."""
-    holder = bpy.data.objects.new("_max_probe", bpy.data.meshes.new("_max_probe"))
-    bpy.context.scene.collection.objects.link(holder)
-    mod = holder.modifiers.new("v2m", "VOLUME_TO_MESH")
-    mod.object = obj
-    mod.grid_name = grid
-    mod.resolution_mode = "GRID"
-
-    def has_voxels_above(t):
-        mod.threshold = t
-        dg = bpy.context.evaluated_depsgraph_get()
-        return len(holder.evaluated_get(dg).data.vertices) > 0
-
-    lo, hi = -30.0, 30.0  # log10 bounds of the search
-    if not has_voxels_above(10.0**lo):
-        bpy.data.objects.remove(holder)
-        return 0.0
-    for _ in range(24):  # 60 decades / 2^24: far finer than the factor of ~2 that matters
-        mid = 0.5 * (lo + hi)
-        if has_voxels_above(10.0**mid):
-            lo = mid
-        else:
-            hi = mid
-    bpy.data.objects.remove(holder)
-    return 10.0**hi
+        meta = pyopenvdb.read(path, a.grid).metadata
+        if "nimbus_extinction_per_unit" in meta:
+            report["optics"] = {k: meta[k] for k in meta if k.startswith("nimbus_")}
+            return float(meta["nimbus_extinction_per_unit"]), "metadata"
+    except (ImportError, KeyError, RuntimeError, ValueError):
+        pass
+    cfg = getattr(a, "run_config", None) or {}
+    ex = cfg.get("export", {}) if isinstance(cfg, dict) else {}
+    k = nimbus_look.default_extinction_per_unit(
+        float(ex.get("density_scale", 1000.0)), float(ex.get("scale", 1.0))
+    )
+    return k, "defaults (the files predate export.optics)"
 
 
 def build_material(obj, scale, a):
@@ -331,10 +361,11 @@ def build_material(obj, scale, a):
     nt.nodes.clear()
     out = nt.nodes.new("ShaderNodeOutputMaterial")
     pv = nt.nodes.new("ShaderNodeVolumePrincipled")
+    # water droplets: white (single-scattering albedo ~0.9999 in the visible), forward
     pv.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
     pv.inputs["Density"].default_value = scale
     pv.inputs["Density Attribute"].default_value = a.grid
-    pv.inputs["Anisotropy"].default_value = 0.3  # droplets scatter forward; milder with 2 bounces
+    pv.inputs["Anisotropy"].default_value = PHASE_G
     # nimbus temperatures are ~250-300 K: physically no visible glow, keep blackbody off
     pv.inputs["Blackbody Intensity"].default_value = 0.0
     nt.links.new(pv.outputs["Volume"], out.inputs["Volume"])
@@ -342,51 +373,93 @@ def build_material(obj, scale, a):
     obj.data.materials.append(mat)
 
 
+def camera_view(lo, hi, aspect, lens=35.0, sensor=36.0):
+    """The camera that frames box [lo, hi] from the ground: from the front (-y) and a little to
+    the right, at 2% of the box's height, looking at the box's centre, at the nearest distance
+    where all eight corners fit the frame with a 10% margin (35 mm lens on a 36 mm sensor fitted
+    to the wider side). Returns (position, unit forward, right, up, fov_x, fov_y); nimbus's
+    preview mirrors it (preview::blender_camera)."""
+    center = (lo + hi) / 2
+    size = hi - lo
+    fov_wide = 2 * math.atan(sensor / (2 * lens))
+    fov_x = fov_wide if aspect >= 1 else 2 * math.atan(math.tan(fov_wide / 2) * aspect)
+    fov_y = 2 * math.atan(math.tan(fov_x / 2) / aspect)
+    tx, ty = math.tan(fov_x / 2) / 1.1, math.tan(fov_y / 2) / 1.1
+    heading = Vector((0.25, -1.0, 0.0)).normalized()
+    z = lo[2] + 0.02 * size[2]
+
+    def basis(dist):
+        pos = Vector((center[0], center[1], z)) + heading * dist
+        fwd = (center - pos).normalized()
+        right = fwd.cross(Vector((0.0, 0.0, 1.0))).normalized()
+        return pos, fwd, right, right.cross(fwd)
+
+    def fits(dist):
+        pos, fwd, right, up = basis(dist)
+        for i in range(8):
+            c = Vector([hi[k] if (i >> k) & 1 else lo[k] for k in range(3)]) - pos
+            depth = c.dot(fwd)
+            if depth <= 0 or abs(c.dot(right)) > tx * depth or abs(c.dot(up)) > ty * depth:
+                return False
+        return True
+
+    near, far = 1e-3 * max(size.length, 1e-6), max(size.length, 1e-6)
+    while not fits(far):
+        far *= 2
+    for _ in range(60):
+        mid = 0.5 * (near + far)
+        if fits(mid):
+            far = mid
+        else:
+            near = mid
+    pos, fwd, right, up = basis(far)
+    return pos, fwd, right, up, fov_x, fov_y
+
+
+def sun_direction():
+    """Unit vector towards the sun (Blender world, z up): Nishita's convention."""
+    el, rot = math.radians(SUN_ELEVATION_DEG), math.radians(SUN_ROTATION_DEG)
+    return Vector((math.cos(el) * math.sin(rot), math.cos(el) * math.cos(rot), math.sin(el)))
+
+
 def build_scene(lo, hi, a):
     scene = bpy.context.scene
-    center = (lo + hi) / 2
     size = hi - lo
     cam_data = bpy.data.cameras.new("Camera")
     cam_data.lens = 35.0
     cam_data.sensor_fit = "AUTO"
     cam = bpy.data.objects.new("Camera", cam_data)
     scene.collection.objects.link(cam)
-    # from the side (-y in Blender, the front view), slightly raised, looking at the centre
-    direction = Vector((0.25, -1.0, 0.18)).normalized()
-    aspect = a.res[0] / a.res[1]
-    fov_wide = 2 * math.atan(cam_data.sensor_width / (2 * cam_data.lens))
-    fov_x = fov_wide if aspect >= 1 else 2 * math.atan(math.tan(fov_wide / 2) * aspect)
-    fov_y = 2 * math.atan(math.tan(fov_x / 2) / aspect)
-    # distance at which all 8 bbox corners fit the frame with a 10% margin (perspective: a
-    # corner at lateral offset l and depth dist - p.d needs l <= tan(fov/2) * (dist - p.d))
-    cam.rotation_euler = (-direction).to_track_quat("-Z", "Y").to_euler()
-    rot = cam.rotation_euler.to_matrix()
-    right, up = rot.col[0], rot.col[1]
-    tx, ty = math.tan(fov_x / 2) / 1.1, math.tan(fov_y / 2) / 1.1
-    dist = 1e-6
-    for i in range(8):
-        p = Vector([hi[k] if (i >> k) & 1 else lo[k] for k in range(3)]) - center
-        dist = max(dist, abs(p.dot(right)) / tx + p.dot(direction), abs(p.dot(up)) / ty + p.dot(direction))
+    pos, fwd, _, _, _, _ = camera_view(lo, hi, a.res[0] / a.res[1], cam_data.lens, cam_data.sensor_width)
+    cam.location = pos
+    cam.rotation_euler = fwd.to_track_quat("-Z", "Y").to_euler()
+    dist = (pos - (lo + hi) / 2).length
     radius = max(0.5 * size.length, 1e-6)
-    cam.location = center + direction * dist
     cam_data.clip_start = max(dist - 2 * radius, dist * 1e-3)
     cam_data.clip_end = dist + 2 * radius
     scene.camera = cam
 
     sun_data = bpy.data.lights.new("Sun", type="SUN")
-    sun_data.energy = 5.0
-    sun_data.angle = math.radians(1.0)
+    sun_data.energy = SUN_STRENGTH
+    sun_data.color = SUN_COLOR
+    sun_data.angle = math.radians(0.545)  # the sun's disc
     sun = bpy.data.objects.new("Sun", sun_data)
-    # 40 degrees high, from the camera's right (+x) and a little behind it: a lit side, a
-    # shadowed side, and the camera not looking into the forward-scattering lobe
-    sun.rotation_euler = (math.radians(50.0), 0.0, math.radians(70.0))
+    # a sun lamp shines along its local -z
+    sun.rotation_euler = (-sun_direction()).to_track_quat("-Z", "Y").to_euler()
     scene.collection.objects.link(sun)
 
     world = bpy.data.worlds.new("Sky")
     world.use_nodes = True
-    bg = world.node_tree.nodes["Background"]
-    bg.inputs["Color"].default_value = SKY_RGB + (1.0,)
+    nt = world.node_tree
+    sky = nt.nodes.new("ShaderNodeTexSky")
+    sky.sky_type = "NISHITA"
+    sky.sun_elevation = math.radians(SUN_ELEVATION_DEG)
+    sky.sun_rotation = math.radians(SUN_ROTATION_DEG)
+    sky.sun_disc = False  # the sun is the lamp above: sampled directly, no fireflies
+    sky.altitude = 0.0
+    bg = nt.nodes["Background"]
     bg.inputs["Strength"].default_value = 1.0
+    nt.links.new(sky.outputs["Color"], bg.inputs["Color"])
     scene.world = world
 
     scene.render.engine = "CYCLES"
@@ -394,78 +467,21 @@ def build_scene(lo, hi, a):
     scene.cycles.samples = a.samples
     scene.cycles.use_adaptive_sampling = False
     scene.cycles.use_denoising = False
-    scene.cycles.max_bounces = 4
-    scene.cycles.volume_bounces = 2
+    scene.cycles.max_bounces = max(4, a.volume_bounces)
+    scene.cycles.volume_bounces = a.volume_bounces
     scene.cycles.volume_step_rate = 1.0
     scene.cycles.seed = 0  # same inputs, same image
     scene.render.threads_mode = "AUTO"
     scene.render.resolution_x, scene.render.resolution_y = a.res
     scene.render.resolution_percentage = 100
     scene.render.film_transparent = False
-    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.view_transform = "Filmic"
     scene.view_settings.look = "None"
+    scene.view_settings.exposure = EXPOSURE
     scene.render.image_settings.file_format = "PNG"
     scene.render.image_settings.color_mode = "RGB"
     scene.render.image_settings.color_depth = "8"
-    return dist
-
-
-def read_png_rgb(path):
-    """8-bit RGB, non-interlaced PNG (what this script writes) -> (w, h, rows of bytes).
-    Decoded here, not through bpy.data.images, so no colour management stands in between."""
-    with open(path, "rb") as f:
-        data = f.read()
-    if data[:8] != b"\x89PNG\r\n\x1a\n":
-        raise RenderFailure(f"{path}: not a PNG")
-    pos, idat, w = 8, b"", None
-    while pos < len(data):
-        n, kind = struct.unpack(">I4s", data[pos : pos + 8])
-        body = data[pos + 8 : pos + 8 + n]
-        if kind == b"IHDR":
-            w, h, depth, ctype, _, _, interlace = struct.unpack(">IIBBBBB", body)
-            if depth != 8 or ctype != 2 or interlace != 0:
-                raise RenderFailure(f"{path}: unexpected PNG format (depth {depth}, type {ctype})")
-        elif kind == b"IDAT":
-            idat += body
-        pos += 12 + n
-    raw = zlib.decompress(idat)
-    stride, bpp = 3 * w, 3
-    rows, prev = [], bytearray(stride)
-    for y in range(h):
-        ft = raw[y * (stride + 1)]
-        line = bytearray(raw[y * (stride + 1) + 1 : (y + 1) * (stride + 1)])
-        for i in range(stride):
-            left = line[i - bpp] if i >= bpp else 0
-            up = prev[i]
-            ul = prev[i - bpp] if i >= bpp else 0
-            if ft == 1:
-                line[i] = (line[i] + left) & 255
-            elif ft == 2:
-                line[i] = (line[i] + up) & 255
-            elif ft == 3:
-                line[i] = (line[i] + ((left + up) >> 1)) & 255
-            elif ft == 4:
-                pa, pb, pc = abs(up - ul), abs(left - ul), abs(left + up - 2 * ul)
-                pr = left if pa <= pb and pa <= pc else (up if pb <= pc else ul)
-                line[i] = (line[i] + pr) & 255
-        rows.append(bytes(line))
-        prev = line
-    return w, h, rows
-
-
-def coverage(path):
-    """Fraction of pixels that differ from the background, taken as the median colour of the
-    four corners (the framing leaves a margin there; a direct view of the world is noise-free)."""
-    w, h, rows = read_png_rgb(path)
-    corners = [rows[y][3 * x : 3 * x + 3] for y in (0, h - 1) for x in (0, w - 1)]
-    bgc = [sorted(c[k] for c in corners)[1] for k in range(3)]
-    differ, lum = 0, 0
-    for r in rows:
-        for i in range(0, 3 * w, 3):
-            if abs(r[i] - bgc[0]) + abs(r[i + 1] - bgc[1]) + abs(r[i + 2] - bgc[2]) > 24:
-                differ += 1
-            lum += r[i] + r[i + 1] + r[i + 2]
-    return differ / float(w * h), bgc, lum / (3.0 * 255 * w * h)
+    return dist, pos
 
 
 def run(a, report):
@@ -490,44 +506,83 @@ def run(a, report):
         size = hi - lo
     report["framing"] = framing
     report["frame_bbox"] = [[round(v, 6) for v in lo], [round(v, 6) for v in hi]]
-    if a.density_scale == "auto":
-        try:
-            gmax = grid_max_pyopenvdb(path, a.grid)
-            report["grid_max_from"] = "pyopenvdb"
-        except ImportError:
-            gmax = grid_max_mesh(obj, a.grid)
-            report["grid_max_from"] = "volume_to_mesh"
-        report["grid_max"] = gmax
-        if not (gmax > 0 and math.isfinite(gmax)):
-            raise RenderFailure(f"grid {a.grid!r} has max {gmax}: nothing to render")
-        # a chord through the core is ~ half the median bbox side (the bbox holds the thin
-        # edges too), and the grid along it ~ half its max
-        chord = 0.5 * sorted(size)[1]
-        scale = CORE_OPTICAL_DEPTH / (0.5 * gmax * chord)
+    if a.density_scale == "physical":
+        scale, source = physical_scale(path, a, report)
     else:
-        scale = float(a.density_scale)
+        try:
+            scale, source = float(a.density_scale), "--density-scale"
+        except ValueError:
+            raise RenderFailure(f"--density-scale {a.density_scale!r}: expected 'physical' or a number")
     report["density_scale"] = scale
+    report["density_scale_from"] = source
     report["setup_s"] = round(time.time() - t, 3)
     build_material(obj, scale, a)
     if a.motion_blur:
         setup_motion_blur(obj, report)
-    report["camera_distance"] = round(build_scene(lo, hi, a), 6)
+    dist, cam_pos = build_scene(lo, hi, a)
+    report["camera_distance"] = round(dist, 6)
+    report["camera_position"] = [round(v, 6) for v in cam_pos]
+    report["sun_direction"] = [round(v, 6) for v in sun_direction()]
 
     out = os.path.abspath(a.output)
     os.makedirs(os.path.dirname(out), exist_ok=True)
-    bpy.context.scene.render.filepath = out
+    scene = bpy.context.scene
+    scene.render.filepath = out
     t = time.time()
     bpy.ops.render.render(write_still=True)
     report["render_s"] = round(time.time() - t, 3)
     report["output"] = out
     if not os.path.isfile(out) or os.path.getsize(out) == 0:
         raise RenderFailure(f"render wrote no image to {out}")
-    cov, bgc, mean = coverage(out)
+    # The same render without the cloud: the sky each pixel would show (Nishita's sky is not
+    # uniform, so no corner colour stands for it); direct views of the world are noise-free.
+    sky_png = os.path.abspath(a.sky_png) if a.sky_png else out + ".sky.png"
+    obj.hide_render = True
+    scene.render.filepath = sky_png
+    t = time.time()
+    bpy.ops.render.render(write_still=True)
+    report["sky_render_s"] = round(time.time() - t, 3)
+    img = nimbus_look.read_png_rgb(out)
+    sky = nimbus_look.read_png_rgb(sky_png)
+    if a.sky_png:
+        report["sky_png"] = sky_png
+    else:
+        os.remove(sky_png)
+    mask = nimbus_look.cloud_mask(img, sky)
+    cov = float(mask.mean())
     report["coverage"] = round(cov, 4)
-    report["background_rgb8"] = bgc
-    report["mean_luminance"] = round(mean, 4)
+    report["cloud_luminance"] = nimbus_look.luminance_percentiles(img, mask)
+    report["optical_depth"] = core_optical_depth(path, a, report, scale, cam_pos)
     if cov < a.min_coverage:
-        raise RenderFailure(f"image is (almost) all background: coverage {cov:.4f} < {a.min_coverage}")
+        raise RenderFailure(f"image is (almost) all sky: coverage {cov:.4f} < {a.min_coverage}")
+
+
+def core_optical_depth(path, a, report, scale, cam_pos):
+    """Optical depth of the lines through the cloud's core (the density-weighted centroid of the
+    grid) along the camera's view and along the sun, with the render's extinction."""
+    try:
+        grid, lo, voxel, origin, _ = nimbus_look.read_density(path, a.grid)
+    except ImportError:
+        return {"error": "pyopenvdb is not installed (Debian: python3-openvdb)"}
+    c = nimbus_look.centroid(grid)
+    if c is None:
+        return {"error": "empty density grid"}
+    # file coordinates -> Blender's world: a y-up file was rotated +90 degrees about x
+    y_up = report.get("up") == "y"
+
+    def to_world(v):
+        return Vector((v[0], -v[2], v[1])) if y_up else Vector(v)
+
+    def to_file(v):
+        return [v[0], v[2], -v[1]] if y_up else [v[0], v[1], v[2]]
+
+    core = to_world(origin + (lo + c) * voxel)
+    view = (core - cam_pos).normalized()
+    return {
+        "view": nimbus_look.optical_depth(grid, voxel, scale, c, to_file(view)),
+        "sun": nimbus_look.optical_depth(grid, voxel, scale, c, to_file(sun_direction())),
+        "core": [round(v, 3) for v in core],
+    }
 
 
 def main():

@@ -115,8 +115,8 @@ pub struct PreviewConfig {
     /// Extinction per unit of density per metre (with `density_mode: fixed`).
     #[serde(default = "d_density_scale")]
     pub density_scale: f64,
-    /// `auto`: the extinction of tools/render_blender.py's `--density-scale auto` (optical depth
-    /// 4 through the core, from the frame's density maximum); `fixed`: `density_scale`.
+    /// `physical`: the density grid's physical extinction (`export.optics`), as
+    /// tools/render_blender.py renders it; `fixed`: `density_scale`.
     #[serde(default)]
     pub density_mode: DensityMode,
     /// Camera; `None` = auto-framed from the side.
@@ -144,20 +144,25 @@ fn d_preview_res() -> [u32; 2] {
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum DensityMode {
+    /// The density grid's physical extinction. `auto` (an optical depth of 4 through the core,
+    /// until the physical optics replaced it) is read as this, so older runs still resume and
+    /// re-render.
     #[default]
-    Auto,
+    #[serde(alias = "auto")]
+    Physical,
     Fixed,
 }
-/// tools/render_blender.py's sun: rotation (50, 0, 70) degrees in Blender's z-up frame, i.e.
-/// 40 degrees high from +x, a little towards +z (the camera's side).
+/// tools/render_blender.py's sun: 40 degrees high from +x, a little towards +z (the camera's
+/// side); in Blender's z-up frame (0.7198, -0.2620, 0.6428).
 fn d_sun_dir() -> [f64; 3] {
     [0.719_846, 0.642_788, 0.262_003]
 }
+/// The Nishita sky's sun at 40 degrees, as render_blender.py's sun lamp (colour and irradiance).
 fn d_sun_color() -> [f64; 3] {
-    [1.0, 1.0, 1.0]
+    [1.0, 0.812, 0.613]
 }
 fn d_sun_intensity() -> f64 {
-    5.0
+    145.5
 }
 fn d_density_scale() -> f64 {
     0.15
@@ -172,7 +177,7 @@ impl Default for PreviewConfig {
             sun_color: d_sun_color(),
             sun_intensity: d_sun_intensity(),
             density_scale: d_density_scale(),
-            density_mode: DensityMode::Auto,
+            density_mode: DensityMode::Physical,
             camera: None,
             movie: false,
             source_overlay: false,

@@ -511,7 +511,7 @@ fn check_run_time_params(k: &mut Checks, c: &ShotConfig) {
             msg.strip_prefix("splat: ").unwrap_or(&msg).to_string(),
         );
     }
-    if let Err(e) = crate::preview::PreviewParams::from_config(&c.output.preview, c.domain.size) {
+    if let Err(e) = crate::preview::PreviewParams::for_shot(c) {
         let msg = e.to_string();
         let key = if msg.contains("camera") {
             "output.preview.camera.look_at"

@@ -177,16 +177,10 @@ pub fn render_script(plan: &FarmPlan, job: &Job, farm_dir: &Path) -> Option<Stri
     Some(s)
 }
 
-/// Renders the frame; a frame before the cloud forms (an empty density grid, which the
-/// script's automatic exposure refuses) is rendered as the empty sky at a fixed density scale.
+/// Renders the frame. The script renders with the density grid's physical extinction, so a
+/// frame before the cloud forms (an empty density grid) is the sky alone, not an error.
 pub(crate) const RENDER_BODY: &str = r#"echo "nimbus-farm: render $RUN frame $FRAME -> $PNG"
-OUT=$("${RENDER[@]}" 2>&1); RC=$?
-echo "$OUT"
-if [ $RC -ne 0 ] && grep -q "nothing to render" <<<"$OUT"; then
-  echo "nimbus-farm: frame $FRAME has no cloud yet; rendering the empty sky"
-  "${RENDER[@]}" --density-scale 1; RC=$?
-fi
-exit $RC
+"${RENDER[@]}"
 "#;
 
 /// The export array: one task per (wedge, chunk), numbered `wedge * chunks + chunk`. It waits

@@ -28,7 +28,7 @@ enum Source {
 /// returns the number of frames rendered.
 pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
     let manifest = Manifest::load(run_dir)?;
-    let params = crate::preview::PreviewParams::from_config(&cfg.output.preview, cfg.domain.size)?;
+    let params = crate::preview::PreviewParams::for_shot(cfg)?;
     let pad = cfg.output.frame_padding;
     let checkpoints: BTreeMap<u32, PathBuf> =
         crate::io::checkpoint::list_checkpoints(&run_dir.join("checkpoints"))?
@@ -79,7 +79,7 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
         for px in img.data.iter_mut().filter(|px| px[3] == 0.0) {
             *px = [BACKGROUND, BACKGROUND, BACKGROUND, 0.0];
         }
-        let mut rgb = img.to_srgb8(params.exposure);
+        let mut rgb = img.to_srgb8_standard();
         draw_level_legend(&mut rgb, max_level);
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         let png = dir.join(format!("{stem}.png"));

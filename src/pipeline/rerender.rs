@@ -117,7 +117,7 @@ fn rerender_into(
     decorate: Option<Decorate>,
 ) -> Result<usize> {
     let manifest = Manifest::load(run_dir)?;
-    let params = crate::preview::PreviewParams::from_config(&cfg.output.preview, cfg.domain.size)?;
+    let params = crate::preview::PreviewParams::for_shot(cfg)?;
     let grid_name = &cfg.export.grids.density;
     let space = crate::export::ExportSpace::from_config(cfg);
     let pad = cfg.output.frame_padding;

@@ -57,10 +57,7 @@ impl FrameWriter {
         }
         let splat = crate::splat::SplatParams::from_config(cfg)?;
         let preview = if cfg.output.preview.enabled {
-            Some(crate::preview::PreviewParams::from_config(
-                &cfg.output.preview,
-                cfg.domain.size,
-            )?)
+            Some(crate::preview::PreviewParams::for_shot(cfg)?)
         } else {
             None
         };

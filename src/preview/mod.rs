@@ -2,20 +2,21 @@
 //!
 //! The default scene is `tools/render_blender.py`'s, so that a preview shows what the Blender
 //! render of the same frame shows (docs/RENDERING.md measures how close): its camera (35 mm lens,
-//! 36 mm sensor, from the front, raised and to the right, framing the domain with a 10% margin),
-//! its sun (40 degrees up, white, strength 5), its uniform sky-blue world, a white cloud with
-//! anisotropy 0.3, its density multiplier (`density_mode: auto`: optical depth 4 through the
-//! core) and Blender's Standard view transform (sRGB, clipped at 1).
+//! 36 mm sensor, from the ground in front and to the right, framing the domain with a 10%
+//! margin), its sun (40 degrees up, the Nishita sky's sun: warm white, irradiance 145.5), its
+//! clear sky (`sky`: Nishita's model), a white cloud with forward scattering (Henyey-Greenstein
+//! g = 0.8), the density grid's physical extinction (`density_mode: physical`,
+//! docs/RENDERING.md "Physical optics") and Blender's Filmic view transform at its exposure.
 //!
 //! Light model (per sample of the view ray, step of `step` voxels):
 //! - extinction sigma_t = density_scale * density (Beer-Lambert), scattering sigma_s = albedo sigma_t;
 //! - sun: single scattering with a Henyey-Greenstein phase function, the transmittance towards
 //!   the sun read from a coarse optical-depth volume precomputed once per frame; multiple
 //!   scattering approximated by Wrenninge's octaves: sum_i b^i exp(-a^i tau) HG(cos, c^i g);
-//! - ambient: the uniform sky's radiance, attenuated by the optical depths towards the zenith
-//!   and the nadir (Blender's world lights the cloud from below too);
+//! - ambient: the sky's mean radiance over the upper and the lower hemisphere, attenuated by
+//!   the optical depths towards the zenith and the nadir through the same octaves;
 //! - each step is integrated analytically over its length (energy-conserving for thick media);
-//! - behind the cloud: the uniform sky (Blender's world colour), no ground.
+//! - behind the cloud: the sky.
 //!
 //! Everything is deterministic: rows are rendered in parallel, each pixel independently, and the
 //! start offset that hides banding is a hash of the pixel coordinates.
@@ -23,16 +24,18 @@ pub mod movie;
 pub mod overlay;
 pub mod particles;
 pub mod sheet;
+pub mod sky;
 mod volume;
 
 pub use sheet::{contact_sheet, write_contact_sheet};
 
-use crate::config::{DensityMode, PreviewConfig};
+use crate::config::{DensityMode, PreviewConfig, ShotConfig};
 use crate::error::{Error, Result};
 use crate::splat::SparseGrid;
 use glam::DVec3;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
+pub use sky::Sky;
 use volume::Volume;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -52,12 +55,8 @@ pub struct PreviewParams {
     pub sun_direction: DVec3,
     pub sun_color: [f64; 3],
     pub sun_intensity: f64,
-    /// Extinction per unit of density per metre (when `auto_density` is `None`).
+    /// Extinction per unit of density per metre.
     pub density_scale: f64,
-    /// `Some(size)`: the extinction is chosen per frame as tools/render_blender.py's
-    /// `--density-scale auto` does when it frames the domain `[0, size]` (metres):
-    /// `CORE_OPTICAL_DEPTH / (0.5 * max density * 0.5 * median side)`.
-    pub auto_density: Option<[f64; 3]>,
     /// Single-scattering albedo (clouds: ~1).
     pub albedo: f64,
     /// Henyey-Greenstein anisotropy (clouds scatter forward).
@@ -72,14 +71,29 @@ pub struct PreviewParams {
     pub ambient: f64,
     /// Ray-march step in voxels.
     pub step: f64,
-    /// Multiplier before tone mapping.
+    /// Multiplier before the view transform (render_blender.py's film exposure, 2^-2.4).
     pub exposure: f64,
 }
 
+/// render_blender.py's film exposure, in stops.
+pub const EXPOSURE_STOPS: f64 = -2.4;
+
 impl PreviewParams {
-    /// Parameters from the shot config; the camera is auto-framed from `domain_size` when the
-    /// config has none.
-    pub fn from_config(cfg: &PreviewConfig, domain_size: [f64; 3]) -> Result<Self> {
+    /// Parameters of a shot: its `output.preview`, domain and the density grid's physical
+    /// extinction (`export.optics`).
+    pub fn for_shot(cfg: &ShotConfig) -> Result<Self> {
+        let k = crate::export::optics::Optics::from_config(cfg).extinction_per_metre;
+        Self::from_config(&cfg.output.preview, cfg.domain.size, k)
+    }
+
+    /// Parameters from the preview config; the camera is auto-framed from `domain_size` when the
+    /// config has none; `extinction_per_metre` is the density grid's physical extinction per
+    /// unit (`density_mode: physical`).
+    pub fn from_config(
+        cfg: &PreviewConfig,
+        domain_size: [f64; 3],
+        extinction_per_metre: f64,
+    ) -> Result<Self> {
         let [w, h] = cfg.resolution;
         let camera = match &cfg.camera {
             Some(c) => Camera {
@@ -96,10 +110,9 @@ impl PreviewParams {
             sun_direction: normalize(cfg.sun_direction.into()),
             sun_color: cfg.sun_color,
             sun_intensity: cfg.sun_intensity,
-            density_scale: cfg.density_scale,
-            auto_density: match cfg.density_mode {
-                DensityMode::Auto => Some(domain_size),
-                DensityMode::Fixed => None,
+            density_scale: match cfg.density_mode {
+                DensityMode::Physical => extinction_per_metre,
+                DensityMode::Fixed => cfg.density_scale,
             },
             ..Self::defaults(camera, w, h)
         };
@@ -118,17 +131,16 @@ impl PreviewParams {
             sun_color: d.sun_color,
             sun_intensity: d.sun_intensity,
             density_scale: d.density_scale,
-            auto_density: None,
-            // Blender's Principled Volume, white: no absorption; anisotropy 0.3
+            // Blender's Principled Volume, white: no absorption; anisotropy 0.8
             albedo: 1.0,
-            phase_g: 0.3,
-            octaves: 4,
-            octave_a: 0.5,
-            octave_b: 0.5,
-            octave_c: 0.5,
+            phase_g: 0.8,
+            octaves: OCTAVES,
+            octave_a: OCTAVE_A,
+            octave_b: OCTAVE_B,
+            octave_c: OCTAVE_C,
             ambient: 1.0,
             step: 0.75,
-            exposure: 1.0,
+            exposure: EXPOSURE_STOPS.exp2(),
         }
     }
 
@@ -205,18 +217,25 @@ impl Camera {
     }
 }
 
-/// Optical depth through the core of the cloud that `auto_density` aims at (render_blender.py's
-/// `CORE_OPTICAL_DEPTH`).
-pub const CORE_OPTICAL_DEPTH: f64 = 4.0;
+/// Multiple-scattering octaves of the preview: Wrenninge's a = b = 0.5 over 8 octaves (a thick
+/// cloud's shaded side is lit by light that scattered many times), the anisotropy falling
+/// fast (c = 0.2: diffuse light leaves the lit side towards the camera). Chosen against Cycles
+/// at render_blender.py's 256 volume bounces on quickstart's last frame (docs/RENDERING.md
+/// "Previews that show what the render shows").
+pub const OCTAVES: u32 = 8;
+pub const OCTAVE_A: f64 = 0.5;
+pub const OCTAVE_B: f64 = 0.5;
+pub const OCTAVE_C: f64 = 0.2;
 
-/// tools/render_blender.py's camera for a volume whose world bounding box is `[lo, hi]` (nimbus
-/// frame, y up): a 35 mm lens on a 36 mm sensor fitted to the wider side of the image, looking at
-/// the box centre from direction (0.25, 0.18, 1) (Blender's (0.25, -1, 0.18), z up), at the
-/// distance where all eight corners fit the frame with a 10% margin.
+/// tools/render_blender.py's camera for a box `[lo, hi]` (nimbus frame, y up): from the ground
+/// (2% of the box's height up), in front of the box and a little to its right (heading (0.25,
+/// 0, 1), Blender's (0.25, -1, 0)), looking at the box's centre, a 35 mm lens on a 36 mm
+/// sensor fitted to the wider side of the image, at the nearest distance where all eight
+/// corners fit the frame with a 10% margin (bisection, as the script does).
 pub fn blender_camera(lo: DVec3, hi: DVec3, aspect: f64) -> Camera {
     let aspect = aspect.max(1e-6);
     let centre = 0.5 * (lo + hi);
-    let dir = normalize(DVec3::new(0.25, 0.18, 1.0));
+    let size = hi - lo;
     let fov_wide = 2.0 * (36.0f64 / (2.0 * 35.0)).atan();
     let fov_x = if aspect >= 1.0 {
         fov_wide
@@ -224,21 +243,40 @@ pub fn blender_camera(lo: DVec3, hi: DVec3, aspect: f64) -> Camera {
         2.0 * ((fov_wide / 2.0).tan() * aspect).atan()
     };
     let fov_y = 2.0 * ((fov_x / 2.0).tan() / aspect).atan();
-    // the camera basis of `ray`: looking along -dir, y up
-    let fwd = -dir;
-    let right = normalize(fwd.cross(DVec3::Y));
-    let up = right.cross(fwd);
     let (tx, ty) = ((fov_x / 2.0).tan() / 1.1, (fov_y / 2.0).tan() / 1.1);
-    let mut dist = 1e-6f64;
-    for i in 0..8 {
-        let corner = DVec3::select(glam::BVec3::new(i & 1 == 1, i & 2 == 2, i & 4 == 4), hi, lo);
-        let p = corner - centre;
-        dist = dist
-            .max(p.dot(right).abs() / tx + p.dot(dir))
-            .max(p.dot(up).abs() / ty + p.dot(dir));
+    let heading = normalize(DVec3::new(0.25, 0.0, 1.0));
+    let height = lo.y + 0.02 * size.y;
+    let position = |dist: f64| DVec3::new(centre.x, height, centre.z) + heading * dist;
+    let fits = |dist: f64| {
+        let cam = Camera {
+            position: position(dist),
+            look_at: centre,
+            fov_deg: fov_y.to_degrees(),
+        };
+        let (fwd, right, up) = cam.basis();
+        (0..8).all(|i| {
+            let corner =
+                DVec3::select(glam::BVec3::new(i & 1 == 1, i & 2 == 2, i & 4 == 4), hi, lo);
+            let c = corner - cam.position;
+            let depth = c.dot(fwd);
+            depth > 0.0 && c.dot(right).abs() <= tx * depth && c.dot(up).abs() <= ty * depth
+        })
+    };
+    let span = size.length().max(1e-6);
+    let (mut near, mut far) = (1e-3 * span, span);
+    while !fits(far) && far < 1e12 {
+        far *= 2.0;
+    }
+    for _ in 0..60 {
+        let mid = 0.5 * (near + far);
+        if fits(mid) {
+            far = mid;
+        } else {
+            near = mid;
+        }
     }
     Camera {
-        position: centre + dir * dist,
+        position: position(far),
         look_at: centre,
         fov_deg: fov_y.to_degrees(),
     }
@@ -271,19 +309,27 @@ impl LinearImage {
         self.data[(y * self.width + x) as usize]
     }
 
-    /// Exposure and Blender's Standard view transform (the sRGB transfer function, clipped at
-    /// 1), 8 bits.
+    /// Exposure and Blender's Filmic view transform (base contrast) for an sRGB display, 8
+    /// bits, channel by channel (`filmic`).
     pub fn to_srgb8(&self, exposure: f64) -> image::RgbImage {
         let mut out = image::RgbImage::new(self.width, self.height);
         for (px, v) in out.pixels_mut().zip(&self.data) {
-            *px = image::Rgb([0, 1, 2].map(|c| encode_srgb(tonemap(v[c] as f64 * exposure))));
+            *px = image::Rgb([0, 1, 2].map(|c| filmic8(v[c] as f64 * exposure)));
         }
         out
     }
 }
 
-fn tonemap(x: f64) -> f64 {
-    x.clamp(0.0, 1.0)
+impl LinearImage {
+    /// Blender's Standard view transform (the sRGB transfer function, clipped at 1), 8 bits:
+    /// for debug views whose colours are display colours (the particle view).
+    pub fn to_srgb8_standard(&self) -> image::RgbImage {
+        let mut out = image::RgbImage::new(self.width, self.height);
+        for (px, v) in out.pixels_mut().zip(&self.data) {
+            *px = image::Rgb([0, 1, 2].map(|c| encode_srgb((v[c] as f64).clamp(0.0, 1.0))));
+        }
+        out
+    }
 }
 
 fn encode_srgb(x: f64) -> u8 {
@@ -295,18 +341,37 @@ fn encode_srgb(x: f64) -> u8 {
     (s * 255.0 + 0.5).clamp(0.0, 255.0) as u8
 }
 
-/// tools/render_blender.py's world: a uniform pale sky blue (linear RGB, strength 1).
-pub const SKY_RGB: DVec3 = DVec3::new(0.16, 0.28, 0.55);
+/// Blender 3.4.1's Filmic view transform, look "None", sRGB display: the 8-bit output for
+/// scene-linear grey 0.18 x 2^s at s = -12, -11.8125, ..., 12 (129 values, 0.1875 stops apart),
+/// measured by saving a float ramp through Blender's colour management (`Image.save_render`).
+/// Filmic also desaturates bright colours (a 3-D table); the preview applies the grey curve to
+/// each channel, which keeps white clouds white and leaves the sky a little more saturated.
+const FILMIC_8BIT: [u8; 129] = [
+    0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5, 6, 7, 8, 9,
+    10, 11, 12, 13, 15, 16, 18, 20, 22, 24, 26, 28, 31, 34, 37, 40, 43, 47, 51, 55, 59, 64, 69,
+    74, 79, 84, 90, 96, 102, 108, 115, 121, 128, 134, 141, 147, 153, 160, 166, 172, 178, 184, 190,
+    195, 200, 205, 210, 214, 219, 222, 226, 229, 233, 236, 238, 241, 243, 245, 247, 248, 250, 251,
+    252, 253, 254, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255,
+    255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255,
+];
 
-/// Sky radiance: the ambient light on the clouds.
-fn sky_ambient() -> DVec3 {
-    SKY_RGB
+/// The Filmic display value (0 to 1, sRGB-encoded) of scene-linear `x`.
+pub fn filmic(x: f64) -> f64 {
+    if !(x > 0.0) {
+        return 0.0;
+    }
+    let s = ((x / 0.18).log2() + 12.0) / 0.1875;
+    if s <= 0.0 {
+        return 0.0;
+    }
+    let i = (s.floor() as usize).min(FILMIC_8BIT.len() - 2);
+    let f = (s - i as f64).min(1.0);
+    let (a, b) = (FILMIC_8BIT[i] as f64, FILMIC_8BIT[i + 1] as f64);
+    (a + f * (b - a)) / 255.0
 }
 
-/// What a ray from `origin` along `dir` sees without any cloud: Blender's uniform world colour
-/// (there is no ground in the Blender scene).
-pub fn sky(_params: &PreviewParams, _origin: DVec3, _dir: DVec3) -> DVec3 {
-    SKY_RGB
+fn filmic8(x: f64) -> u8 {
+    (filmic(x) * 255.0 + 0.5).clamp(0.0, 255.0) as u8
 }
 
 fn hg(cos: f64, g: f64) -> f64 {
@@ -314,7 +379,17 @@ fn hg(cos: f64, g: f64) -> f64 {
     (1.0 - g * g) / (4.0 * std::f64::consts::PI * d * d.sqrt())
 }
 
-/// Renders the density grid (see the module docs); an empty grid gives `sky` at every pixel.
+impl PreviewParams {
+    /// The clear sky of these parameters' sun (`sky::Sky`).
+    pub fn sky(&self) -> Sky {
+        Sky::new(
+            self.sun_direction,
+            DVec3::from(self.sun_color) * self.sun_intensity,
+        )
+    }
+}
+
+/// Renders the density grid (see the module docs); an empty grid gives the sky at every pixel.
 pub fn render(grid: &SparseGrid<f32>, params: &PreviewParams) -> Result<LinearImage> {
     params.validate()?;
     let v = grid.transform.voxel_size;
@@ -324,21 +399,15 @@ pub fn render(grid: &SparseGrid<f32>, params: &PreviewParams) -> Result<LinearIm
         )));
     }
     let vol = Volume::new(grid, params.sun_direction);
-    let resolved;
-    let params = match params.auto_density {
-        Some(size) => {
-            resolved = PreviewParams {
-                density_scale: auto_density_scale(grid, size),
-                ..params.clone()
-            };
-            &resolved
-        }
-        None => params,
-    };
+    let sky = params.sky();
     let w = params.width;
     let rows: Vec<Vec<[f32; 4]>> = (0..params.height)
         .into_par_iter()
-        .map(|y| (0..w).map(|x| shade_pixel(&vol, params, x, y)).collect())
+        .map(|y| {
+            (0..w)
+                .map(|x| shade_pixel(&vol, &sky, params, x, y))
+                .collect()
+        })
         .collect();
     Ok(LinearImage {
         width: w,
@@ -347,26 +416,19 @@ pub fn render(grid: &SparseGrid<f32>, params: &PreviewParams) -> Result<LinearIm
     })
 }
 
-/// render_blender.py's `--density-scale auto` for this grid, with its default framing of a run
-/// (the domain box, `size`): the chord through the core is half the box's median side, the
-/// density along it half the grid's maximum.
-fn auto_density_scale(grid: &SparseGrid<f32>, size: [f64; 3]) -> f64 {
-    let mut gmax = 0.0f64;
-    for l in &grid.leaves {
-        for (n, &v) in l.values.iter().enumerate() {
-            if l.is_active(n) && v.is_finite() {
-                gmax = gmax.max(v as f64);
-            }
-        }
-    }
-    let mut sides = size;
-    sides.sort_by(f64::total_cmp);
-    let chord = 0.5 * sides[1];
-    if gmax > 0.0 && chord > 0.0 {
-        CORE_OPTICAL_DEPTH / (0.5 * gmax * chord)
-    } else {
-        0.0
-    }
+/// The sky alone, as `render` draws it behind the cloud.
+pub fn sky_image(params: &PreviewParams) -> Result<LinearImage> {
+    params.validate()?;
+    let sky = params.sky();
+    let data = (0..params.height)
+        .flat_map(|y| (0..params.width).map(move |x| (x, y)))
+        .map(|(x, y)| sky.radiance(params.ray(x, y)).as_vec3().extend(0.0).to_array())
+        .collect();
+    Ok(LinearImage {
+        width: params.width,
+        height: params.height,
+        data,
+    })
 }
 
 /// Deterministic per-pixel offset in [0, 1).
@@ -378,16 +440,23 @@ fn hash01(x: u32, y: u32) -> f64 {
     (h >> 11) as f64 / (1u64 << 53) as f64
 }
 
-fn shade_pixel(vol: &Volume, p: &PreviewParams, x: u32, y: u32) -> [f32; 4] {
+fn shade_pixel(vol: &Volume, sky: &Sky, p: &PreviewParams, x: u32, y: u32) -> [f32; 4] {
     let o = p.camera.position;
     let d = p.ray(x, y);
-    let (l, trans) = march(vol, p, o, d, hash01(x, y));
-    let c = l + trans * sky(p, o, d);
+    let (l, trans) = march(vol, sky, p, o, d, hash01(x, y));
+    let c = l + trans * sky.radiance(d);
     c.as_vec3().extend((1.0 - trans) as f32).to_array()
 }
 
 /// In-scattered radiance and transmittance along the ray through the volume.
-fn march(vol: &Volume, p: &PreviewParams, o: DVec3, d: DVec3, jitter: f64) -> (DVec3, f64) {
+fn march(
+    vol: &Volume,
+    sky: &Sky,
+    p: &PreviewParams,
+    o: DVec3,
+    d: DVec3,
+    jitter: f64,
+) -> (DVec3, f64) {
     let mut l = DVec3::ZERO;
     let mut trans = 1.0f64;
     if vol.is_empty() || p.density_scale == 0.0 {
@@ -421,7 +490,6 @@ fn march(vol: &Volume, p: &PreviewParams, o: DVec3, d: DVec3, jitter: f64) -> (D
     for (i, ph) in sun_phase.iter_mut().enumerate().take(p.octaves as usize) {
         *ph = p.octave_b.powi(i as i32) * hg(cos, p.phase_g * p.octave_c.powi(i as i32));
     }
-    let amb = sky_ambient();
     let amb_norm: f64 = (0..p.octaves as i32).map(|i| p.octave_b.powi(i)).sum();
     let step = p.step;
     let step_m = step * vol.voxel;
@@ -454,21 +522,22 @@ fn march(vol: &Volume, p: &PreviewParams, o: DVec3, d: DVec3, jitter: f64) -> (D
                 sun_l += w * ph * (-a_i * tau_sun).exp();
                 a_i *= p.octave_a;
             }
-            // The world lights the cloud from every side, the ground side too: half from above,
-            // half from below, through the same octaves as the sun (normalised: a thin wisp
-            // in-scatters the sky's radiance itself).
-            let mut amb_t = 0.0;
+            // The sky lights the cloud from every side: its upper hemisphere from above, the
+            // lower (the air over the dark ground) from below, each through the same octaves as
+            // the sun (normalised: a thin wisp in-scatters the sky's radiance itself).
+            let (mut up_t, mut down_t) = (0.0, 0.0);
             let (mut a_i, mut b_i) = (1.0, 1.0);
             for _ in 0..p.octaves {
-                amb_t += b_i * 0.5 * ((-0.5 * a_i * tau_up).exp() + (-0.5 * a_i * tau_down).exp());
+                up_t += b_i * (-0.5 * a_i * tau_up).exp();
+                down_t += b_i * (-0.5 * a_i * tau_down).exp();
                 a_i *= p.octave_a;
                 b_i *= p.octave_b;
             }
-            let amb_t = amb_t / amb_norm * p.ambient;
+            let amb = 0.5 * (up_t * sky.mean_up + down_t * sky.mean_down) / amb_norm * p.ambient;
             let step_t = (-sigma_t * step_m).exp();
             // Integral of trans * exp(-sigma_t s) * S over the step, S = sigma_s * radiance.
             let k = trans * (1.0 - step_t) / sigma_t * sigma_s;
-            let radiance = sun_l * p.sun_intensity * DVec3::from(p.sun_color) + amb_t * amb;
+            let radiance = sun_l * p.sun_intensity * DVec3::from(p.sun_color) + amb;
             l += k * radiance;
             trans *= step_t;
             if trans < 1e-4 {

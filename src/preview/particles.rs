@@ -1,7 +1,7 @@
 //! Debug view (paper Fig. 3): particles drawn as discs of their kernel size, coloured by adaptive
 //! level or by shape energy, over the sky. Sequential with a depth test (strictly nearer wins),
 //! so ties go to the lower particle index: deterministic.
-use super::{sky, LinearImage, PreviewParams};
+use super::{LinearImage, PreviewParams};
 use crate::error::Result;
 use crate::sim::ParticleState;
 use glam::{DVec3, Vec4};
@@ -73,13 +73,7 @@ fn draw(
     let (fwd, right, up) = c.basis();
     let th = (c.fov_deg.to_radians() * 0.5).tan();
     let aspect = w as f64 / h as f64;
-    let mut data: Vec<[f32; 4]> = (0..h)
-        .flat_map(|y| (0..w).map(move |x| (x, y)))
-        .map(|(x, y)| {
-            let s = sky(params, c.position, params.ray(x, y));
-            s.as_vec3().extend(0.0).to_array()
-        })
-        .collect();
+    let mut data = super::sky_image(params)?.data;
     let mut depth = vec![f64::INFINITY; data.len()];
     // the level of the particle drawn at each pixel (with `levels_in_front`)
     let mut drawn = vec![0u32; data.len()];

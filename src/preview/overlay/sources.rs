@@ -13,7 +13,7 @@
 use super::{blend, draw_segment, edge, ground_hit, line_width, PALETTE};
 use crate::config::{Axis, HeatSource, ShotConfig, SourceShape};
 use crate::error::{Error, Result};
-use crate::preview::{LinearImage, PreviewParams, SKY_RGB};
+use crate::preview::{LinearImage, PreviewParams};
 use glam::DVec3;
 
 /// Opacity of a footprint's fill at full strength, of its outline, and the fraction of either
@@ -133,7 +133,12 @@ impl SourceOverlay {
         }
         // The ground is behind the cloud: each fill mixes into the background, which shows
         // where the cloud lets it through.
-        let mut bg = vec![SKY_RGB; n];
+        let sky = params.sky();
+        let clear: Vec<DVec3> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| sky.radiance(params.ray(x, y)))
+            .collect();
+        let mut bg = clear.clone();
         for (g, &k) in ground.iter().enumerate() {
             let color = PALETTE[k % PALETTE.len()];
             for (i, b) in bg.iter_mut().enumerate() {
@@ -143,9 +148,9 @@ impl SourceOverlay {
                 }
             }
         }
-        for (px, b) in img.data.iter_mut().zip(&bg) {
+        for ((px, b), c0) in img.data.iter_mut().zip(&bg).zip(&clear) {
             let through = 1.0 - px[3] as f64;
-            for (c, d) in px.iter_mut().zip((*b - SKY_RGB).to_array()) {
+            for (c, d) in px.iter_mut().zip((*b - *c0).to_array()) {
                 *c += (through * d) as f32;
             }
         }
