@@ -100,10 +100,11 @@ def lwc_figures(a, lwc_per_unit, floor_g_m3=0.01):
     }
 
 
-def base_spread(a, voxel, up_axis, lwc_per_unit, floor_g_m3=0.01):
+def base_spread(a, voxel, up_axis, lwc_per_unit, floor_g_m3=0.01, height0=0.0):
     """The cloud base over its footprint: per column (along the up axis) holding cloud, the
     lowest cloudy voxel; the 5th-95th percentile spread of those heights over the cloud's depth
-    (highest cloudy voxel minus lowest), and both in scene units."""
+    (highest cloudy voxel minus lowest), and both in scene units (`height0`: the height of
+    index 0 of the array along the up axis)."""
     cloud = a.astype(np.float64) * lwc_per_unit * 1000.0 >= floor_g_m3
     if not cloud.any():
         return None
@@ -114,7 +115,7 @@ def base_spread(a, voxel, up_axis, lwc_per_unit, floor_g_m3=0.01):
     lowest = np.argmax(c, axis=-1)[has]
     highest = (n - 1 - np.argmax(c[..., ::-1], axis=-1))[has]
     depth = (highest.max() - lowest.min() + 1) * voxel
-    p5, p95 = np.percentile(lowest, [5, 95]) * voxel
+    p5, p95 = np.percentile(lowest, [5, 95]) * voxel + height0
     return {
         "base_p5": float(p5),
         "base_p95": float(p95),
@@ -122,6 +123,43 @@ def base_spread(a, voxel, up_axis, lwc_per_unit, floor_g_m3=0.01):
         "spread_fraction": float((p95 - p5) / depth),
         "columns": int(has.sum()),
     }
+
+
+def boundary_thickness(a, tau, reach, step=0.25):
+    """10%-90% rise distances (voxels) along the density gradient from every surface voxel of
+    `a` at level `tau` (at or above it, a face neighbour below): the grid sampled every quarter
+    voxel from `reach` voxels outside to `reach` inside; 90% of the largest value on the inward
+    half, the first point reaching it, and the last point at or below 10% before that. The same
+    definition as `nimbus bench detail` (src/bench/surface.rs)."""
+    inside = a >= tau
+    pad = np.pad(inside, 1, constant_values=False)
+    below = np.zeros_like(inside)
+    for ax in range(3):
+        for d in (-1, 1):
+            below |= ~np.roll(pad, d, axis=ax)[1:-1, 1:-1, 1:-1]
+    surf = np.argwhere(inside & below)
+    if len(surf) == 0:
+        return np.zeros(0)
+    g = np.stack(np.gradient(np.pad(a.astype(np.float64), 1)), axis=-1)[1:-1, 1:-1, 1:-1]
+    gs = g[surf[:, 0], surf[:, 1], surf[:, 2]]
+    gn = np.linalg.norm(gs, axis=1)
+    ok = gn > 0
+    surf, u = surf[ok], gs[ok] / gn[ok, None]
+    n = int(math.ceil(reach / step))
+    s = np.arange(-n, n + 1) * step
+    q = surf[:, None, :] + s[None, :, None] * u[:, None, :]
+    prof = sample(a, q.reshape(-1, 3)).reshape(len(surf), len(s))
+    top = prof[:, n:].max(axis=1)
+    reach90 = prof >= 0.9 * top[:, None]
+    has90 = reach90.any(axis=1)
+    i90 = np.argmax(reach90, axis=1)
+    low = prof <= 0.1 * top[:, None]
+    idx = np.arange(len(s))[None, :]
+    low &= idx <= i90[:, None]
+    has10 = low.any(axis=1)
+    i10 = len(s) - 1 - np.argmax(low[:, ::-1], axis=1)
+    keep = has90 & has10
+    return (i90[keep] - i10[keep]) * step
 
 
 def read_png_rgb(path):

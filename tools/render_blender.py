@@ -4,7 +4,8 @@ Usage (Blender 3.4, Debian 12):
   blender -b --factory-startup --python-exit-code 1 -P tools/render_blender.py -- \
       RUN_DIR_OR_VDB OUT.png [--frame N] [--grid density] [--res W H] [--samples N] \
       [--up auto|y|z] [--motion-blur] [--density-scale physical|X] [--min-coverage F] \
-      [--framing auto|domain|volume] [--volume-bounces N] [--sky-png PATH]
+      [--framing auto|domain|volume] [--volume-bounces N] [--sky-png PATH] \
+      [--summary-json PATH]
 
 RUN_DIR is a nimbus run directory: its manifest.json names the frames and their files (size and
 SHA-256 are checked). The whole `<shot>.<digits>.vdb` sequence is imported as one Volume object
@@ -102,6 +103,11 @@ def parse_args():
         default=VOLUME_BOUNCES,
         help="Cycles volume bounces (default %d: the shaded side of a thick cloud converged)"
         % VOLUME_BOUNCES,
+    )
+    p.add_argument(
+        "--summary-json",
+        default=None,
+        help="also write the JSON summary to this file (tools/cloud_look.py --render-summary)",
     )
     p.add_argument(
         "--sky-png",
@@ -600,6 +606,9 @@ def main():
         report["error"] = err
     report["total_s"] = round(time.time() - T0, 3)
     print(TAG + json.dumps(report, sort_keys=True), flush=True)
+    if a.summary_json:
+        with open(a.summary_json, "w") as f:
+            json.dump(report, f, indent=1, sort_keys=True)
     if err:
         # --python-exit-code 1 turns an uncaught exception into exit status 1
         raise SystemExit("render_blender.py: " + err)

@@ -411,11 +411,16 @@ pub fn splat_with_rest(
     // Stable: within a bin, sources stay in (particle index, image) order.
     sources.par_sort_by_key(|s| s.key);
 
-    // Leaves touched by some support, clipped to the output range.
+    // Leaves touched by some support, clipped to the output range. When the density is the
+    // only grid, only the supports of particles with cloud water can give a leaf a value (the
+    // others still add to the sums of the leaves they reach: the detail's cloud fraction and
+    // rest coordinate).
     let leaf_lo = lo.map(|x| leaf_of(x as f64));
     let leaf_hi = hi.map(|x| leaf_of(x as f64));
+    let density_only = !(f.temperature || f.vapor || f.velocity || f.rest);
     let mut touched: Vec<[i32; 3]> = sources
         .par_iter()
+        .filter(|s| !density_only || s.cloud > 0.0)
         .flat_map_iter(|s| {
             // Leaves of the voxels within the support (a voxel exactly at distance h gets 0).
             let a = [0, 1, 2].map(|k| leaf_of((s.p[k] - s.r).ceil()).max(leaf_lo[k]));
