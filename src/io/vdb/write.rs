@@ -176,7 +176,7 @@ fn put_transform(out: &mut Vec<u8>, t: &GridTransform) {
 
 /// Position of a leaf in OpenVDB's tree order: root key (origin & !4095, ordered as `Coord`),
 /// child index in the 32^3 node, child index in the 16^3 node.
-fn tree_key(o: [i32; 3]) -> ([i32; 3], u32, u32) {
+pub(crate) fn tree_key(o: [i32; 3]) -> ([i32; 3], u32, u32) {
     let root = o.map(|c| c & !4095);
     let n5 = (((o[0] & 4095) >> 7) << 10) | (((o[1] & 4095) >> 7) << 5) | ((o[2] & 4095) >> 7);
     let n4 = (((o[0] & 127) >> 3) << 8) | (((o[1] & 127) >> 3) << 4) | ((o[2] & 127) >> 3);
@@ -184,7 +184,7 @@ fn tree_key(o: [i32; 3]) -> ([i32; 3], u32, u32) {
 }
 
 /// Leaf indices in tree order; rejects origins off the 8-grid and duplicate leaves.
-fn tree_order<T: VdbValue>(g: &SparseGrid<T>) -> Result<Vec<usize>> {
+pub(crate) fn tree_order<T: VdbValue>(g: &SparseGrid<T>) -> Result<Vec<usize>> {
     if let Some(l) = g
         .leaves
         .iter()
