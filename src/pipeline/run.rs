@@ -156,6 +156,9 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
         Some(_) => StatsLog::load_until(run_dir, first_frame)?,
         None => StatsLog::default(),
     };
+    // A resumed run's layer holds what the manifest records (a lost or stale one is re-made).
+    let layer = super::usd_layer::LayerWriter::new(cfg);
+    layer.update(run_dir, &mut manifest)?;
     manifest.save(run_dir)?;
 
     let end = cfg.output.frames.end;
@@ -189,6 +192,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
 
     let mut loop_state = LoopState {
         in_flight: 0,
+        layer,
         manifest,
         stats,
         pending_stats: Vec::new(),
@@ -232,10 +236,9 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                 phase_ms: report.phases.by_key(),
                 diagnostics,
             });
-            let skip_write = loop_state
-                .manifest
-                .frame(frame)
-                .is_some_and(|rec| super::records::frame_intact(run_dir, rec));
+            let skip_write = loop_state.manifest.frame(frame).is_some_and(|rec| {
+                writer.has_all_files(rec) && super::records::frame_intact(run_dir, rec)
+            });
             progress.phase(frame, "splat + write", state.len() as u64);
             send(
                 &job_tx,
@@ -283,6 +286,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     result?;
     drained?;
     loop_state.manifest.complete = true;
+    loop_state.layer.update(run_dir, &mut loop_state.manifest)?;
     loop_state.manifest.save(run_dir)?;
     writer.finish_run(&loop_state.manifest)?;
     progress.note(
@@ -298,6 +302,8 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
 
 struct LoopState {
     in_flight: usize,
+    /// The USD layer, rewritten with the manifest's new frames.
+    layer: super::usd_layer::LayerWriter,
     manifest: Manifest,
     stats: StatsLog,
     /// Stats of frames still with the writer: a stats line lands with its frame's files.
@@ -334,6 +340,7 @@ impl LoopState {
                 s.phase_ms.extend(done.phase_ms);
                 self.stats.push(s);
             }
+            self.layer.update(run_dir, &mut self.manifest)?;
             self.manifest.save(run_dir)?;
             self.stats.save(run_dir)?;
             progress.frame_done(done.frame, done.particles, done.wall_ms);
