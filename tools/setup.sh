@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Installs what nimbus and its tests need on Debian 12 (idempotent). Safe to run again.
-#   tools/setup.sh               runtime + test tools (Vulkan on the CPU, OpenVDB, OpenEXR tools)
+#   tools/setup.sh               runtime + test tools (Vulkan on the CPU, OpenVDB, NanoVDB and
+#                                OpenEXR tools; USD's Python module, PyPI usd-core pinned, in a
+#                                venv at $NIMBUS_USD_VENV, default /opt/nimbus/usd)
 #   tools/setup.sh --blender     also Blender 3.4 (for tools/render_blender.py and its test)
 #   tools/setup.sh --preview     also ffmpeg (output.preview.movie and its test)
 #   tools/setup.sh --farm        also Slurm and munge (for `nimbus farm` and its tests; a
@@ -18,6 +20,8 @@ packages=(
   libopenvdb-tools python3-openvdb # vdb_print + pyopenvdb: tests read our VDBs with real OpenVDB
   openexr                          # exrheader: tests read our EXRs with the reference tools
   python3-numpy                    # the OpenVDB comparison benchmark
+  libnanovdb-tools                 # nanovdb_validate/print/convert: tests read our NanoVDB files
+  python3-venv                     # the venv of USD's Python module (below)
 )
 for flag in "$@"; do
   case "$flag" in
@@ -70,6 +74,17 @@ if ((farm)); then
     $sudo "$venv/bin/pip" install -q --disable-pip-version-check "openjd-cli==$OPENJD_CLI_VERSION"
   fi
   echo "setup: openjd: $venv/bin/openjd (nimbus finds it through NIMBUS_OPENJD or PATH)" >&2
+fi
+
+# USD's Python module (PyPI usd-core, pinned: tests/export_usd.rs was written against it) in a
+# venv of Debian's own python3 with its system packages, so `pxr` and `pyopenvdb` import together.
+USD_CORE_VERSION=25.11
+usd_venv=${NIMBUS_USD_VENV:-/opt/nimbus/usd}
+if ! "$usd_venv/bin/pip" show usd-core 2>/dev/null | grep -qx "Version: $USD_CORE_VERSION"; then
+  echo "setup: installing usd-core $USD_CORE_VERSION into $usd_venv" >&2
+  $sudo mkdir -p "$(dirname "$usd_venv")"
+  $sudo /usr/bin/python3 -m venv --system-site-packages "$usd_venv"
+  $sudo "$usd_venv/bin/pip" install -q --disable-pip-version-check "usd-core==$USD_CORE_VERSION"
 fi
 
 if ! command -v cargo >/dev/null; then
