@@ -143,6 +143,20 @@ pub enum BenchTopic {
         #[arg(long, default_value_t = 5)]
         reps: usize,
     },
+    /// NanoVDB write speed and file sizes, nimbus against nanovdb_convert on the same grids.
+    Nanovdb {
+        /// The grids of this VDB file (e.g. quickstart's last frame); default: a synthetic
+        /// cloud of --active-voxels voxels.
+        #[arg(long)]
+        vdb: Option<PathBuf>,
+        #[arg(long, default_value_t = 30_000_000)]
+        active_voxels: usize,
+        #[arg(long, default_value_t = 5)]
+        reps: usize,
+        /// `export.nanovdb.tolerance` for the FpN size.
+        #[arg(long, default_value_t = 0.001)]
+        tolerance: f64,
+    },
     /// Splat throughput.
     Splat {
         #[arg(long, default_value_t = 100_000)]

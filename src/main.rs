@@ -125,6 +125,18 @@ fn bench(topic: BenchTopic) -> Result<()> {
             compression,
             reps,
         } => bench::vdb::bench_vdb_write(active_voxels, compression, reps)?,
+        BenchTopic::Nanovdb {
+            vdb,
+            active_voxels,
+            reps,
+            tolerance,
+        } => {
+            let source = match vdb {
+                Some(p) => bench::nanovdb::Source::File(p),
+                None => bench::nanovdb::Source::Cloud(active_voxels),
+            };
+            bench::nanovdb::bench_nanovdb_write(&source, reps, tolerance)?
+        }
         BenchTopic::Splat { particles, voxel } => bench::splat::bench_splat(particles, voxel)?,
         BenchTopic::Preview {
             width,

@@ -1,6 +1,7 @@
 //! Measurement commands: figures for docs/PERFORMANCE.md, never timed tests.
 pub mod checkpoint;
 pub mod detail;
+pub mod nanovdb;
 pub mod pbf;
 pub mod preview;
 pub mod splat;

@@ -1166,6 +1166,8 @@ mod tests {
             look_at: [0.0; 3],
             fov_deg: 40.0,
         });
+        // serialised only when set
+        c.export.nanovdb.enabled = true;
         // Every f64 of the serialised config (JSON keeps 4.0 apart from 4) is range-checked.
         fn floats(v: &serde_json::Value, path: &str, out: &mut Vec<String>) {
             match v {

@@ -17,7 +17,7 @@ pub(crate) fn sample_grid() -> SparseGrid<f32> {
         for n in 0..LEAF_VOXELS {
             let h = (n as u32 ^ (o[0] as u32).wrapping_mul(31) ^ (o[1] as u32).wrapping_mul(7))
                 .wrapping_mul(2_654_435_761);
-            if h % 3 != 0 {
+            if !h.is_multiple_of(3) {
                 values[n] = (h >> 8) as f32 / (1u32 << 24) as f32 * 1.7;
                 mask[n / 64] |= 1 << (n % 64);
             }
@@ -106,8 +106,8 @@ fn quantised_grids_stay_within_the_quantum() {
                 .iter()
                 .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
             let quantum = (hi - lo) / ((1u32 << bits) - 1) as f32;
-            for n in 0..LEAF_VOXELS {
-                let err = (leaf.values[n] - vals[n]).abs();
+            for (n, (got, want)) in leaf.values.iter().zip(&vals).enumerate() {
+                let err = (got - want).abs();
                 assert!(
                     err <= quantum * 0.5 + 1e-6,
                     "{q:?} leaf {:?} voxel {n}: {err} > {}",

@@ -84,7 +84,7 @@ fn put_mask(b: &mut [u8], at: usize, words: &[u64]) {
 /// 32-bit register, then the low bits): truncation toward zero, and `i32::MIN` for NaN and
 /// values out of range. The quantiser's codes go through it, as in `nanovdb_convert`.
 fn c_trunc(x: f64) -> i32 {
-    if x.is_nan() || x >= 2_147_483_648.0 || x < -2_147_483_648.0 {
+    if !(-2_147_483_648.0..2_147_483_648.0).contains(&x) {
         i32::MIN
     } else {
         x as i32
@@ -102,6 +102,8 @@ trait NanoValue: Copy + Send + Sync + PartialEq + 'static {
     /// `Vec3f::lengthSqr` in float, left to right).
     fn scalar(&self) -> f32;
     fn put(&self, b: &mut [u8], at: usize);
+    /// All bytes zero (what the buffer starts as).
+    fn zero_bits(&self) -> bool;
     /// `Extrema`'s initial minimum and maximum.
     fn init_min() -> Self;
     fn init_max() -> Self;
@@ -114,6 +116,9 @@ impl NanoValue for f32 {
     }
     fn put(&self, b: &mut [u8], at: usize) {
         put_f32(b, at, *self);
+    }
+    fn zero_bits(&self) -> bool {
+        self.to_bits() == 0
     }
     fn init_min() -> Self {
         f32::MAX
@@ -133,6 +138,9 @@ impl NanoValue for [f32; 3] {
             put_f32(b, at + 4 * i, *x);
         }
     }
+    fn zero_bits(&self) -> bool {
+        self.iter().all(|x| x.to_bits() == 0)
+    }
     fn init_min() -> Self {
         [f32::MAX; 3]
     }
@@ -146,7 +154,8 @@ impl NanoValue for [f32; 3] {
 struct NodeStats<T> {
     min: (f32, T),
     max: (f32, T),
-    size: u64,
+    /// The count, as a float (exact below 2^53; NanoVDB converts its integer count each time).
+    size: f64,
     avg: f64,
     aux: f64,
     bbox: ([i32; 3], [i32; 3]),
@@ -161,7 +170,7 @@ impl<T: NanoValue> NodeStats<T> {
             // `Extrema`'s initial pairs: the scalar is the limit itself (not a squared length).
             min: (f32::MAX, lo),
             max: (f32::MIN, hi),
-            size: 0,
+            size: 0.0,
             avg: 0.0,
             aux: 0.0,
             bbox: EMPTY_BBOX,
@@ -176,18 +185,18 @@ impl<T: NanoValue> NodeStats<T> {
         if self.max.0 < s {
             self.max = (s, v);
         }
-        self.size += 1;
+        self.size += 1.0;
         let delta = s as f64 - self.avg;
-        self.avg += delta / self.size as f64;
+        self.avg += delta / self.size;
         self.aux += delta * (s as f64 - self.avg);
     }
 
     fn merge(&mut self, o: &Self) {
-        if o.size > 0 {
-            let denom = 1.0 / (self.size + o.size) as f64;
+        if o.size > 0.0 {
+            let denom = 1.0 / (self.size + o.size);
             let delta = o.avg - self.avg;
-            self.avg += denom * delta * o.size as f64;
-            self.aux += o.aux + denom * delta * delta * self.size as f64 * o.size as f64;
+            self.avg += denom * delta * o.size;
+            self.aux += o.aux + denom * delta * delta * self.size * o.size;
             if o.min.0 < self.min.0 {
                 self.min = o.min;
             }
@@ -203,10 +212,10 @@ impl<T: NanoValue> NodeStats<T> {
     }
 
     fn std(&self) -> f64 {
-        if self.size < 2 {
+        if self.size < 2.0 {
             0.0
         } else {
-            (self.aux / self.size as f64).sqrt()
+            (self.aux / self.size).sqrt()
         }
     }
 
@@ -254,29 +263,30 @@ fn active(mask: &[u64; 8]) -> impl Iterator<Item = usize> + '_ {
     })
 }
 
-/// `LeafNode::updateBBox`: the active voxels' bbox (min and extent - 1 per axis) and flag bit 1.
-/// Returns the bbox, empty when no voxel is active.
+/// `LeafNode::updateBBox`: the active voxels' bbox (minimum, and extent - 1 per axis) from the
+/// mask's words (x), their union's bits (y) and bytes (z); flag bit 1. Returns the bbox, empty
+/// when no voxel is active.
 fn put_leaf_head(
     b: &mut [u8],
     leaf_origin: [i32; 3],
     mask: &[u64; 8],
     flags: u8,
 ) -> ([i32; 3], [i32; 3]) {
-    let mut lo = [8i32; 3];
-    let mut hi = [-1i32; 3];
-    for n in active(mask) {
-        let p = [(n >> 6) as i32, ((n >> 3) & 7) as i32, (n & 7) as i32];
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
     put_mask(b, l::LEAF_MASK, mask);
-    if hi[0] < 0 {
+    let union = mask.iter().fold(0u64, |a, w| a | w);
+    if union == 0 {
         put_coord(b, l::LEAF_BBOX_MIN, leaf_origin);
         b[l::LEAF_FLAGS] = flags;
         return EMPTY_BBOX;
     }
+    let x0 = mask.iter().position(|&w| w != 0).unwrap_or(0) as i32;
+    let x1 = mask.iter().rposition(|&w| w != 0).unwrap_or(0) as i32;
+    let y0 = (union.trailing_zeros() >> 3) as i32;
+    let y1 = ((63 - union.leading_zeros()) >> 3) as i32;
+    let bytes = union.to_le_bytes().iter().fold(0u8, |a, &x| a | x);
+    let z0 = bytes.trailing_zeros() as i32;
+    let z1 = 7 - bytes.leading_zeros() as i32;
+    let (lo, hi) = ([x0, y0, z0], [x1, y1, z1]);
     let min = [0, 1, 2].map(|a| leaf_origin[a] + lo[a]);
     put_coord(b, l::LEAF_BBOX_MIN, min);
     for a in 0..3 {
@@ -286,23 +296,74 @@ fn put_leaf_head(
     (min, [0, 1, 2].map(|a| leaf_origin[a] + hi[a]))
 }
 
-/// A float or Vec3f leaf (values as they are).
-fn put_plain_leaf<T: NanoValue>(b: &mut [u8], leaf: &Leaf<T>, background: T) -> NodeStats<T> {
+/// A leaf's active values in voxel order, as its statistics read them (the values, or the
+/// quantised leaves' decoded values).
+struct Active<T> {
+    vals: [T; LEAF_VOXELS],
+    len: usize,
+}
+
+impl<T: NanoValue> Active<T> {
+    fn new() -> Self {
+        Active {
+            vals: [T::init_min(); LEAF_VOXELS],
+            len: 0,
+        }
+    }
+}
+
+/// The statistics of several leaves' active values, each leaf's in its own order (so each
+/// result is what one leaf alone gives, bit for bit), interleaved so that the divisions of
+/// Welford's updates of different leaves overlap instead of waiting on each other.
+fn leaf_stats<T: NanoValue>(act: &[Active<T>], out: &mut [NodeStats<T>]) {
+    let longest = act.iter().map(|a| a.len).max().unwrap_or(0);
+    for i in 0..longest {
+        for (a, s) in act.iter().zip(out.iter_mut()) {
+            if i < a.len {
+                s.add(a.vals[i]);
+            }
+        }
+    }
+}
+
+/// A float or Vec3f leaf: head and the 512 values (the background where inactive: the buffer
+/// starts zeroed, so only a non-zero background is written); the active values go to `act`.
+/// Returns the active bbox.
+fn fill_plain_leaf<T: NanoValue>(
+    b: &mut [u8],
+    leaf: &Leaf<T>,
+    background: T,
+    act: &mut Active<T>,
+) -> ([i32; 3], [i32; 3]) {
     let lay = l::leaf(T::KIND);
-    let values = leaf_values(leaf, background);
-    let mut s = NodeStats::new();
-    s.bbox = put_leaf_head(b, leaf.origin, &leaf.mask, 0);
-    for (n, v) in values.iter().enumerate() {
-        v.put(b, lay.values + n * T::KIND.bytes());
+    let bbox = put_leaf_head(b, leaf.origin, &leaf.mask, 0);
+    let w = T::KIND.bytes();
+    let vals = &mut b[lay.values..lay.values + LEAF_VOXELS * w];
+    if !background.zero_bits() {
+        for slot in vals.chunks_exact_mut(w) {
+            background.put(slot, 0);
+        }
     }
-    if s.empty_bbox() {
-        return s;
+    let mut len = 0;
+    for (i, &word) in leaf.mask.iter().enumerate() {
+        let mut m = word;
+        while m != 0 {
+            let n = i * 64 + m.trailing_zeros() as usize;
+            let v = leaf.values[n];
+            v.put(&mut vals[n * w..n * w + w], 0);
+            act.vals[len] = v;
+            len += 1;
+            m &= m - 1;
+        }
     }
-    for n in active(&leaf.mask) {
-        s.add(values[n]);
-    }
+    act.len = len;
+    bbox
+}
+
+/// A plain leaf's statistics: min, max, average, standard deviation.
+fn put_plain_stats<T: NanoValue>(b: &mut [u8], s: &NodeStats<T>) {
+    let lay = l::leaf(T::KIND);
     s.put(b, [lay.min, lay.max, lay.avg, lay.dev]);
-    s
 }
 
 /// Minimum and maximum of all 512 values (`nanovdb_convert`'s quantisation range).
@@ -366,39 +427,44 @@ fn put_codes(b: &mut [u8], at: usize, values: &[f32; LEAF_VOXELS], min: f32, max
     }
 }
 
-/// A quantised leaf (Fp4, Fp8, Fp16 or FpN of `2^log2` bits): codes between the minimum and
-/// maximum of all 512 values, and the active values' statistics of the decoded values, as u16
-/// codes of the same quantum.
-fn put_fn_leaf(
+/// A quantised leaf (Fp4, Fp8, Fp16 or FpN of `bits` bits): head, minimum and quantum, and the
+/// codes between the minimum and maximum of all 512 values; the active values decoded go to
+/// `act`. Returns the active bbox.
+fn fill_fn_leaf(
     b: &mut [u8],
     leaf: &Leaf<f32>,
     background: f32,
     bits: u32,
     fpn_log2: Option<u32>,
-) -> NodeStats<f32> {
+    act: &mut Active<f32>,
+) -> ([i32; 3], [i32; 3]) {
     let values = leaf_values(leaf, background);
     let (min, max) = range(&values);
     let quantum = (max - min) / ((1u32 << bits) - 1) as f32;
     let flags = fpn_log2.map_or(0, |lg| (lg as u8) << 5);
-    let mut s = NodeStats::new();
-    s.bbox = put_leaf_head(b, leaf.origin, &leaf.mask, flags);
+    let bbox = put_leaf_head(b, leaf.origin, &leaf.mask, flags);
     put_f32(b, l::FN_MINIMUM, min);
     put_f32(b, l::FN_QUANTUM, quantum);
     put_codes(b, l::FN_CODES, &values, min, max, bits);
-    if s.empty_bbox() {
-        return s;
-    }
+    let mut len = 0;
     for n in active(&leaf.mask) {
-        let code = code_at(b, n, bits);
-        s.add(code as f32 * quantum + min);
+        act.vals[len] = code_at(b, n, bits) as f32 * quantum + min;
+        len += 1;
     }
+    act.len = len;
+    bbox
+}
+
+/// A quantised leaf's statistics of its decoded values, as u16 codes of its quantum.
+fn put_fn_stats(b: &mut [u8], s: &NodeStats<f32>) {
+    let f = |at: usize| f32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]);
+    let (min, quantum) = (f(l::FN_MINIMUM), f(l::FN_QUANTUM));
     let q = |x: f32| c_trunc(((x - min) / quantum + 0.5) as f64) as u16;
     put_u16(b, l::FN_MIN, q(s.min.1));
     put_u16(b, l::FN_MAX, q(s.max.1));
     put_u16(b, l::FN_AVG, q(s.avg as f32));
     let dev = s.std() as f32;
     put_u16(b, l::FN_DEV, c_trunc((dev / quantum + 0.5) as f64) as u16);
-    s
 }
 
 /// The code of value `n` of a quantised leaf (codes from `FN_CODES`).
@@ -467,7 +533,7 @@ fn child_index(child_origin: [i32; 3], log2dim: u32, child_total: u32) -> usize 
 }
 
 /// Splits `buf` into consecutive slices of `sizes`.
-fn split_sizes<'b>(mut buf: &'b mut [u8], sizes: impl Iterator<Item = usize>) -> Vec<&'b mut [u8]> {
+fn split_sizes(mut buf: &mut [u8], sizes: impl Iterator<Item = usize>) -> Vec<&mut [u8]> {
     let mut out = Vec::new();
     for s in sizes {
         let (a, rest) = std::mem::take(&mut buf).split_at_mut(s);
@@ -529,12 +595,11 @@ fn root_key(o: [i32; 3]) -> u64 {
 /// One grid's buffer.
 fn encode_tree<T: NanoValue + crate::io::vdb::write::VdbValue>(
     g: &SparseGrid<T>,
-    name: &str,
-    class: GridClass,
-    gtype: GridType,
+    (name, class, gtype): (&str, GridClass, GridType),
     kind: LeafKind,
     fpn_log2s: Option<&[u32]>,
-    quant: impl Fn(&Leaf<T>, &mut [u8], Option<u32>) -> NodeStats<T> + Sync,
+    fill: impl Fn(&Leaf<T>, &mut [u8], Option<u32>, &mut Active<T>) -> ([i32; 3], [i32; 3]) + Sync,
+    put_stats: impl Fn(&mut [u8], &NodeStats<T>) + Sync,
 ) -> Result<Vec<u8>> {
     check_grid(name, &g.transform)?;
     let order = tree_order(g)?;
@@ -575,13 +640,29 @@ fn encode_tree<T: NanoValue + crate::io::vdb::write::VdbValue>(
     let total = end;
     let mut buf = vec![0u8; total];
 
-    // Leaves, in parallel: values, codes and their statistics.
+    // Leaves, in parallel, in groups whose statistics run interleaved: values or codes, then
+    // the statistics of the active ones.
+    const GROUP: usize = 8;
     let (head, leaf_region) = buf.split_at_mut(leaf_at);
-    let leaf_slices = split_sizes(leaf_region, (0..leaves.len()).map(leaf_size));
+    let mut leaf_slices = split_sizes(leaf_region, (0..leaves.len()).map(leaf_size));
     let leaf_stats: Vec<NodeStats<T>> = leaf_slices
-        .into_par_iter()
+        .par_chunks_mut(GROUP)
         .enumerate()
-        .map(|(i, b)| quant(leaves[i], b, log2s[i]))
+        .flat_map_iter(|(c, group)| {
+            let mut act: Vec<Active<T>> = group.iter().map(|_| Active::new()).collect();
+            let mut stats: Vec<NodeStats<T>> = group.iter().map(|_| NodeStats::new()).collect();
+            for (k, b) in group.iter_mut().enumerate() {
+                let i = c * GROUP + k;
+                stats[k].bbox = fill(leaves[i], b, log2s[i], &mut act[k]);
+            }
+            leaf_stats(&act, &mut stats);
+            for (b, s) in group.iter_mut().zip(&stats) {
+                if !s.empty_bbox() {
+                    put_stats(b, s);
+                }
+            }
+            stats
+        })
         .collect();
 
     // Lower nodes, then upper nodes, in parallel per level.
@@ -825,12 +906,11 @@ pub fn encode_grid(g: &NanoGrid) -> Result<Vec<u8>> {
     match g.values {
         NanoValues::Vec3(grid) => encode_tree(
             grid,
-            &g.name,
-            g.class,
-            gtype,
+            (&g.name, g.class, gtype),
             LeafKind::Plain,
             None,
-            |lf, b, _| put_plain_leaf(b, lf, grid.background),
+            |lf, b, _, act| fill_plain_leaf(b, lf, grid.background, act),
+            put_plain_stats,
         ),
         NanoValues::Float(grid, q) => {
             let kind = match q {
@@ -852,18 +932,20 @@ pub fn encode_grid(g: &NanoGrid) -> Result<Vec<u8>> {
             };
             encode_tree(
                 grid,
-                &g.name,
-                g.class,
-                gtype,
+                (&g.name, g.class, gtype),
                 kind,
                 log2s.as_deref(),
-                move |lf, b, log2| match kind {
-                    LeafKind::Plain => put_plain_leaf(b, lf, bg),
-                    LeafKind::Fixed(bits) => put_fn_leaf(b, lf, bg, bits, None),
+                move |lf, b, log2, act| match kind {
+                    LeafKind::Plain => fill_plain_leaf(b, lf, bg, act),
+                    LeafKind::Fixed(bits) => fill_fn_leaf(b, lf, bg, bits, None, act),
                     LeafKind::FpN(_) => {
                         let lg = log2.unwrap_or(4);
-                        put_fn_leaf(b, lf, bg, 1 << lg, Some(lg))
+                        fill_fn_leaf(b, lf, bg, 1 << lg, Some(lg), act)
                     }
+                },
+                move |b, s| match kind {
+                    LeafKind::Plain => put_plain_stats(b, s),
+                    _ => put_fn_stats(b, s),
                 },
             )
         }
@@ -886,7 +968,7 @@ impl EncodedNanoFile {
         }
         v
     }
-    fn write_to(&self, w: &mut impl Write) -> std::io::Result<()> {
+    pub fn write_to(&self, w: &mut impl Write) -> std::io::Result<()> {
         for (head, grid) in &self.segments {
             w.write_all(head)?;
             w.write_all(grid)?;
