@@ -60,7 +60,7 @@ pub enum Command {
         #[arg(long, value_enum, default_value = "human")]
         log_format: LogFormat,
     },
-    /// Describe a .vdb, .exr or checkpoint file.
+    /// Describe a .vdb, .nvdb, .exr or checkpoint file.
     Inspect { file: PathBuf },
     /// (Re)render the preview images of a run from its VDB files, or a debug view of it.
     Preview {

@@ -151,6 +151,12 @@ fn nanovdb_files_are_valid_and_hold_the_vdb_values() {
         assert_eq!((cols[2], cols[3]), (ty, class), "{row}");
     }
 
+    // nimbus's own reader agrees: every checksum, and the active voxels nanovdb_print counts
+    let o = nimbus().arg("inspect").arg(nvdb(&run, 4)).output().unwrap();
+    let described = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", text(&o));
+    assert_eq!(described.matches("checksum ok").count(), 4, "{described}");
+
     let exact = json!({"density": {}, "temperature": {}, "vapor": {}, "vel": {}});
     for f in [1, 4] {
         same_values(&vdb(&run, f), &nvdb(&run, f), exact.clone());
