@@ -99,17 +99,7 @@ fn describe_vdb(path: &Path) -> Result<String> {
         );
         match &g.data {
             GridData::Float(s) => describe_grid(&mut out, s, |v| *v as f64, "value"),
-            GridData::Vec3(s) => describe_grid(
-                &mut out,
-                s,
-                |v| {
-                    v.iter()
-                        .map(|&c| (c as f64) * (c as f64))
-                        .sum::<f64>()
-                        .sqrt()
-                },
-                "|value|",
-            ),
+            GridData::Vec3(s) => describe_grid(&mut out, s, length, "|value|"),
         }
         if !g.tiles.is_empty() {
             let active: Vec<_> = g.tiles.iter().filter(|t| t.active).collect();
@@ -211,6 +201,14 @@ pub fn describe(path: &Path) -> Result<String> {
     }
 }
 
+/// A vector's length (what `inspect` reports of vector grids).
+fn length(v: &[f32; 3]) -> f64 {
+    v.iter()
+        .map(|&c| (c as f64) * (c as f64))
+        .sum::<f64>()
+        .sqrt()
+}
+
 /// A NanoVDB file nimbus wrote: each grid's type, class, transform, active voxels, bbox, size,
 /// checksum and value statistics (decoded values for the quantised types).
 fn describe_nanovdb(path: &Path) -> Result<String> {
@@ -245,17 +243,7 @@ fn describe_nanovdb(path: &Path) -> Result<String> {
             Leaves::Float(l) => {
                 describe_grid(&mut out, &as_grid(l, t, 0.0), |v| *v as f64, "value")
             }
-            Leaves::Vec3(l) => describe_grid(
-                &mut out,
-                &as_grid(l, t, [0.0; 3]),
-                |v| {
-                    v.iter()
-                        .map(|&c| (c as f64) * (c as f64))
-                        .sum::<f64>()
-                        .sqrt()
-                },
-                "|value|",
-            ),
+            Leaves::Vec3(l) => describe_grid(&mut out, &as_grid(l, t, [0.0; 3]), length, "|value|"),
         }
     }
     Ok(out)

@@ -188,24 +188,16 @@ fn read_grid(b: &[u8]) -> Result<NanoFileGrid> {
                     mask,
                 });
             }
-            GridType::Float => {
-                let base = l::leaf(value).values;
-                let mut values = Box::new([0f32; LEAF_VOXELS]);
-                for (n, v) in values.iter_mut().enumerate() {
-                    *v = f32_at(leaf, base + 4 * n)?;
-                }
-                float_leaves.push(Leaf {
-                    origin,
-                    values,
-                    mask,
-                });
-            }
             _ => {
-                let min = f32_at(leaf, l::FN_MINIMUM)?;
-                let q = f32_at(leaf, l::FN_QUANTUM)?;
+                // float values, or codes x quantum + minimum
+                let base = l::leaf(value).values;
+                let (min, q) = (f32_at(leaf, l::FN_MINIMUM)?, f32_at(leaf, l::FN_QUANTUM)?);
                 let mut values = Box::new([0f32; LEAF_VOXELS]);
                 for (n, v) in values.iter_mut().enumerate() {
-                    *v = code_at(leaf, n, bits) as f32 * q + min;
+                    *v = match grid_type {
+                        GridType::Float => f32_at(leaf, base + 4 * n)?,
+                        _ => code_at(leaf, n, bits) as f32 * q + min,
+                    };
                 }
                 float_leaves.push(Leaf {
                     origin,

@@ -10,7 +10,7 @@
 use super::layout::{self as l, Value};
 use super::{GridClass, GridType, Quantise, MAGIC, MAX_NAME_BYTES, VERSION};
 use crate::error::{Error, Result};
-use crate::io::atomic::write_atomic_with;
+use crate::io::atomic::write_atomic_buffered;
 use crate::io::vdb::write::{tree_key, tree_order};
 use crate::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use rayon::prelude::*;
@@ -585,6 +585,35 @@ fn put_internal<T: NanoValue>(
     s
 }
 
+/// One level of internal nodes (`lay`, children of `child_total` index bits), in parallel, into
+/// `region` (which starts at byte `at` of the grid): node i's children are `nodes[i].1` of the
+/// level below, child k at `child(k)` = (origin, byte offset in the grid) with `child_stats[k]`.
+fn put_level<T: NanoValue>(
+    (region, at): (&mut [u8], usize),
+    (lay, child_total): (&l::Internal, u32),
+    nodes: &[([i32; 3], std::ops::Range<usize>)],
+    child: impl Fn(usize) -> ([i32; 3], usize) + Sync,
+    child_stats: &[NodeStats<T>],
+    background: T,
+) -> Vec<NodeStats<T>> {
+    split_sizes(region, nodes.iter().map(|_| lay.size))
+        .into_par_iter()
+        .enumerate()
+        .map(|(i, b)| {
+            let r = nodes[i].1.clone();
+            let node_at = at + i * lay.size;
+            let children: Vec<([i32; 3], usize)> = r
+                .clone()
+                .map(|k| {
+                    let (origin, offset) = child(k);
+                    (origin, offset - node_at)
+                })
+                .collect();
+            put_internal(b, lay, child_total, &children, &child_stats[r], background)
+        })
+        .collect()
+}
+
 /// `RootData::CoordToKey` with single 64-bit keys: 21 bits per axis of `ijk >> 12`.
 fn root_key(o: [i32; 3]) -> u64 {
     ((o[2] as u32 >> 12) as u64)
@@ -667,49 +696,23 @@ fn encode_tree<T: NanoValue + crate::io::vdb::write::VdbValue>(
 
     // Lower nodes, then upper nodes, in parallel per level.
     let (head, lower_region) = head.split_at_mut(lower_at);
-    let lower_stats: Vec<NodeStats<T>> =
-        split_sizes(lower_region, topo.lowers.iter().map(|_| low_l.size))
-            .into_par_iter()
-            .enumerate()
-            .map(|(i, b)| {
-                let (_, r) = &topo.lowers[i];
-                let node_at = lower_at + i * low_l.size;
-                let children: Vec<([i32; 3], usize)> = r
-                    .clone()
-                    .map(|k| (origins[k], leaf_offsets[k] - node_at))
-                    .collect();
-                put_internal(
-                    b,
-                    &low_l,
-                    3,
-                    &children,
-                    &leaf_stats[r.clone()],
-                    g.background,
-                )
-            })
-            .collect();
+    let lower_stats = put_level(
+        (lower_region, lower_at),
+        (&low_l, 3),
+        &topo.lowers,
+        |k| (origins[k], leaf_offsets[k]),
+        &leaf_stats,
+        g.background,
+    );
     let (head, upper_region) = head.split_at_mut(upper_at);
-    let upper_stats: Vec<NodeStats<T>> =
-        split_sizes(upper_region, topo.uppers.iter().map(|_| up_l.size))
-            .into_par_iter()
-            .enumerate()
-            .map(|(i, b)| {
-                let (_, r) = &topo.uppers[i];
-                let node_at = upper_at + i * up_l.size;
-                let children: Vec<([i32; 3], usize)> = r
-                    .clone()
-                    .map(|k| (topo.lowers[k].0, lower_at + k * low_l.size - node_at))
-                    .collect();
-                put_internal(
-                    b,
-                    &up_l,
-                    7,
-                    &children,
-                    &lower_stats[r.clone()],
-                    g.background,
-                )
-            })
-            .collect();
+    let upper_stats = put_level(
+        (upper_region, upper_at),
+        (&up_l, 7),
+        &topo.uppers,
+        |k| (topo.lowers[k].0, lower_at + k * low_l.size),
+        &lower_stats,
+        g.background,
+    );
 
     // Root: one tile per upper node, keyed by its origin.
     let root = &mut head[root_at..];
@@ -968,7 +971,7 @@ impl EncodedNanoFile {
         }
         v
     }
-    pub fn write_to(&self, w: &mut impl Write) -> std::io::Result<()> {
+    pub fn write_to(&self, w: &mut dyn Write) -> std::io::Result<()> {
         for (head, grid) in &self.segments {
             w.write_all(head)?;
             w.write_all(grid)?;
@@ -1051,10 +1054,6 @@ fn meta_record(g: &NanoGrid, buf: &[u8]) -> Vec<u8> {
 /// Writes a NanoVDB file atomically; returns its size in bytes.
 pub fn write_file(path: &Path, grids: &[NanoGrid]) -> Result<u64> {
     let enc = encode(grids)?;
-    write_atomic_with(path, |f| {
-        let mut w = std::io::BufWriter::with_capacity(1 << 20, f);
-        enc.write_to(&mut w)?;
-        w.flush()
-    })?;
+    write_atomic_buffered(path, |w| enc.write_to(w))?;
     Ok(enc.len)
 }

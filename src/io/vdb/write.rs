@@ -11,7 +11,7 @@ use super::{
     COMPRESS_BLOSC, COMPRESS_ZIP, FILE_VERSION, LIBRARY_VERSION, MAGIC,
 };
 use crate::error::{Error, Result};
-use crate::io::atomic::write_atomic_with;
+use crate::io::atomic::write_atomic_buffered;
 use crate::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use rayon::prelude::*;
 use sha2::{Digest, Sha256};
@@ -450,7 +450,7 @@ pub struct EncodedFile {
 }
 
 impl EncodedFile {
-    fn write_to(&self, w: &mut impl Write) -> std::io::Result<()> {
+    fn write_to(&self, w: &mut dyn Write) -> std::io::Result<()> {
         let mut g = 0;
         for (i, c) in self.chunks.iter().enumerate() {
             w.write_all(c)?;
@@ -592,10 +592,6 @@ pub fn encode(file: &VdbFile, opts: &VdbOptions) -> Result<EncodedFile> {
 /// Writes a VDB file atomically; returns its size in bytes.
 pub fn write_file(path: &Path, file: &VdbFile, opts: &VdbOptions) -> Result<u64> {
     let enc = encode(file, opts)?;
-    write_atomic_with(path, |f| {
-        let mut w = std::io::BufWriter::with_capacity(1 << 20, f);
-        enc.write_to(&mut w)?;
-        w.flush()
-    })?;
+    write_atomic_buffered(path, |w| enc.write_to(w))?;
     Ok(enc.len)
 }
