@@ -7,7 +7,12 @@ use nimbus::pipeline::{self, reexport};
 use std::path::PathBuf;
 
 fn main() {
-    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
+    // env_logger under the GPU validation hook (NIMBUS_GPU_VALIDATION: a validation error ends
+    // the process; nimbus::gpu::validation)
+    let logger =
+        env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).build();
+    let filter = logger.filter();
+    nimbus::gpu::validation::Logger::install(Box::new(logger), filter);
     let result = match cli::parse().command {
         Command::Validate { configs, set } => std::process::exit(validate(&configs, &set)),
         Command::Run {
