@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs what nimbus and its tests need on Debian 12 (idempotent). Safe to run again.
-#   tools/setup.sh               runtime + test tools (Vulkan on the CPU, OpenVDB, OpenEXR tools)
+#   tools/setup.sh               runtime + test tools (Vulkan on the CPU, OpenGL through EGL, the
+#                                Vulkan validation layer, spirv-val, OpenVDB, OpenEXR tools)
 #   tools/setup.sh --blender     also Blender 3.4 (for tools/render_blender.py and its test)
 #   tools/setup.sh --preview     also ffmpeg (output.preview.movie and its test)
 #   tools/setup.sh --farm        also Slurm and munge (for `nimbus farm` and its tests; a
@@ -15,6 +16,8 @@ farm=0
 packages=(
   mesa-vulkan-drivers libvulkan1   # Vulkan: lavapipe CPU device where there is no GPU
   libegl1 libegl-mesa0 libgl1-mesa-dri # OpenGL through EGL: the fallback without Vulkan (tests/run_e2e.rs)
+  vulkan-validationlayers          # the Khronos validation layer: .ci/run's NIMBUS_GPU_VALIDATION pass
+  spirv-tools                      # spirv-val: every shader's SPIR-V checked (tests/spirv_val.rs)
   libopenvdb-tools python3-openvdb # vdb_print + pyopenvdb: tests read our VDBs with real OpenVDB
   openexr                          # exrheader: tests read our EXRs with the reference tools
   python3-numpy                    # the OpenVDB comparison benchmark
