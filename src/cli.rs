@@ -51,6 +51,11 @@ pub enum Command {
         /// Override a key before validation, e.g. `--set output.frames.end=10` (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
+        /// Also open each config's GPU adapter and check that it holds the shot (largest
+        /// storage binding, largest buffer, workgroups per dispatch, device memory): a shot over
+        /// a limit exits 4 naming the limit and the largest particle count that fits.
+        #[arg(long)]
+        gpu: bool,
     },
     /// Go on with an interrupted run from its newest valid checkpoint.
     Resume {
