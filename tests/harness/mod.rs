@@ -219,6 +219,7 @@ pub fn max_rel_err<const N: usize>(gpu: &[[f64; N]], cpu: &[[f64; N]], floor: f6
 /// lets a division be 2.5 ulp off (and a driver may fuse a multiply and an add), so a position
 /// within a few ulp of a boundary may get either key on another adapter; everywhere else the
 /// key, and with it the grid build, is exact on any adapter. Returns how many were moved.
+#[allow(clippy::needless_range_loop)] // three axes of three arrays
 pub fn off_cell_boundaries(grid: &GridParams, pos: &mut [[f32; 4]]) -> usize {
     let mut moved = 0;
     for p in pos.iter_mut() {
