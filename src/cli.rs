@@ -186,6 +186,19 @@ pub enum BenchTopic {
         #[arg(long, default_value_t = 100_000)]
         particles: usize,
     },
+    /// The full adaptive step (PBF, smoothing, cloud physics, split, merge) of paper example 1
+    /// widened in x and z to about PARTICLES particles: ms per substep and phase, particle
+    /// steps per second, device bytes (JSON).
+    Step {
+        #[arg(long, default_value_t = 1_000_000)]
+        particles: usize,
+        /// Measured frames.
+        #[arg(long, default_value_t = 3)]
+        frames: u32,
+        /// Frames simulated before measuring (extended until particles have split).
+        #[arg(long, default_value_t = 40)]
+        warmup: u32,
+    },
     /// The paper's Table 1: both paper scenarios, adaptive and not, ms per step and phase.
     /// Prints the markdown table, then the JSON.
     Table1 {

@@ -194,6 +194,11 @@ fn bench(topic: BenchTopic) -> Result<()> {
             bench::detail::bench_detail(&run_dir, frames, voxel, &set)?
         }
         BenchTopic::Checkpoint { particles } => bench::checkpoint::bench_checkpoint(particles)?,
+        BenchTopic::Step {
+            particles,
+            frames,
+            warmup,
+        } => bench::step::bench_step(particles, frames, warmup)?,
         BenchTopic::Table1 {
             scale,
             frames,

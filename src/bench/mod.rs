@@ -4,6 +4,7 @@ pub mod detail;
 pub mod pbf;
 pub mod preview;
 pub mod splat;
+pub mod step;
 pub mod table1;
 pub mod vdb;
 

@@ -241,6 +241,7 @@ pub fn bench_pbf(b: &PbfBench) -> Result<serde_json::Value> {
         // reference_step = dt: every substep runs all of them
         "iterations": cfg.solver.iterations,
         "adapter": ctx.adapter_name(),
+        "adapter_info": ctx.describe(),
         "gpu_timestamps": ctx.timestamps,
         "pbf_step_ms": step,
         "ms_per_substep_wall": wall,

@@ -17,7 +17,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 /// (name in the table, config path, config text)
-const SCENARIOS: [(&str, &str, &str); 2] = [
+pub(super) const SCENARIOS: [(&str, &str, &str); 2] = [
     (
         "example 1 (Fig. 5a/b)",
         "pipelines/paper_example1.yaml",
@@ -45,7 +45,7 @@ const WARMUP_EXTENSION: u32 = 4;
 
 /// The scenario's adaptive config with x and z scaled (to whole multiples of the spacing, never
 /// below 3 kernel radii, the periodic minimum); the non-adaptive one derives from it.
-fn scaled_config(origin: &str, text: &str, scale: f64) -> Result<ShotConfig> {
+pub(super) fn scaled_config(origin: &str, text: &str, scale: f64) -> Result<ShotConfig> {
     let full = crate::config::load_str(text, origin, &[])?;
     let d = &full.domain;
     let h0 = d.spacing * d.kernel_ratio;
@@ -102,7 +102,7 @@ fn refined(diag: &BTreeMap<String, f64>) -> f64 {
 
 /// Per-run accumulation over the measured frames.
 #[derive(Default)]
-struct Run {
+pub(super) struct Run {
     max_particles: f64,
     phase_ms: BTreeMap<String, f64>,
     substeps: u64,
@@ -111,6 +111,8 @@ struct Run {
     merges: f64,
     skipped_splits: f64,
     last: BTreeMap<String, f64>,
+    /// Device bytes of the simulation (every stage's buffers).
+    pub device_bytes: u64,
 }
 
 impl Run {
@@ -119,11 +121,11 @@ impl Run {
         sum / self.substeps.max(1) as f64
     }
 
-    fn total_ms(&self) -> f64 {
+    pub(super) fn total_ms(&self) -> f64 {
         COLUMNS.iter().map(|(_, k)| self.column_ms(k)).sum()
     }
 
-    fn to_json(&self, cfg: &ShotConfig, warmup_frames: u32, frames: u32) -> Value {
+    pub(super) fn to_json(&self, cfg: &ShotConfig, warmup_frames: u32, frames: u32) -> Value {
         let mut ms: serde_json::Map<String, Value> = COLUMNS
             .iter()
             .map(|(c, k)| (c.to_string(), json!(self.column_ms(k))))
@@ -143,6 +145,7 @@ impl Run {
             "spacing": cfg.domain.spacing,
             "domain_size": cfg.domain.size,
             "max_particles": self.max_particles,
+            "device_bytes": self.device_bytes,
             "final_particles": self.last.get("particles"),
             "final_particles_per_level": levels,
             "warmup_frames": warmup_frames,
@@ -161,7 +164,7 @@ impl Run {
 
 /// Runs `warmup` then `frames` frames; `extend` keeps warming up (up to a limit) until split
 /// particles exist. Returns the run and the warm-up frame count actually used.
-fn run(
+pub(super) fn run(
     ctx: &Arc<Context>,
     cfg: &ShotConfig,
     warmup: u32,
@@ -175,6 +178,7 @@ fn run(
     }
     let mut r = Run {
         max_particles: sim.count() as f64,
+        device_bytes: sim.device_bytes(),
         ..Run::default()
     };
     let limit = if extend {

@@ -155,6 +155,34 @@ impl Context {
         self.waits.load(Ordering::Relaxed)
     }
 
+    /// Everything recorded about the adapter and the device nimbus opened on it, for benches
+    /// and the GPU machine's record: name, backend, type, vendor and device ids, driver,
+    /// subgroup sizes, the limits that bound a shot, timestamps, validation, the prelude.
+    pub fn describe(&self) -> serde_json::Value {
+        let i = &self.adapter_info;
+        let p = &self.prelude;
+        serde_json::json!({
+            "name": i.name,
+            "backend": format!("{:?}", i.backend),
+            "device_type": format!("{:?}", i.device_type),
+            "vendor": format!("{:#06x}", i.vendor),
+            "device": format!("{:#06x}", i.device),
+            "driver": i.driver,
+            "driver_info": i.driver_info,
+            "subgroup_size": [i.subgroup_min_size, i.subgroup_max_size],
+            "limits": self.limits,
+            "timestamps": self.timestamps,
+            "validation": self.validation,
+            "prelude": {
+                "wg_particles": p.wg_particles,
+                "wg_block": p.wg_block,
+                "wg_scan": p.wg_scan,
+                "max_groups_x": p.max_groups_x,
+                "loop_budget": p.loop_budget,
+            },
+        })
+    }
+
     /// Adapter name as written into manifests and checkpoints.
     pub fn adapter_name(&self) -> String {
         format!(
