@@ -198,6 +198,10 @@ pub enum BenchTopic {
         /// Frames simulated before measuring (extended until particles have split).
         #[arg(long, default_value_t = 40)]
         warmup: u32,
+        /// Stop warming up at 80% of this many seconds and measure what there is (a bench
+        /// with a time limit, as tools/gpu_machine.sh runs it).
+        #[arg(long)]
+        max_seconds: Option<f64>,
     },
     /// The paper's Table 1: both paper scenarios, adaptive and not, ms per step and phase.
     /// Prints the markdown table, then the JSON.

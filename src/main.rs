@@ -198,7 +198,8 @@ fn bench(topic: BenchTopic) -> Result<()> {
             particles,
             frames,
             warmup,
-        } => bench::step::bench_step(particles, frames, warmup)?,
+            max_seconds,
+        } => bench::step::bench_step(particles, frames, warmup, max_seconds)?,
         BenchTopic::Table1 {
             scale,
             frames,

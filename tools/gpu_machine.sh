@@ -18,11 +18,12 @@
 #   1. the machine and the adapter nimbus opens (its driver, subgroup size, limits); if wgpu sees
 #      only a CPU adapter it stops (a lavapipe figure on that machine is no GPU figure);
 #   2. the GPU test suites on that adapter (tests/gpu_*.rs and the others that open a device);
-#   3. `bench pbf` at 1M (from rest and disordered) and 10M particles;
-#   4. `bench step`, the full adaptive step of paper example 1 widened, at 1M and 10M;
-#   5. SPlisHSPlasH on every core side by side with nimbus on the GPU, 1M particles;
+#   3. `bench pbf` at 1M particles, from rest and disordered;
+#   4. SPlisHSPlasH on every core side by side with nimbus on the GPU, 1M particles;
+#   5. `bench step`, the full adaptive step of paper example 1 widened, at 1M; `bench pbf` and
+#      `bench step` at 10M (the warm-ups stop in time: `bench step --max-seconds`);
 #   6. the hero shot (pipelines/hero_cumulus_hd.yaml) at its production resolution for the
-#      time left, its previews brought back.
+#      time left (at least two minutes are kept for it), its previews brought back.
 # Sizes can be cut for a dry run on a CPU machine: NIMBUS_GPU_ALLOW_CPU=1 (go on with a CPU
 # adapter), NIMBUS_GPU_PARTICLES (1M), NIMBUS_GPU_LARGE (10M), NIMBUS_GPU_STEP_WARMUP (frames
 # before `bench step` measures, 40), NIMBUS_GPU_SPL_STEPS (10), NIMBUS_GPU_HERO (the hero
@@ -65,6 +66,8 @@ for line in sys.stdin:
         { echo "prepare: a suite's executable is missing ($dir/suites.txt)" >&2; exit 1; }
     # the tests find the binary and samples/ through the path they were built in
     echo "$ROOT" >"$dir/stage/tests/root"
+    # the tree the device tool copies has no .git
+    git describe --always --dirty >"$dir/stage/commit"
     # one xz stream with a 64 MiB dictionary: the executables share most of their code
     tar -C "$dir/stage" -cf - . | xz -9 -T0 >"$dir/payload.tar.xz"
     rm -rf "$dir/stage" "$dir/suites.txt"
@@ -92,6 +95,7 @@ for line in sys.stdin:
 # ---- run: helpers --------------------------------------------------------------------------
 START=$SECONDS
 left() { echo $((BUDGET - (SECONDS - START))); }
+cap() { echo $(($1 < $2 ? ($1 > 1 ? $1 : 1) : $2)); } # min(a, b), at least 1
 note() { echo "$*" | tee -a "$OUT/summary.md" >&2; }
 
 # step NAME MIN_SECONDS CMD...: runs CMD with what is left of the budget (less a reserve for the
@@ -208,7 +212,6 @@ run() {
         echo
         echo "- machine: $(uname -srm), $cores cores"
         echo "- GPU: $(nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader 2>&1 | head -n1)"
-        echo "- commit: $(git -C "$ROOT" rev-parse --short HEAD 2>/dev/null || echo unknown)"
     } >"$OUT/summary.md"
 
     # the payload: the binary and the suites' executables
@@ -220,6 +223,7 @@ run() {
     fi
     NIMBUS=${NIMBUS:-$unpacked/bin/nimbus}
     export NIMBUS OUT
+    note "- commit: $(cat "$unpacked/commit" 2>/dev/null || echo unknown) (prepared)"
 
     # 1. Vulkan: the loader from gl/ when the machine has none, the NVIDIA ICD from the driver.
     if [ -d "$dir/gl" ] && ! ldconfig -p | grep -q libvulkan.so.1; then
@@ -249,11 +253,7 @@ run() {
     # 3. The PBF step alone (periodic cube, docs/PERFORMANCE.md "PBF"), from rest and disordered.
     step "bench pbf $p1 warmup 1" 10 "$NIMBUS" bench pbf --particles "$p1" --steps 10 --warmup 1
     step "bench pbf $p1 warmup 30" 10 "$NIMBUS" bench pbf --particles "$p1" --steps 10 --warmup 30
-    step "bench pbf $p10" 20 "$NIMBUS" bench pbf --particles "$p10" --steps 5 --warmup 2
-    # 4. The full adaptive step, paper example 1 widened.
-    step "bench step $p1" 30 "$NIMBUS" bench step --particles "$p1" --frames 3 --warmup "$warm"
-    step "bench step $p10" 60 "$NIMBUS" bench step --particles "$p10" --frames 2 --warmup "$warm"
-    # 5. SPlisHSPlasH on every core, nimbus on the GPU, the same block scene.
+    # 4. SPlisHSPlasH on every core, nimbus on the GPU, the same block scene.
     # (a venv without pip, filled by this python's pip from the carried wheels, numpy too: a
     # venv does not see the packages of a python that itself lives in a venv; SPlisHSPlasH
     # finds its models beside the venv's python, in bin/data)
@@ -265,8 +265,16 @@ run() {
     step "side by side $p1" 60 env NIMBUS_SPL_VENV="$venv" python3 tools/bench_pbf_vs_splishsplash.py \
         --nimbus "$NIMBUS" --particles "$p1" --warmups 1,30 --steps "${NIMBUS_GPU_SPL_STEPS:-10}" \
         --threads "$cores" --work /tmp/nimbus-splbench
+    # 5. The full adaptive step, paper example 1 widened; then the 10M sizes, the heaviest; the
+    # hero keeps two minutes (its warm-up stops in time: --max-seconds).
+    local hero_cfg=${NIMBUS_GPU_HERO:-pipelines/hero_cumulus_hd.yaml} reserve=0
+    [ -f "$hero_cfg" ] && reserve=120
+    step "bench step $p1" 30 "$NIMBUS" bench step --particles "$p1" --frames 3 --warmup "$warm" \
+        --max-seconds "$(cap $(($(left) - 40 - reserve)) 150)"
+    step "bench pbf $p10" 20 "$NIMBUS" bench pbf --particles "$p10" --steps 5 --warmup 2
+    step "bench step $p10" 60 "$NIMBUS" bench step --particles "$p10" --frames 2 --warmup "$warm" \
+        --max-seconds "$(cap $(($(left) - 40 - reserve)) 240)"
     # 6. The hero shot of the look issue for the time left.
-    local hero_cfg=${NIMBUS_GPU_HERO:-pipelines/hero_cumulus_hd.yaml}
     if [ -f "$hero_cfg" ]; then
         step "hero $hero_cfg" 90 "$SELF" _hero "$hero_cfg"
     else

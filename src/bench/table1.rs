@@ -163,13 +163,14 @@ impl Run {
 }
 
 /// Runs `warmup` then `frames` frames; `extend` keeps warming up (up to a limit) until split
-/// particles exist. Returns the run and the warm-up frame count actually used.
+/// particles exist; past `warmup_until` the warm-up stops whatever it has reached (a bench
+/// with a time limit). Returns the run and the warm-up frame count actually used.
 pub(super) fn run(
     ctx: &Arc<Context>,
     cfg: &ShotConfig,
-    warmup: u32,
-    frames: u32,
+    (warmup, frames): (u32, u32),
     extend: bool,
+    warmup_until: Option<std::time::Instant>,
     label: &str,
 ) -> Result<(Run, u32)> {
     let mut sim = Simulation::new(ctx.clone(), cfg)?;
@@ -197,6 +198,10 @@ pub(super) fn run(
             sim.count()
         );
         if done >= warmup && (!extend || split > 0.0) {
+            break;
+        }
+        if warmup_until.is_some_and(|t| std::time::Instant::now() > t) {
+            log::warn!("{label}: warm-up stopped at its time limit after {done} frames");
             break;
         }
     }
@@ -251,18 +256,18 @@ pub fn bench_table1(scale: f64, frames: u32, warmup: u32) -> Result<Value> {
         let (ra, used) = run(
             &ctx,
             &ada,
-            warmup,
-            frames,
+            (warmup, frames),
             true,
+            None,
             &format!("{name} adaptive"),
         )?;
         // Same physical time for the non-adaptive run.
         let (rn, _) = run(
             &ctx,
             &non,
-            used,
-            frames,
+            (used, frames),
             false,
+            None,
             &format!("{name} non-adaptive"),
         )?;
         let speedup = rn.total_ms() / ra.total_ms();
