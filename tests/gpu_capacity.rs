@@ -4,9 +4,10 @@
 //! one workgroup over is refused, exit 4, naming the limit and the largest count that fits,
 //! with nothing written, while the shot at the limit runs.
 mod common;
+mod harness;
 
 use common::{nimbus, text};
-use nimbus::config::{GpuConfig, ShotConfig};
+use nimbus::config::ShotConfig;
 use nimbus::gpu::limits::DeviceLimits;
 use nimbus::gpu::Context;
 use nimbus::sim::footprint::{
@@ -16,10 +17,7 @@ use nimbus::sim::Simulation;
 use std::sync::Arc;
 
 fn context() -> Arc<Context> {
-    let dir = std::env::temp_dir().join("nimbus-test-xdg");
-    std::fs::create_dir_all(&dir).unwrap();
-    std::env::set_var("XDG_RUNTIME_DIR", &dir);
-    Arc::new(Context::new(&GpuConfig::default()).expect("a GPU adapter (lavapipe in CI)"))
+    harness::context()
 }
 
 fn tiny() -> ShotConfig {

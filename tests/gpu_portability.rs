@@ -3,16 +3,16 @@
 //! the validation layer, OpenGL, the forced workgroup sizes — runs what it says), and
 //! dispatches folded into rows, as those over 65,535 workgroups are, give the same frames as
 //! unfolded ones.
+mod harness;
+
 use nimbus::config::{Backend, GpuConfig, ShotConfig};
 use nimbus::gpu::Context;
 use nimbus::sim::Simulation;
 use std::sync::Arc;
 
+/// The suites' device, owned (a test lowers its prelude's dispatch limit).
 fn context() -> Context {
-    let dir = std::env::temp_dir().join("nimbus-test-xdg");
-    std::fs::create_dir_all(&dir).unwrap();
-    std::env::set_var("XDG_RUNTIME_DIR", &dir);
-    Context::new(&GpuConfig::default()).expect("a GPU adapter (lavapipe in CI)")
+    Arc::into_inner(harness::context()).unwrap()
 }
 
 /// WGPU_BACKEND, NIMBUS_GPU_WORKGROUP, NIMBUS_GPU_VALIDATION and NIMBUS_GPU_LIMITS reach the

@@ -12,6 +12,8 @@
 //!
 //! Without spirv-val the test is skipped with a note; under CI=true (.ci/run, whose
 //! tools/setup.sh installs spirv-tools) it fails.
+mod common;
+
 use naga::back::spv;
 use nimbus::gpu::shaders::{self, Prelude};
 use std::process::Command;
@@ -111,20 +113,9 @@ fn options(env: &Env, binding_map: spv::BindingMap) -> spv::Options<'static> {
     }
 }
 
-fn spirv_val_available() -> bool {
-    let ok = Command::new("spirv-val")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !ok && std::env::var("CI").as_deref() == Ok("true") {
-        panic!("CI=true but spirv-val is not on PATH: CI must install it (tools/setup.sh: spirv-tools)");
-    }
-    ok
-}
-
 #[test]
 fn every_entry_point_passes_spirv_val() {
-    if !spirv_val_available() {
+    if !common::spirv_val_available() {
         eprintln!("skipped: spirv-val not found (apt-get install spirv-tools)");
         return;
     }

@@ -107,6 +107,19 @@ pub fn blender_available() -> bool {
     ok
 }
 
+/// Whether spirv-val (Debian spirv-tools) runs here. Under CI=true (where .ci/run installs it)
+/// a missing one fails the test instead of skipping it.
+pub fn spirv_val_available() -> bool {
+    let ok = Command::new("spirv-val")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok && std::env::var("CI").as_deref() == Ok("true") {
+        panic!("CI=true but spirv-val is not on PATH: CI must install it (tools/setup.sh: spirv-tools)");
+    }
+    ok
+}
+
 /// Whether /usr/bin/python3 has pyopenvdb (the real OpenVDB). Under CI=true (where .ci/run
 /// installs python3-openvdb) a missing one fails the test instead of skipping it.
 pub fn pyopenvdb_available() -> bool {
