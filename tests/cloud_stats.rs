@@ -85,7 +85,14 @@ fn squares_give_known_cover_base_top_lwp_and_dimension_one() {
     let r = stats(
         &fixtures().join("squares"),
         "squares",
-        &["--window", "60,180", "--min-bin-count", "1"],
+        &[
+            "--window",
+            "60,180",
+            "--min-bin-count",
+            "1",
+            "--min-cloud-area",
+            "6400",
+        ],
     );
     let s = &r["summary"];
     assert_eq!(r["snapshots"], 3, "frame 1 (t = 0) is outside the window");
@@ -170,7 +177,11 @@ fn lines_give_a_dimension_near_two() {
     if !deps() {
         return;
     }
-    let r = stats(&fixtures().join("lines"), "lines", &["--window", "60,180"]);
+    let r = stats(
+        &fixtures().join("lines"),
+        "lines",
+        &["--window", "60,180", "--min-cloud-area", "6400"],
+    );
     let s = &r["summary"];
     // lines 1 x n: A = n, P = 2n + 2 (column edges), 40 m columns
     let (mut x, mut y) = (vec![], vec![]);

@@ -25,17 +25,20 @@ Averaged over the snapshots with T0 <= time <= T1 (s; default hours 3-6, 10800,2
                      area A and perimeter P = (cloudy/clear column edges) x spacing
   size distribution  n(L) = clouds per unit area per unit size, L = sqrt(A), in bins of A between
                      powers of two (in columns); slope = least-squares slope of log n vs log L over
-                     the contiguous bins from A >= --min-cloud-columns holding >= --min-bin-count
-                     clouds (DeWitt & Garrett 2024, ACP 24, 8457: fewer than 24 biases the fit)
+                     the contiguous bins from A >= --min-cloud-area (m^2, default 40000: 4 columns
+                     of the intercomparison's 100 m grid) up to --max-cloud-size (m, default none)
+                     holding >= --min-bin-count clouds each (DeWitt & Garrett 2024, ACP 24, 8457:
+                     fewer than 24 bias the fit); the same physical range at every resolution
   fractal dimension  D in P ~ sqrt(A)^D (Lovejoy 1982), least squares of log P on log sqrt(A) over
-                     every cloud with A >= --min-cloud-columns; a square gives 1, a line 2
+                     every cloud with A >= --min-cloud-area; squares give 1, long thin lines 2
   cover trend        least-squares slope of the cover over the window x window length / mean cover
-Air density: MicroHH's own reference profile (rhoref, from its statistics file); nimbus's paper
-thermodynamics has no pressure, so for nimbus the hydrostatic profile of the BOMEX initial state
-(surface 1015 hPa, theta_l and q_t of Siebesma et al. 2003; bomex_air_density below).
+Air density: for MicroHH its anelastic reference profile (rhoref, in its statistics file; its own
+ql_path uses it). nimbus's paper thermodynamics has no pressure, so for nimbus the hydrostatic
+profile of the BOMEX initial state (surface 1015 hPa, theta_l and q_t of Siebesma et al. 2003:
+bomex_air_density); it matches MicroHH's rhoref of the BOMEX case to 1e-5.
 
-With two sources it prints them side by side; --criteria adds issue 39's pass/fail of the first
-against the second (exit 1 when one fails). Needs numpy; pyopenvdb for nimbus runs (Debian
+With several sources it prints them side by side (and plots them together); --criteria adds
+issue 39's pass/fail of the first source against the second (exit 1 when one fails). Needs numpy; pyopenvdb for nimbus runs (Debian
 python3-openvdb, only under /usr/bin/python3); netCDF4 for MicroHH runs (python3-netcdf4);
 matplotlib for --plot (python3-matplotlib).
 """
@@ -278,37 +281,29 @@ def read_microhh(path, window, ql_threshold):
     dz = np.diff(zh)
     with netCDF4.Dataset(os.path.join(path, f"{case}.default.0000000.nc")) as nc:
         nc.set_auto_mask(False)
-        # the base state's density, updated during the run (swupdatebasestate); else the initial
-        rho_t = np.asarray(nc["thermo"]["rho"][:] if "rho" in nc["thermo"].variables
-                           else nc["default"]["rhoref"][:], float)
-        rho_time = np.asarray(nc["time"][:], float)
+        # the anelastic reference density: what MicroHH itself integrates ql_path with
+        rho = np.asarray(nc["default"]["rhoref"][:], float)
         zs = np.asarray(nc["z"][:], float)
     if not np.allclose(zs, z):
         fail(f"{path}: grid.0000000 and the statistics file disagree on z")
-    acc = Accumulator(z, dz, np.zeros(ktot), xsize / itot, ysize / jtot, ql_threshold)
+    acc = Accumulator(z, dz, rho, xsize / itot, ysize / jtot, ql_threshold)
     dumps = sorted((int(m.group(1)), p) for p in glob.glob(os.path.join(path, "ql.*"))
                    if (m := re.fullmatch(r"ql\.(\d{7})", os.path.basename(p))))
     lwp_check = []
-    rhos = []
     for t, p in dumps:
         if not in_window(t, window):
             continue
         # MicroHH writes x fastest, then y, then z
         ql = np.fromfile(p, "<" + prec).reshape(ktot, jtot, itot).transpose(2, 1, 0)
-        # base state at the nearest statistics time (it is updated during the run)
-        acc.rho = rho_t if rho_t.ndim == 1 else rho_t[int(np.argmin(abs(rho_time - t)))]
-        rhos.append(acc.rho)
         acc.add(t, ql)
         cross = os.path.join(path, f"ql_path.xy.000.{t:07d}")
         if os.path.exists(cross):
             ref = np.fromfile(cross, "<" + prec).reshape(jtot, itot).T
-            mine = (ql * (acc.rho * dz)).sum(axis=2)
+            mine = (ql * (rho * dz)).sum(axis=2)
             lwp_check.append(float(abs(mine - ref).max() / max(ref.max(), 1e-12)))
-    if rhos:
-        acc.rho = np.mean(rhos, axis=0)
     source = {"kind": "microhh", "path": os.path.abspath(path), "case": case,
               "grid": [itot, jtot, ktot], "size_m": [xsize, ysize, zsize],
-              "air_density": "MicroHH base-state density (statistics file, thermo/rho) at the dump time",
+              "air_density": "MicroHH anelastic reference density (statistics file, default/rhoref)",
               "ql_path_crosscheck_max_rel_diff": max(lwp_check) if lwp_check else None}
     return acc, source
 
@@ -347,7 +342,13 @@ def crossing(z, f, thr, from_top):
     return float(z[j] + (thr - f[j]) / (f[k] - f[j]) * (z[k] - z[j]))
 
 
-def size_distribution(rec, min_cols, min_count):
+def min_columns(rec, min_area):
+    """The fewest columns a cloud of at least min_area (m^2) has on this grid (at least 1)."""
+    g = rec["grid"]
+    return max(1, math.ceil(min_area / (g["dx"] * g["dy"]) - 1e-9))
+
+
+def size_distribution(rec, min_area, max_size, min_count):
     cl = np.array(rec["clouds"], float).reshape(-1, 3)
     g = rec["grid"]
     px = g["dx"] * g["dy"]
@@ -363,7 +364,8 @@ def size_distribution(rec, min_cols, min_count):
         l0, l1 = math.sqrt((a0 - 0.5) * px), math.sqrt((a1 - 0.5) * px)
         bins.append({"area_columns": [a0, a1 - 1], "L": math.sqrt(l0 * l1), "L_edges": [l0, l1],
                      "count": count, "n": count / (norm * (l1 - l0))})
-    fit = [b for b in bins if b["area_columns"][0] >= min_cols]
+    fit = [b for b in bins if b["area_columns"][0] >= min_columns(rec, min_area)
+           and (max_size is None or b["L_edges"][1] <= max_size)]
     run = []
     for b in fit:  # contiguous bins from the smallest resolved size up
         if b["count"] < min_count:
@@ -378,7 +380,8 @@ def size_distribution(rec, min_cols, min_count):
                   "L_range": [run[0]["L_edges"][0], run[-1]["L_edges"][1]]}
 
 
-def fractal_dimension(rec, min_cols):
+def fractal_dimension(rec, min_area):
+    min_cols = min_columns(rec, min_area)
     cl = np.array(rec["clouds"], float).reshape(-1, 3)
     g = rec["grid"]
     cl = cl[cl[:, 0] >= min_cols] if len(cl) else cl
@@ -395,11 +398,11 @@ def fractal_dimension(rec, min_cols):
             "intercept": float(ym - D * xm)}
 
 
-def summarize(rec, cf_threshold, min_cols, min_count):
+def summarize(rec, cf_threshold, min_area, max_size, min_count):
     p = rec["profiles"]
     z, cf = np.array(p["z"]), np.array(p["cloud_fraction"])
     t, cover = np.array(rec["series"]["time"]), np.array(rec["series"]["cover"])
-    bins, sd = size_distribution(rec, min_cols, min_count)
+    bins, sd = size_distribution(rec, min_area, max_size, min_count)
     trend = None
     if len(t) >= 2 and cover.mean() > 0 and t[-1] > t[0]:
         trend = float(np.polyfit(t, cover, 1)[0] * (t[-1] - t[0]) / cover.mean())
@@ -414,7 +417,7 @@ def summarize(rec, cf_threshold, min_cols, min_count):
         "lwc_in_cloud": rec["lwc_in_cloud"],
         "size_slope": sd["slope"] if sd else None,
         "size_fit": sd,
-        "fractal": fractal_dimension(rec, min_cols),
+        "fractal": fractal_dimension(rec, min_area),
         "cover_trend": trend,
         "snapshots": rec["snapshots"],
         "clouds_per_snapshot": sum(c for _, _, c in rec["clouds"]) / rec["snapshots"],
@@ -492,6 +495,8 @@ def plot(records, summaries, bins_list, labels, out):
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(2, 3, figsize=(13, 8))
+    span = max(r["series"]["time"][-1] for r in records)
+    tunit = (3600.0, "h") if span > 7200 else (60.0, "min")
     for rec, s, bins, lab in zip(records, summaries, bins_list, labels):
         p = rec["profiles"]
         z = np.array(p["z"])
@@ -502,7 +507,7 @@ def plot(records, summaries, bins_list, labels, out):
                 ax[0, 0].axhline(h, color=c, ls=":", lw=0.8)
         lwc = np.array(p["ql_in_cloud"]) * np.array(p["rho"]) * 1000.0
         ax[0, 1].plot(np.where(lwc > 0, lwc, np.nan), z, color=c, label=lab)
-        th = np.array(rec["series"]["time"]) / 3600.0
+        th = np.array(rec["series"]["time"]) / tunit[0]
         ax[0, 2].plot(th, rec["series"]["cover"], color=c, label=lab)
         ax[1, 0].plot(th, rec["series"]["lwp"], color=c, label=lab)
         nb = [b for b in bins if b["count"] > 0]
@@ -525,8 +530,8 @@ def plot(records, summaries, bins_list, labels, out):
                             label=f"{lab}: D = {fr['D']:.2f} ({fr['clouds']} clouds)")
     ax[0, 0].set(xlabel="cloud fraction", ylabel="height (m)", title="cloud fraction")
     ax[0, 1].set(xlabel="LWC in cloud (g/m^3)", ylabel="height (m)", title="liquid water in cloud")
-    ax[0, 2].set(xlabel="time (h)", ylabel="projected cover", title="cover")
-    ax[1, 0].set(xlabel="time (h)", ylabel="LWP (g/m^2)", title="liquid water path")
+    ax[0, 2].set(xlabel=f"time ({tunit[1]})", ylabel="projected cover", title="cover")
+    ax[1, 0].set(xlabel=f"time ({tunit[1]})", ylabel="LWP (g/m^2)", title="liquid water path")
     ax[1, 1].set(xlabel="L = sqrt(A) (m)", ylabel="n(L) (m^-3)", title="cloud size distribution")
     ax[1, 2].set(xlabel="sqrt(A) (m)", ylabel="perimeter (m)", title="area-perimeter")
     for a in ax.flat:
@@ -541,7 +546,10 @@ def main(argv=None):
     ap.add_argument("--window", default="10800,21600", help="T0,T1 in seconds (default 10800,21600)")
     ap.add_argument("--ql-threshold", type=float, default=1e-5)
     ap.add_argument("--cf-threshold", type=float, default=1e-3)
-    ap.add_argument("--min-cloud-columns", type=int, default=4)
+    ap.add_argument("--min-cloud-area", type=float, default=40000.0,
+                    help="m^2: smaller clouds stay out of the size fit and D (default 40000)")
+    ap.add_argument("--max-cloud-size", type=float,
+                    help="m: largest L = sqrt(A) of the size fit (default: no limit)")
     ap.add_argument("--min-bin-count", type=int, default=24)
     ap.add_argument("--labels", help="comma-separated names of the sources")
     ap.add_argument("--json", help="write the first source's record and statistics here")
@@ -550,8 +558,6 @@ def main(argv=None):
     ap.add_argument("--criteria", action="store_true",
                     help="issue 39's pass/fail of the first source against the second")
     a = ap.parse_args(argv)
-    if len(a.sources) > 2:
-        fail("at most two sources")
     try:
         window = tuple(float(x) for x in a.window.split(","))
         assert len(window) == 2 and window[0] <= window[1]
@@ -566,7 +572,8 @@ def main(argv=None):
         if not os.path.exists(s):
             fail(f"{s}: no such file or directory")
     records = [load(s, window, a.ql_threshold, meta) for s in a.sources]
-    out = [summarize(r, a.cf_threshold, a.min_cloud_columns, a.min_bin_count) for r in records]
+    out = [summarize(r, a.cf_threshold, a.min_cloud_area, a.max_cloud_size, a.min_bin_count)
+           for r in records]
     summaries, bins_list = [o[0] for o in out], [o[1] for o in out]
     print(f"window {window[0]:g}-{window[1]:g} s; cloudy: ql > {a.ql_threshold:g} kg/kg; "
           f"base/top: cloud fraction >= {a.cf_threshold:g}")
@@ -578,7 +585,8 @@ def main(argv=None):
     if a.json:
         rec = dict(records[0])
         rec["definitions"] = dict(rec["definitions"], cf_threshold=a.cf_threshold,
-                                  min_cloud_columns=a.min_cloud_columns,
+                                  min_cloud_area=a.min_cloud_area,
+                                  max_cloud_size=a.max_cloud_size,
                                   min_bin_count=a.min_bin_count)
         rec["summary"] = summaries[0]
         rec["size_bins"] = bins_list[0]

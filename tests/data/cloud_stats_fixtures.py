@@ -105,8 +105,6 @@ def microhh_run(out):
         nc.createVariable("zh", "f8", ("zh",))[:] = np.arange(kt + 1) * dz
         nc.createVariable("time", "f8", ("time",))[:] = times
         nc.createGroup("default").createVariable("rhoref", "f8", ("z",))[:] = rho
-        nc.createGroup("thermo").createVariable("rho", "f8", ("time", "z"))[:] = \
-            np.tile(rho, (len(times), 1))
 
 
 if __name__ == "__main__":
