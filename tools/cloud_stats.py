@@ -506,7 +506,9 @@ def plot(records, summaries, bins_list, labels, out):
             if h is not None:
                 ax[0, 0].axhline(h, color=c, ls=":", lw=0.8)
         lwc = np.array(p["ql_in_cloud"]) * np.array(p["rho"]) * 1000.0
-        ax[0, 1].plot(np.where(lwc > 0, lwc, np.nan), z, color=c, label=lab)
+        if s["cloud_base"] is not None:  # only within the cloud layer: above it, a few cells
+            lwc[(z < s["cloud_base"]) | (z > s["cloud_top"])] = np.nan
+        ax[0, 1].plot(lwc, z, color=c, label=lab)
         th = np.array(rec["series"]["time"]) / tunit[0]
         ax[0, 2].plot(th, rec["series"]["cover"], color=c, label=lab)
         ax[1, 0].plot(th, rec["series"]["lwp"], color=c, label=lab)
