@@ -2,8 +2,8 @@
 """Cloud-field statistics of a nimbus run or a MicroHH run, by one definition (docs/data/bomex/README.md).
 
 Usage:
-  /usr/bin/python3 tools/cloud_stats.py SOURCE [SOURCE2] [--window T0,T1] [--json OUT.json]
-      [--plot OUT.png] [--labels A,B] [--criteria] [--meta META.json] [thresholds...]
+  /usr/bin/python3 tools/cloud_stats.py SOURCE [SOURCE...] [--window T0,T1] [--json OUT.json]
+      [--plot OUT.png] [--labels A,B,...] [--criteria] [--meta META.json] [thresholds...]
 
 A SOURCE is one of
   - a nimbus run directory (manifest.json, stats.jsonl, vdb/*.vdb: the `density` grid is cloud
@@ -25,8 +25,8 @@ Averaged over the snapshots with T0 <= time <= T1 (s; default hours 3-6, 10800,2
                      area A and perimeter P = (cloudy/clear column edges) x spacing
   size distribution  n(L) = clouds per unit area per unit size, L = sqrt(A), in bins of A between
                      powers of two (in columns); slope = least-squares slope of log n vs log L over
-                     the contiguous bins from A >= --min-cloud-area (m^2, default 40000: 4 columns
-                     of the intercomparison's 100 m grid) up to --max-cloud-size (m, default none)
+                     the contiguous bins from A >= --min-cloud-area (m^2, default 40000: 2 x 2
+                     columns of the intercomparison's 100 m grid) up to --max-cloud-size (m, default none)
                      holding >= --min-bin-count clouds each (DeWitt & Garrett 2024, ACP 24, 8457:
                      fewer than 24 bias the fit); the same physical range at every resolution
   fractal dimension  D in P ~ sqrt(A)^D (Lovejoy 1982), least squares of log P on log sqrt(A) over
@@ -38,13 +38,15 @@ profile of the BOMEX initial state (surface 1015 hPa, theta_l and q_t of Siebesm
 bomex_air_density); it matches MicroHH's rhoref of the BOMEX case to 1e-5.
 
 With several sources it prints them side by side (and plots them together); --criteria adds
-issue 39's pass/fail of the first source against the second (exit 1 when one fails). Needs numpy; pyopenvdb for nimbus runs (Debian
-python3-openvdb, only under /usr/bin/python3); netCDF4 for MicroHH runs (python3-netcdf4);
-matplotlib for --plot (python3-matplotlib).
+issue 39's pass/fail of the first source against the second (exit 1 when one fails); --json
+writes the first source's record. Needs numpy; pyopenvdb for nimbus runs (Debian python3-openvdb,
+only under /usr/bin/python3); netCDF4 for MicroHH runs (python3-netcdf4); matplotlib for --plot
+(python3-matplotlib). Bad input exits 2 with a one-line reason.
 """
 import argparse
 import configparser
 import glob
+import importlib
 import json
 import math
 import os
@@ -57,9 +59,17 @@ SCHEMA = "nimbus.cloud_stats/1"
 G, RD, CP, P00 = 9.81, 287.04, 1005.0, 1.0e5
 
 
-def fail(msg):
+def fail(msg, code=2):
+    """One line on stderr; exit 2 for bad input, 3 for a missing module or an I/O failure."""
     print(f"cloud_stats: {msg}", file=sys.stderr)
-    sys.exit(2)
+    sys.exit(code)
+
+
+def need(module, package):
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        fail(f"needs the Python module {module} (Debian {package}, under /usr/bin/python3)", 3)
 
 
 # --- air density -----------------------------------------------------------------------------
@@ -206,7 +216,7 @@ def in_window(t, window):
 
 
 def read_nimbus(path, window, ql_threshold):
-    import pyopenvdb as vdb
+    vdb = need("pyopenvdb", "python3-openvdb")
 
     man = json.load(open(os.path.join(path, "manifest.json")))
     cfg = man["config"]
@@ -260,7 +270,7 @@ def read_nimbus(path, window, ql_threshold):
 
 
 def read_microhh(path, window, ql_threshold):
-    import netCDF4
+    netCDF4 = need("netCDF4", "python3-netcdf4")
 
     inis = [p for p in glob.glob(os.path.join(path, "*.ini"))]
     if len(inis) != 1:
@@ -309,6 +319,15 @@ def read_microhh(path, window, ql_threshold):
 
 
 def load(path, window, ql_threshold, meta):
+    try:
+        return read_source(path, window, ql_threshold, meta)
+    except OSError as e:
+        fail(f"{path}: {e}", 3)
+    except (KeyError, ValueError, TypeError, IndexError) as e:
+        fail(f"{path}: not a readable run or record ({type(e).__name__}: {e})")
+
+
+def read_source(path, window, ql_threshold, meta):
     if os.path.isfile(path) and path.endswith(".json"):
         rec = json.load(open(path))
         if rec.get("schema") != SCHEMA:
@@ -316,6 +335,10 @@ def load(path, window, ql_threshold, meta):
         if abs(rec["definitions"]["ql_threshold"] - ql_threshold) > 1e-15:
             fail(f"{path}: written with --ql-threshold {rec['definitions']['ql_threshold']:g}, "
                  f"not {ql_threshold:g}; recompute it from the run")
+        if tuple(rec["definitions"]["window"]) != tuple(window):
+            fail(f"{path}: written for the window {rec['definitions']['window'][0]:g},"
+                 f"{rec['definitions']['window'][1]:g} s, not {window[0]:g},{window[1]:g}; "
+                 "recompute it from the run")
         return rec
     if os.path.exists(os.path.join(path, "manifest.json")):
         acc, source = read_nimbus(path, window, ql_threshold)
@@ -489,8 +512,7 @@ def table(summaries, labels):
 
 
 def plot(records, summaries, bins_list, labels, out):
-    import matplotlib
-
+    matplotlib = need("matplotlib", "python3-matplotlib")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
