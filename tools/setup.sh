@@ -20,7 +20,8 @@ packages=(
   spirv-tools                      # spirv-val: every shader's SPIR-V checked (tests/spirv_val.rs)
   libopenvdb-tools python3-openvdb # vdb_print + pyopenvdb: tests read our VDBs with real OpenVDB
   openexr                          # exrheader: tests read our EXRs with the reference tools
-  python3-numpy                    # the OpenVDB comparison benchmark
+  python3-numpy                    # the OpenVDB comparison benchmark, tools/cloud_stats.py
+  python3-netcdf4 python3-matplotlib # tools/cloud_stats.py: MicroHH's statistics files, its plots
 )
 for flag in "$@"; do
   case "$flag" in

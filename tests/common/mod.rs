@@ -133,6 +133,27 @@ pub fn pyopenvdb_available() -> bool {
     ok
 }
 
+/// Whether /usr/bin/python3 imports every module of `modules` (e.g. numpy, netCDF4). Under
+/// CI=true (where .ci/run installs them with tools/setup.sh) a missing one fails the test.
+pub fn py_modules_available(modules: &[&str]) -> bool {
+    let missing: Vec<&str> = modules
+        .iter()
+        .copied()
+        .filter(|m| {
+            !Command::new("/usr/bin/python3")
+                .args(["-c", &format!("import {m}")])
+                .output()
+                .is_ok_and(|o| o.status.success())
+        })
+        .collect();
+    if !missing.is_empty() && std::env::var("CI").as_deref() == Ok("true") {
+        panic!(
+            "CI=true but /usr/bin/python3 lacks {missing:?}: CI must install them (tools/setup.sh)"
+        );
+    }
+    missing.is_empty()
+}
+
 /// Runs tools/render_blender.py headless with `args` (after `--`); returns the process output
 /// and the script's `NIMBUS_BLENDER` JSON summary line (a missing line fails the test).
 pub fn render_blender<I, S>(args: I) -> (Output, serde_json::Value)
