@@ -310,7 +310,7 @@ for line in open(f"{out}/results.jsonl"):
         print(f"- hero: {r}")
 EOF
     # the side by side's table, as the script printed it
-    grep -A40 '^| particles' "$OUT/log.txt" >>"$OUT/summary.md" 2>/dev/null || true
+    awk '/^\| particles/ {on = 1} on && /^\|/ {print; next} on {exit}' "$OUT/log.txt" >>"$OUT/summary.md"
     # log.txt back under the device tool's 16 MiB a file
     if [ "$(stat -c %s "$OUT/log.txt")" -gt $((15 << 20)) ]; then
         tail -c $((15 << 20)) "$OUT/log.txt" >"$OUT/log.tmp" && mv "$OUT/log.tmp" "$OUT/log.txt"
