@@ -5,6 +5,7 @@ pub mod nanovdb;
 pub mod pbf;
 pub mod preview;
 pub mod splat;
+pub mod step;
 pub mod table1;
 pub mod vdb;
 

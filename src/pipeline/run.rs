@@ -31,16 +31,24 @@ pub struct RunOptions {
     pub out_dir: PathBuf,
     pub log: LogFormat,
     pub start: Start,
+    /// The device, opened (and the shot checked against it) before the run directory was
+    /// touched; `None`: `run` opens it.
+    pub device: Option<Arc<gpu::Context>>,
 }
 
 /// `nimbus run CONFIG`: a new run of `cfg` into `out_dir` (created if missing; refused when it
 /// holds an earlier run, unless `force`: see `run_dir`). Resuming is `super::resume`.
 pub fn run_fresh(cfg: &ShotConfig, out_dir: &Path, log: LogFormat, force: bool) -> Result<()> {
+    // The device first, and whether it holds the shot: a shot it cannot hold is refused (exit
+    // 4, the limit and the largest particle count that fits) before anything is written.
+    let ctx = Arc::new(gpu::Context::new(&cfg.gpu)?);
+    crate::sim::footprint::check_shot(&ctx, cfg, config::lattice_count(&cfg.domain) as u64)?;
     let lock = RunLock::acquire(out_dir, Create::IfMissing, "run")?;
     let opts = RunOptions {
         out_dir: out_dir.to_path_buf(),
         log,
         start: Start::Fresh { force },
+        device: Some(ctx),
     };
     run(cfg, &opts, &lock)
 }
@@ -77,7 +85,10 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
         )?),
     };
 
-    let ctx = Arc::new(gpu::Context::new(&cfg.gpu)?);
+    let ctx = match &opts.device {
+        Some(ctx) => ctx.clone(),
+        None => Arc::new(gpu::Context::new(&cfg.gpu)?),
+    };
     let adapter = ctx.adapter_name();
     let (mut sim, first_frame) = match &resumed {
         None => (Simulation::new(ctx.clone(), cfg)?, cfg.output.frames.start),
