@@ -84,7 +84,8 @@ fi
 # venv of Debian's own python3 with its system packages, so `pxr` and `pyopenvdb` import together.
 USD_CORE_VERSION=25.11
 usd_venv=${NIMBUS_USD_VENV:-/opt/nimbus/usd}
-if ! "$usd_venv/bin/pip" show usd-core 2>/dev/null | grep -qx "Version: $USD_CORE_VERSION"; then
+usd_have=$("$usd_venv/bin/pip" show usd-core 2>/dev/null | sed -n 's/^Version: //p' || true)
+if [[ "$usd_have" != "$USD_CORE_VERSION" ]]; then
   echo "setup: installing usd-core $USD_CORE_VERSION into $usd_venv" >&2
   $sudo mkdir -p "$(dirname "$usd_venv")"
   $sudo /usr/bin/python3 -m venv --system-site-packages "$usd_venv"
