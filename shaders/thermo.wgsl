@@ -99,8 +99,11 @@ fn fade(u: f32) -> f32 {
 }
 
 fn wrap_index(i: i32, period: u32) -> i32 {
-    let p = i32(max(period, 1u));
-    return ((i % p) + p) % p;
+    let p = max(period, 1u);
+    // no `%` of a negative operand: GLSL leaves its sign undefined (on llvmpipe's OpenGL it
+    // broke the heat maps' wrap at x < half a pixel)
+    if (i >= 0) { return i32(u32(i) % p); }
+    return i32(p - 1u - u32(-(i + 1)) % p);
 }
 
 // Value noise over (x, z) and time with quintic fade, tiling with the given lattice periods.

@@ -51,6 +51,11 @@ pub enum Command {
         /// Override a key before validation, e.g. `--set output.frames.end=10` (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
+        /// Also open each config's GPU adapter and check that it holds the shot (largest
+        /// storage binding, largest buffer, workgroups per dispatch, device memory): a shot over
+        /// a limit exits 4 naming the limit and the largest particle count that fits.
+        #[arg(long)]
+        gpu: bool,
     },
     /// Go on with an interrupted run from its newest valid checkpoint.
     Resume {
@@ -60,7 +65,7 @@ pub enum Command {
         #[arg(long, value_enum, default_value = "human")]
         log_format: LogFormat,
     },
-    /// Describe a .vdb, .exr or checkpoint file.
+    /// Describe a .vdb, .nvdb, .exr or checkpoint file.
     Inspect { file: PathBuf },
     /// (Re)render the preview images of a run from its VDB files, or a debug view of it.
     Preview {
@@ -143,6 +148,20 @@ pub enum BenchTopic {
         #[arg(long, default_value_t = 5)]
         reps: usize,
     },
+    /// NanoVDB write speed and file sizes, nimbus against nanovdb_convert on the same grids.
+    Nanovdb {
+        /// The grids of this VDB file (e.g. quickstart's last frame); default: a synthetic
+        /// cloud of --active-voxels voxels.
+        #[arg(long)]
+        vdb: Option<PathBuf>,
+        #[arg(long, default_value_t = 30_000_000)]
+        active_voxels: usize,
+        #[arg(long, default_value_t = 5)]
+        reps: usize,
+        /// `export.nanovdb.tolerance` for the FpN size.
+        #[arg(long, default_value_t = 0.001)]
+        tolerance: f64,
+    },
     /// Splat throughput.
     Splat {
         #[arg(long, default_value_t = 100_000)]
@@ -189,6 +208,23 @@ pub enum BenchTopic {
     Checkpoint {
         #[arg(long, default_value_t = 100_000)]
         particles: usize,
+    },
+    /// The full adaptive step (PBF, smoothing, cloud physics, split, merge) of paper example 1
+    /// widened in x and z to about PARTICLES particles: ms per substep and phase, particle
+    /// steps per second, device bytes (JSON).
+    Step {
+        #[arg(long, default_value_t = 1_000_000)]
+        particles: usize,
+        /// Measured frames.
+        #[arg(long, default_value_t = 3)]
+        frames: u32,
+        /// Frames simulated before measuring (extended until particles have split).
+        #[arg(long, default_value_t = 40)]
+        warmup: u32,
+        /// Stop warming up at 80% of this many seconds and measure what there is (a bench
+        /// with a time limit, as tools/gpu_machine.sh runs it).
+        #[arg(long)]
+        max_seconds: Option<f64>,
     },
     /// The paper's Table 1: both paper scenarios, adaptive and not, ms per step and phase.
     /// Prints the markdown table, then the JSON.

@@ -5,11 +5,19 @@ use cli::{BenchTopic, Command};
 use nimbus::error::{exit, Error, Result};
 use nimbus::pipeline::{self, reexport};
 use std::path::PathBuf;
+use std::sync::Arc;
 
 fn main() {
-    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
+    // env_logger under the GPU validation hook (NIMBUS_GPU_VALIDATION: a validation error ends
+    // the process; nimbus::gpu::validation)
+    let logger =
+        env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).build();
+    let filter = logger.filter();
+    nimbus::gpu::validation::Logger::install(Box::new(logger), filter);
     let result = match cli::parse().command {
-        Command::Validate { configs, set } => std::process::exit(validate(&configs, &set)),
+        Command::Validate { configs, set, gpu } => {
+            std::process::exit(validate(&configs, &set, gpu))
+        }
         Command::Run {
             config,
             out,
@@ -56,27 +64,64 @@ fn main() {
     }
 }
 
-fn validate(configs: &[PathBuf], set: &[String]) -> i32 {
+fn validate(configs: &[PathBuf], set: &[String], gpu: bool) -> i32 {
     let mut code = exit::OK;
+    // one device per distinct `gpu` section (opening one takes a while)
+    let mut devices: Vec<(nimbus::config::GpuConfig, Arc<nimbus::gpu::Context>)> = Vec::new();
     for path in configs {
-        match nimbus::config::load(path, set) {
-            Ok(cfg) => nimbus::outln!(
-                "{}: ok (shot '{}', frames {}..={}, {} particles, sim hash {})",
-                path.display(),
-                cfg.shot,
-                cfg.output.frames.start,
-                cfg.output.frames.end,
-                nimbus::config::lattice_count(&cfg.domain),
-                &nimbus::config::sim_hash(&cfg)[..12]
-            ),
+        let cfg = match nimbus::config::load(path, set) {
+            Ok(cfg) => cfg,
             Err(e) => {
                 // Already `FILE:LINE:COL: KEY: message`, one line, editor-clickable.
                 eprintln!("{e}");
                 code = code.max(e.exit_code());
+                continue;
             }
-        }
+        };
+        let fit = if gpu {
+            match device_fit(&cfg, &mut devices) {
+                Ok(fit) => fit,
+                Err(e) => {
+                    eprintln!("{}: {e}", path.display());
+                    code = code.max(e.exit_code());
+                    continue;
+                }
+            }
+        } else {
+            String::new()
+        };
+        nimbus::outln!(
+            "{}: ok (shot '{}', frames {}..={}, {} particles, sim hash {}{fit})",
+            path.display(),
+            cfg.shot,
+            cfg.output.frames.start,
+            cfg.output.frames.end,
+            nimbus::config::lattice_count(&cfg.domain),
+            &nimbus::config::sim_hash(&cfg)[..12]
+        );
     }
     code
+}
+
+/// `validate --gpu`: whether the adapter of `cfg.gpu` holds the shot; `devices` keeps the
+/// adapters opened so far.
+fn device_fit(
+    cfg: &nimbus::config::ShotConfig,
+    devices: &mut Vec<(nimbus::config::GpuConfig, Arc<nimbus::gpu::Context>)>,
+) -> Result<String> {
+    let ctx = match devices.iter().find(|(g, _)| *g == cfg.gpu) {
+        Some((_, ctx)) => ctx.clone(),
+        None => {
+            let ctx = Arc::new(nimbus::gpu::Context::new(&cfg.gpu)?);
+            devices.push((cfg.gpu.clone(), ctx.clone()));
+            ctx
+        }
+    };
+    let (_, largest) = nimbus::sim::footprint::check_config(&ctx, cfg)?;
+    Ok(format!(
+        "; adapter {} holds up to {largest} particles of this shot",
+        ctx.adapter_name()
+    ))
 }
 
 fn export(
@@ -125,6 +170,18 @@ fn bench(topic: BenchTopic) -> Result<()> {
             compression,
             reps,
         } => bench::vdb::bench_vdb_write(active_voxels, compression, reps)?,
+        BenchTopic::Nanovdb {
+            vdb,
+            active_voxels,
+            reps,
+            tolerance,
+        } => {
+            let source = match vdb {
+                Some(p) => bench::nanovdb::Source::File(p),
+                None => bench::nanovdb::Source::Cloud(active_voxels),
+            };
+            bench::nanovdb::bench_nanovdb_write(&source, reps, tolerance)?
+        }
         BenchTopic::Splat { particles, voxel } => bench::splat::bench_splat(particles, voxel)?,
         BenchTopic::Preview {
             width,
@@ -157,6 +214,12 @@ fn bench(topic: BenchTopic) -> Result<()> {
             bench::detail::bench_detail(&run_dir, &opts, &set)?
         }
         BenchTopic::Checkpoint { particles } => bench::checkpoint::bench_checkpoint(particles)?,
+        BenchTopic::Step {
+            particles,
+            frames,
+            warmup,
+            max_seconds,
+        } => bench::step::bench_step(particles, frames, warmup, max_seconds)?,
         BenchTopic::Table1 {
             scale,
             frames,

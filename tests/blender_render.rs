@@ -219,3 +219,33 @@ fn script_fails_on_a_file_that_is_not_vdb() {
     );
     assert!(!png.exists(), "no image may be written for a bad file");
 }
+
+/// `export.usd`'s layer in Blender: Debian 12's Blender 3.4.1 is built without USD
+/// (`bpy.app.build_options.usd` is False), so it cannot import the layer and the render above
+/// stays on the VDB sequence. This records Blender's own answer; should a Blender here import
+/// USD, the test fails: render a frame through the layer then (docs/RENDERING.md "USD layer").
+#[test]
+fn blender_here_cannot_import_the_usd_layer() {
+    if !blender_available() {
+        eprintln!("note: blender not on PATH, skipping");
+        return;
+    }
+    let o = Command::new("blender")
+        .args(["-b", "--factory-startup", "--python-exit-code", "1"])
+        .args(["--python-expr", "import bpy\nprint('NIMBUS_USD', bpy.app.build_options.usd)\nbpy.ops.wm.usd_import(filepath='quickstart.usda')"])
+        .output()
+        .expect("spawn blender");
+    let all = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(
+        all.contains("NIMBUS_USD False"),
+        "this Blender is built with USD: render through the layer (export.usd) too:\n{all}"
+    );
+    let words = "Calling operator \"bpy.ops.wm.usd_import\" error, could not be found";
+    assert!(all.contains(words), "{all}");
+    assert_eq!(o.status.code(), Some(1), "{all}");
+    eprintln!("Blender: {words}");
+}

@@ -78,6 +78,10 @@ fn openjd_check_accepts_the_template_and_openjd_run_makes_the_local_frames() {
         return;
     };
     let base = fresh_dir("farm_openjd_run");
+    // tiny with the USD layer (export.usd); the export stage adds NanoVDB files
+    let shot = base.join("tiny_usd.yaml");
+    let tiny = std::fs::read_to_string(sample("tiny.yaml")).unwrap();
+    std::fs::write(&shot, tiny.replace("export:\n", "export:\n  usd: true\n")).unwrap();
     let values = ["0.2", "0.3"];
     let locals: Vec<PathBuf> = values
         .iter()
@@ -85,11 +89,7 @@ fn openjd_check_accepts_the_template_and_openjd_run_makes_the_local_frames() {
             let out = base.join(format!("local_{v}"));
             let heat = format!("physics.heat_source={v}");
             // the export stage makes the simulation write particle caches
-            local_run(
-                &sample("tiny.yaml"),
-                &out,
-                &[&heat, "export.particles=true"],
-            );
+            local_run(&shot, &out, &[&heat, "export.particles=true"]);
             out
         })
         .collect();
@@ -98,7 +98,7 @@ fn openjd_check_accepts_the_template_and_openjd_run_makes_the_local_frames() {
     let t = Instant::now();
     let o = nimbus()
         .args(["farm", "submit", "--backend", "openjd", "--run-local"])
-        .arg(sample("tiny.yaml"))
+        .arg(&shot)
         .args([
             "--wedge",
             &format!("physics.heat_source={}", values.join(",")),
@@ -108,6 +108,8 @@ fn openjd_check_accepts_the_template_and_openjd_run_makes_the_local_frames() {
             "4",
             "--export-set",
             "export.voxel_size=50",
+            "--export-set",
+            "export.nanovdb=true",
         ])
         .arg("--out")
         .arg(&farm)
@@ -140,6 +142,11 @@ fn openjd_check_accepts_the_template_and_openjd_run_makes_the_local_frames() {
     for (i, w) in plan["wedges"].as_array().unwrap().iter().enumerate() {
         let run = farm.join("runs").join(w["name"].as_str().unwrap());
         assert_same_frames(&locals[i], &run);
+        assert!(
+            std::fs::read(locals[i].join("tiny.usda")).unwrap()
+                == std::fs::read(run.join("tiny.usda")).unwrap(),
+            "the USD layers of the local and the farm run differ"
+        );
         for chunk in ["1-4", "5-8"] {
             assert!(
                 log.contains(&format!("nimbus-farm: export wedge {i} frames {chunk} ")),
@@ -152,6 +159,17 @@ fn openjd_check_accepts_the_template_and_openjd_run_makes_the_local_frames() {
     for w in report["wedges"].as_array().unwrap() {
         assert_eq!(w["frames_verified"], 8, "{w}");
         assert_eq!(w["frames_exported"], 8, "{w}");
+        // each wedge's layer, and its export directory's, checked against their manifests
+        assert_eq!(w["usd_layer"], "tiny.usda", "{w}");
+        let export = w["export_dir"].as_str().unwrap();
+        assert!(
+            w["export_usd_layer"]
+                .as_str()
+                .is_some_and(|p| p.starts_with("exports/") && p.ends_with("/tiny.usda")),
+            "{w}"
+        );
+        let nvdb = Path::new(export).join("nvdb/tiny.0008.nvdb");
+        assert!(nvdb.is_file(), "{}", nvdb.display());
     }
     assert!(farm.join("wedges_contact_sheet.png").is_file());
     let s = farm_status(&farm);

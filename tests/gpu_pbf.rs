@@ -1,5 +1,7 @@
 //! GPU PBF step vs its f64 CPU mirror, and the behaviour of the whole step (settling,
 //! periodicity, determinism, resume, momentum). Runs on any adapter (lavapipe in CI).
+mod harness;
+
 use nimbus::config::{GpuConfig, ShotConfig};
 use nimbus::gpu::Context;
 use nimbus::sim::hooks::{Buf, Step};
@@ -153,11 +155,17 @@ fn kernels_match_the_mirror(levels: u32) {
     let n = sim.count();
 
     sim.run_step(Step::Predict).unwrap();
-    let pred0: Vec<[f64; 3]> = sim.read_vec4(Buf::Pred).unwrap().iter().map(v3).collect();
+    let mut pred4 = sim.read_vec4(Buf::Pred).unwrap();
+    let pred0: Vec<[f64; 3]> = pred4.iter().map(v3).collect();
     let pos0: Vec<[f64; 3]> = state.pos.iter().map(v3).collect();
     let vel0: Vec<[f64; 3]> = state.vel.iter().map(v3).collect();
     let e = rel_err(&pred0, &mirror::predict(&grid, &prm, &pos0, &vel0));
     assert!(e < 1e-6, "predict: {e}");
+    // keys exact on any adapter: no p* within a few ulp of a cell or slice boundary
+    if harness::off_cell_boundaries(&grid, &mut pred4) > 0 {
+        sim.write(Buf::Pred, &pred4);
+    }
+    let pred0: Vec<[f64; 3]> = pred4.iter().map(v3).collect();
 
     // grid: the order (ids were the indices) and the cell table are exact
     sim.run_step(Step::Grid).unwrap();
@@ -421,7 +429,7 @@ fn later_passes_keep_the_first_lambdas_neighbours() {
 /// With more than one level the passes after the first compute_lambda take a neighbour's level
 /// from the top bits of its pred.w, and the mask's last 44 bits are split between pred.w and
 /// pos.w (shaders/pbf.wgsl `store_mask`, `mask_of`). At the positions the mask was built at,
-/// compute_lambda_masked must give back compute_lambda's lambda and density bit for bit (the same
+/// compute_lambda_masked must give back compute_lambda's lambda and density to a few ulp (the same
 /// pairs, the same order, the same levels), and viscosity_confine (no vorticity: the masked walk)
 /// the same density; some masks must reach into pos.w, or the split is not tested.
 #[test]
@@ -463,16 +471,28 @@ fn masked_passes_read_the_level_packed_with_the_position() {
     sim.run_step(Step::LambdaMasked).unwrap();
     let again = sim.read_vec4(Buf::Scratch).unwrap();
     let rho_again = sim.read_f32(Buf::Density).unwrap();
+    // the same pairs in the same order: the level bits exact, the sums to a few ulp (bit for
+    // bit on lavapipe; another driver may fuse multiplies and adds differently in the two
+    // entry points, docs/ARCHITECTURE.md "Across adapters"), far below what one pair more or
+    // less, or a wrong level, changes
+    let ulps = |a: f32, b: f32| (a.to_bits() as i64 - b.to_bits() as i64).abs();
     for i in 0..n {
         assert_eq!(
-            again[i][3].to_bits(),
-            first[i][3].to_bits(),
-            "particle {i}: lambda"
+            again[i][3].to_bits() & 7,
+            first[i][3].to_bits() & 7,
+            "particle {i}: level in lambda"
         );
-        assert_eq!(
-            rho_again[i].to_bits(),
-            rho[i].to_bits(),
-            "particle {i}: density"
+        assert!(
+            ulps(again[i][3], first[i][3]) <= 4 << 3,
+            "particle {i}: lambda {} vs {}",
+            again[i][3],
+            first[i][3]
+        );
+        assert!(
+            ulps(rho_again[i], rho[i]) <= 4,
+            "particle {i}: density {} vs {}",
+            rho_again[i],
+            rho[i]
         );
     }
 

@@ -41,6 +41,8 @@ fn the_grid_build_is_a_stable_sort_by_cell() {
             })
             .map(|p| [p[0], p[1], p[2], 0.0])
             .collect();
+        let mut pos = pos;
+        harness::off_cell_boundaries(&grid, &mut pos);
         let state = ParticleState {
             pos: pos.clone(),
             vel: vec![[0.0; 4]; n],

@@ -1,6 +1,9 @@
 #!/usr/bin/env bash
 # Installs what nimbus and its tests need on Debian 12 (idempotent). Safe to run again.
-#   tools/setup.sh               runtime + test tools (Vulkan on the CPU, OpenVDB, OpenEXR tools)
+#   tools/setup.sh               runtime + test tools (Vulkan on the CPU, OpenGL through EGL, the
+#                                Vulkan validation layer, spirv-val, OpenVDB, NanoVDB and OpenEXR
+#                                tools; USD's Python module, PyPI usd-core pinned, in a venv at
+#                                $NIMBUS_USD_VENV, default /opt/nimbus/usd)
 #   tools/setup.sh --blender     also Blender 3.4 (for tools/render_blender.py and its test)
 #   tools/setup.sh --preview     also ffmpeg (output.preview.movie and its test)
 #   tools/setup.sh --farm        also Slurm and munge (for `nimbus farm` and its tests; a
@@ -15,9 +18,14 @@ farm=0
 packages=(
   mesa-vulkan-drivers libvulkan1   # Vulkan: lavapipe CPU device where there is no GPU
   libegl1 libegl-mesa0 libgl1-mesa-dri # OpenGL through EGL: the fallback without Vulkan (tests/run_e2e.rs)
+  vulkan-validationlayers          # the Khronos validation layer: .ci/run's NIMBUS_GPU_VALIDATION pass
+  spirv-tools                      # spirv-val: every shader's SPIR-V checked (tests/spirv_val.rs)
   libopenvdb-tools python3-openvdb # vdb_print + pyopenvdb: tests read our VDBs with real OpenVDB
   openexr                          # exrheader: tests read our EXRs with the reference tools
-  python3-numpy                    # the OpenVDB comparison benchmark
+  python3-numpy                    # the OpenVDB comparison benchmark, tools/cloud_stats.py
+  python3-netcdf4 python3-matplotlib # tools/cloud_stats.py: MicroHH's statistics files, its plots
+  libnanovdb-tools                 # nanovdb_validate/print/convert: tests read our NanoVDB files
+  python3-venv                     # the venv of USD's Python module (below)
 )
 for flag in "$@"; do
   case "$flag" in
@@ -70,6 +78,18 @@ if ((farm)); then
     $sudo "$venv/bin/pip" install -q --disable-pip-version-check "openjd-cli==$OPENJD_CLI_VERSION"
   fi
   echo "setup: openjd: $venv/bin/openjd (nimbus finds it through NIMBUS_OPENJD or PATH)" >&2
+fi
+
+# USD's Python module (PyPI usd-core, pinned: tests/export_usd.rs was written against it) in a
+# venv of Debian's own python3 with its system packages, so `pxr` and `pyopenvdb` import together.
+USD_CORE_VERSION=25.11
+usd_venv=${NIMBUS_USD_VENV:-/opt/nimbus/usd}
+usd_have=$("$usd_venv/bin/pip" show usd-core 2>/dev/null | sed -n 's/^Version: //p' || true)
+if [[ "$usd_have" != "$USD_CORE_VERSION" ]]; then
+  echo "setup: installing usd-core $USD_CORE_VERSION into $usd_venv" >&2
+  $sudo mkdir -p "$(dirname "$usd_venv")"
+  $sudo /usr/bin/python3 -m venv --system-site-packages "$usd_venv"
+  $sudo "$usd_venv/bin/pip" install -q --disable-pip-version-check "usd-core==$USD_CORE_VERSION"
 fi
 
 if ! command -v cargo >/dev/null; then

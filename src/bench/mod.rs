@@ -1,9 +1,11 @@
 //! Measurement commands: figures for docs/PERFORMANCE.md, never timed tests.
 pub mod checkpoint;
 pub mod detail;
+pub mod nanovdb;
 pub mod pbf;
 pub mod preview;
 pub mod splat;
+pub mod step;
 pub mod surface;
 pub mod table1;
 pub mod vdb;

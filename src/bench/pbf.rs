@@ -145,6 +145,21 @@ pub fn block_state(cfg: &ShotConfig, particles: usize) -> ParticleState {
     s
 }
 
+/// Particles of the scene on `cfg`, without making them.
+fn scene_count(cfg: &ShotConfig, b: &PbfBench) -> u64 {
+    match b.scene {
+        PbfScene::Periodic => crate::config::lattice_count(&cfg.domain) as u64,
+        PbfScene::Block => block_dims(b.particles).iter().product::<usize>() as u64,
+    }
+}
+
+/// Whether the device holds the scene on `cfg` (exit 4 with the limit and the largest count
+/// that fits when it does not), before any particle is made.
+fn check_scene(ctx: &crate::gpu::Context, cfg: &ShotConfig, b: &PbfBench) -> Result<()> {
+    let shot = crate::sim::footprint::ShotSize::of(cfg, scene_count(cfg, b))?;
+    crate::sim::footprint::check(ctx, &shot, || None).map(|_| ())
+}
+
 /// The scene's simulation on `cfg` (the periodic box's lattice, or the block at rest).
 fn scene_sim(ctx: &Arc<crate::gpu::Context>, cfg: &ShotConfig, b: &PbfBench) -> Result<Simulation> {
     match b.scene {
@@ -166,6 +181,15 @@ fn scene_sim(ctx: &Arc<crate::gpu::Context>, cfg: &ShotConfig, b: &PbfBench) -> 
 pub fn bench_pbf(b: &PbfBench) -> Result<serde_json::Value> {
     let cfg = bench_config(b)?;
     let ctx = Arc::new(crate::gpu::Context::new(&GpuConfig::default())?);
+    // Both scenes checked before anything is computed: the bench's own (refused with exit 4
+    // when the device cannot hold it) and the one with adaptivity that `with_adaptivity`
+    // measures (reported as refused when only it does not fit).
+    check_scene(&ctx, &cfg, b)?;
+    let adaptive_cfg = with_adaptivity(&cfg);
+    let adaptive_fits = check_scene(&ctx, &adaptive_cfg, b);
+    if let Err(e) = &adaptive_fits {
+        eprintln!("note: with adaptivity the scene does not fit this device: {e}");
+    }
     let mut sim = scene_sim(&ctx, &cfg, b)?;
     if !ctx.timestamps {
         sim.set_timing(crate::sim::Timing::HostWaits);
@@ -200,7 +224,10 @@ pub fn bench_pbf(b: &PbfBench) -> Result<serde_json::Value> {
         .map(|k| phases.get(*k).copied().unwrap_or(0.0))
         .sum();
     let diag = last.map(|r| r.diagnostics).unwrap_or_default();
-    let adaptive = adaptive_memory(&ctx, &cfg, b)?;
+    let adaptive = match adaptive_fits {
+        Ok(()) => adaptive_memory(&ctx, &adaptive_cfg, b)?,
+        Err(e) => serde_json::json!({ "fits": false, "refused": e.to_string() }),
+    };
     Ok(serde_json::json!({
         "scene": match b.scene { PbfScene::Periodic => "periodic", PbfScene::Block => "block" },
         "particles": n,
@@ -214,6 +241,7 @@ pub fn bench_pbf(b: &PbfBench) -> Result<serde_json::Value> {
         // reference_step = dt: every substep runs all of them
         "iterations": cfg.solver.iterations,
         "adapter": ctx.adapter_name(),
+        "adapter_info": ctx.describe(),
         "gpu_timestamps": ctx.timestamps,
         "pbf_step_ms": step,
         "ms_per_substep_wall": wall,
@@ -226,19 +254,26 @@ pub fn bench_pbf(b: &PbfBench) -> Result<serde_json::Value> {
     }))
 }
 
-/// Device bytes of the same box with smoothing and adaptivity on (every stage's buffers), per
-/// live particle and per particle of capacity (`adaptive.capacity_factor` slots per particle).
+/// The bench's shot with smoothing and adaptivity on.
+fn with_adaptivity(cfg: &ShotConfig) -> ShotConfig {
+    let mut cfg = cfg.clone();
+    cfg.adaptive.enabled = true;
+    cfg.physics.smoothing.enabled = true;
+    cfg
+}
+
+/// Device bytes of the same box with smoothing and adaptivity on (`cfg`, every stage's
+/// buffers), per live particle and per particle of capacity (`adaptive.capacity_factor` slots
+/// per particle).
 fn adaptive_memory(
     ctx: &Arc<crate::gpu::Context>,
     cfg: &ShotConfig,
     b: &PbfBench,
 ) -> Result<serde_json::Value> {
-    let mut cfg = cfg.clone();
-    cfg.adaptive.enabled = true;
-    cfg.physics.smoothing.enabled = true;
-    let sim = scene_sim(ctx, &cfg, b)?;
+    let sim = scene_sim(ctx, cfg, b)?;
     let bytes = sim.device_bytes() as f64;
     Ok(serde_json::json!({
+        "fits": true,
         "capacity_factor": cfg.adaptive.capacity_factor,
         "device_bytes": bytes,
         "device_bytes_per_particle": bytes / sim.count() as f64,

@@ -17,7 +17,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 /// (name in the table, config path, config text)
-const SCENARIOS: [(&str, &str, &str); 2] = [
+pub(super) const SCENARIOS: [(&str, &str, &str); 2] = [
     (
         "example 1 (Fig. 5a/b)",
         "pipelines/paper_example1.yaml",
@@ -45,7 +45,7 @@ const WARMUP_EXTENSION: u32 = 4;
 
 /// The scenario's adaptive config with x and z scaled (to whole multiples of the spacing, never
 /// below 3 kernel radii, the periodic minimum); the non-adaptive one derives from it.
-fn scaled_config(origin: &str, text: &str, scale: f64) -> Result<ShotConfig> {
+pub(super) fn scaled_config(origin: &str, text: &str, scale: f64) -> Result<ShotConfig> {
     let full = crate::config::load_str(text, origin, &[])?;
     let d = &full.domain;
     let h0 = d.spacing * d.kernel_ratio;
@@ -102,7 +102,7 @@ fn refined(diag: &BTreeMap<String, f64>) -> f64 {
 
 /// Per-run accumulation over the measured frames.
 #[derive(Default)]
-struct Run {
+pub(super) struct Run {
     max_particles: f64,
     phase_ms: BTreeMap<String, f64>,
     substeps: u64,
@@ -111,6 +111,8 @@ struct Run {
     merges: f64,
     skipped_splits: f64,
     last: BTreeMap<String, f64>,
+    /// Device bytes of the simulation (every stage's buffers).
+    pub device_bytes: u64,
 }
 
 impl Run {
@@ -119,11 +121,11 @@ impl Run {
         sum / self.substeps.max(1) as f64
     }
 
-    fn total_ms(&self) -> f64 {
+    pub(super) fn total_ms(&self) -> f64 {
         COLUMNS.iter().map(|(_, k)| self.column_ms(k)).sum()
     }
 
-    fn to_json(&self, cfg: &ShotConfig, warmup_frames: u32, frames: u32) -> Value {
+    pub(super) fn to_json(&self, cfg: &ShotConfig, warmup_frames: u32, frames: u32) -> Value {
         let mut ms: serde_json::Map<String, Value> = COLUMNS
             .iter()
             .map(|(c, k)| (c.to_string(), json!(self.column_ms(k))))
@@ -143,6 +145,7 @@ impl Run {
             "spacing": cfg.domain.spacing,
             "domain_size": cfg.domain.size,
             "max_particles": self.max_particles,
+            "device_bytes": self.device_bytes,
             "final_particles": self.last.get("particles"),
             "final_particles_per_level": levels,
             "warmup_frames": warmup_frames,
@@ -160,13 +163,14 @@ impl Run {
 }
 
 /// Runs `warmup` then `frames` frames; `extend` keeps warming up (up to a limit) until split
-/// particles exist. Returns the run and the warm-up frame count actually used.
-fn run(
+/// particles exist; past `warmup_until` the warm-up stops whatever it has reached (a bench
+/// with a time limit). Returns the run and the warm-up frame count actually used.
+pub(super) fn run(
     ctx: &Arc<Context>,
     cfg: &ShotConfig,
-    warmup: u32,
-    frames: u32,
+    (warmup, frames): (u32, u32),
     extend: bool,
+    warmup_until: Option<std::time::Instant>,
     label: &str,
 ) -> Result<(Run, u32)> {
     let mut sim = Simulation::new(ctx.clone(), cfg)?;
@@ -175,6 +179,7 @@ fn run(
     }
     let mut r = Run {
         max_particles: sim.count() as f64,
+        device_bytes: sim.device_bytes(),
         ..Run::default()
     };
     let limit = if extend {
@@ -193,6 +198,10 @@ fn run(
             sim.count()
         );
         if done >= warmup && (!extend || split > 0.0) {
+            break;
+        }
+        if warmup_until.is_some_and(|t| std::time::Instant::now() > t) {
+            log::warn!("{label}: warm-up stopped at its time limit after {done} frames");
             break;
         }
     }
@@ -247,18 +256,18 @@ pub fn bench_table1(scale: f64, frames: u32, warmup: u32) -> Result<Value> {
         let (ra, used) = run(
             &ctx,
             &ada,
-            warmup,
-            frames,
+            (warmup, frames),
             true,
+            None,
             &format!("{name} adaptive"),
         )?;
         // Same physical time for the non-adaptive run.
         let (rn, _) = run(
             &ctx,
             &non,
-            used,
-            frames,
+            (used, frames),
             false,
+            None,
             &format!("{name} non-adaptive"),
         )?;
         let speedup = rn.total_ms() / ra.total_ms();

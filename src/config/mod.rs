@@ -506,6 +506,9 @@ fn apply_override(
     set_at(root, &segs, 0, value, i)
 }
 
+/// Keys whose value may be `true`/`false` for `{enabled: true/false}`.
+const ENABLED_SHORTHANDS: &[&str] = &["export.nanovdb"];
+
 fn set_at(
     cur: &mut Node,
     segs: &[Seg],
@@ -521,6 +524,22 @@ fn set_at(
             Seg::Key(_) => Val::Map(Vec::new()),
             Seg::Index(_) => Val::Seq(Vec::new()),
         };
+    }
+    // A key under `export.nanovdb: true` goes into the mapping that shorthand stands for.
+    if let (Val::Bool(on), Seg::Key(_)) = (&cur.val, &segs[depth]) {
+        if ENABLED_SHORTHANDS.contains(&here.as_str()) {
+            let pos = cur.pos;
+            cur.val = Val::Map(vec![(
+                Key {
+                    name: "enabled".into(),
+                    pos,
+                },
+                Node {
+                    val: Val::Bool(*on),
+                    pos,
+                },
+            )]);
+        }
     }
     match (&segs[depth], &mut cur.val) {
         (Seg::Key(name), Val::Map(entries)) => {

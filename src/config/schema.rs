@@ -653,6 +653,17 @@ pub struct ExportConfig {
     pub grids: GridNames,
     pub vdb: VdbConfig,
     pub exr: ExrConfig,
+    /// Write `<shot>.usda`: a USD layer with one Volume whose OpenVDBAsset fields are the VDB
+    /// sequence (`export::usd`). Left out of the serialisation when off.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub usd: bool,
+    /// NanoVDB files beside the VDBs (`io::nanovdb`); `true` / `false` stand for `enabled`.
+    /// Left out of the serialisation when at its default.
+    #[serde(
+        skip_serializing_if = "NanovdbConfig::is_default",
+        deserialize_with = "nanovdb_shorthand"
+    )]
+    pub nanovdb: NanovdbConfig,
 }
 impl ExportConfig {
     /// The run carries rest positions (`sim::rest`): detail or a `rest` grid needs them.
@@ -676,6 +687,8 @@ impl Default for ExportConfig {
             grids: GridNames::default(),
             vdb: VdbConfig::default(),
             exr: ExrConfig::default(),
+            usd: false,
+            nanovdb: NanovdbConfig::default(),
         }
     }
 }
@@ -854,6 +867,146 @@ impl Default for ExrConfig {
             enabled: true,
             half: false,
         }
+    }
+}
+
+/// `export.nanovdb`: `nvdb/<shot>.<frame>.nvdb` per frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NanovdbConfig {
+    pub enabled: bool,
+    /// Storage of the float grids (quantised per leaf unless `float`); a vector grid is Vec3f
+    /// and takes `float` only.
+    pub precision: NanoPrecision,
+    /// The grids to write: a list of names, or names with their own precision; empty (the
+    /// default): every grid of the VDB files, aliases included.
+    pub grids: NanoGrids,
+    /// `fpn`: the largest error of a voxel, as a fraction of the grid's value range (max - min
+    /// of its active values) in the frame.
+    pub tolerance: f64,
+}
+impl Default for NanovdbConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            precision: NanoPrecision::Float,
+            grids: NanoGrids::default(),
+            tolerance: 1.0e-3,
+        }
+    }
+}
+impl NanovdbConfig {
+    pub fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
+}
+
+/// `export.nanovdb: true` is `export.nanovdb: {enabled: true}`.
+fn nanovdb_shorthand<'de, D: serde::Deserializer<'de>>(d: D) -> Result<NanovdbConfig, D::Error> {
+    struct V;
+    impl<'de> serde::de::Visitor<'de> for V {
+        type Value = NanovdbConfig;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("true, false or a mapping of keys (enabled, precision, grids, tolerance)")
+        }
+        fn visit_bool<E: serde::de::Error>(self, enabled: bool) -> Result<NanovdbConfig, E> {
+            Ok(NanovdbConfig {
+                enabled,
+                ..NanovdbConfig::default()
+            })
+        }
+        fn visit_unit<E: serde::de::Error>(self) -> Result<NanovdbConfig, E> {
+            Ok(NanovdbConfig::default())
+        }
+        fn visit_map<A: serde::de::MapAccess<'de>>(
+            self,
+            map: A,
+        ) -> Result<NanovdbConfig, A::Error> {
+            NanovdbConfig::deserialize(serde::de::value::MapAccessDeserializer::new(map))
+        }
+    }
+    d.deserialize_any(V)
+}
+
+/// How NanoVDB stores a float grid (NanoVDB 32.4's float, Fp4, Fp8, Fp16, FpN).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NanoPrecision {
+    Float,
+    Fp4,
+    Fp8,
+    Fp16,
+    Fpn,
+}
+impl NanoPrecision {
+    pub fn name(self) -> &'static str {
+        match self {
+            NanoPrecision::Float => "float",
+            NanoPrecision::Fp4 => "fp4",
+            NanoPrecision::Fp8 => "fp8",
+            NanoPrecision::Fp16 => "fp16",
+            NanoPrecision::Fpn => "fpn",
+        }
+    }
+}
+
+/// `export.nanovdb.grids`: `[density, vel]`, or `{density: fp8, vel: float}` (each grid with its
+/// own precision); in file order of the VDB either way.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct NanoGrids(pub Vec<(String, Option<NanoPrecision>)>);
+
+impl Serialize for NanoGrids {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::{SerializeMap, SerializeSeq};
+        if self.0.iter().any(|(_, p)| p.is_some()) {
+            let mut m = s.serialize_map(Some(self.0.len()))?;
+            for (name, p) in &self.0 {
+                m.serialize_entry(name, &p.unwrap_or(NanoPrecision::Float))?;
+            }
+            m.end()
+        } else {
+            let mut q = s.serialize_seq(Some(self.0.len()))?;
+            for (name, _) in &self.0 {
+                q.serialize_element(name)?;
+            }
+            q.end()
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for NanoGrids {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> serde::de::Visitor<'de> for V {
+            type Value = NanoGrids;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a list of grid names, or a mapping of grid names to precisions")
+            }
+            fn visit_unit<E: serde::de::Error>(self) -> Result<NanoGrids, E> {
+                Ok(NanoGrids::default())
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut a: A,
+            ) -> Result<NanoGrids, A::Error> {
+                let mut v = Vec::new();
+                while let Some(name) = a.next_element::<String>()? {
+                    v.push((name, None));
+                }
+                Ok(NanoGrids(v))
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut a: A,
+            ) -> Result<NanoGrids, A::Error> {
+                let mut v = Vec::new();
+                while let Some((name, p)) = a.next_entry::<String, NanoPrecision>()? {
+                    v.push((name, Some(p)));
+                }
+                Ok(NanoGrids(v))
+            }
+        }
+        d.deserialize_any(V)
     }
 }
 

@@ -435,6 +435,8 @@ fn every_key_is_documented() {
     });
     // serialised only when on
     c.output.preview.source_overlay = true;
+    c.export.usd = true;
+    c.export.nanovdb.enabled = true;
     let mut keys = Vec::new();
     leaves(&serde_json::to_value(&c).unwrap(), "", &mut keys);
     assert!(keys.len() > 60, "{keys:?}");
@@ -474,4 +476,56 @@ fn heat_source_schedule_ramps_in_and_out() {
     assert_eq!(HeatSource::falloff(100.0, 0.0, 100.0), 0.0);
     let mid = HeatSource::falloff(100.0, 85.0, 0.0);
     assert!((mid - 0.5).abs() < 1e-12, "{mid}");
+}
+
+#[test]
+fn nanovdb_takes_a_bool_or_a_mapping_and_grids_a_list_or_a_mapping() {
+    let on = ok(&format!("{BASE}export:\n  nanovdb: true\n"), &[]);
+    assert!(on.export.nanovdb.enabled);
+    assert_eq!(on.export.nanovdb.precision, NanoPrecision::Float);
+    // a key under the shorthand, from --set
+    let fp = ok(
+        &format!("{BASE}export:\n  nanovdb: true\n"),
+        &["export.nanovdb.grids={density: fp8, vel: float}"],
+    );
+    assert!(fp.export.nanovdb.enabled);
+    assert_eq!(
+        fp.export.nanovdb.grids.0,
+        vec![
+            ("density".to_string(), Some(NanoPrecision::Fp8)),
+            ("vel".to_string(), Some(NanoPrecision::Float))
+        ]
+    );
+    let list = ok(
+        BASE,
+        &["export.nanovdb={enabled: true, precision: fp16, grids: [temperature, density]}"],
+    );
+    assert_eq!(list.export.nanovdb.precision, NanoPrecision::Fp16);
+    assert_eq!(
+        list.export.nanovdb.grids.0,
+        vec![
+            ("temperature".to_string(), None),
+            ("density".to_string(), None)
+        ]
+    );
+    // the manifest's JSON loads back to the same config; unset, nothing is serialised
+    for c in [&fp, &list] {
+        let json = serde_json::to_string(c).unwrap();
+        assert_eq!(&ok(&json, &[]), c);
+    }
+    let off = serde_json::to_value(ok(BASE, &[])).unwrap();
+    assert!(off["export"].get("nanovdb").is_none() && off["export"].get("usd").is_none());
+    // file order, each grid with its precision
+    let sel: Vec<(String, NanoPrecision)> = crate::export::nanovdb_grids(&fp.export)
+        .into_iter()
+        .map(|(g, p)| (g.name, p))
+        .collect();
+    assert_eq!(
+        sel,
+        vec![
+            ("density".to_string(), NanoPrecision::Fp8),
+            ("vel".to_string(), NanoPrecision::Float)
+        ]
+    );
+    assert!(err(BASE, &["export.nanovdb=[1]"]).contains("expected true, false or a mapping"));
 }

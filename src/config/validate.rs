@@ -144,6 +144,7 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("export.detail.rest_smoothing", 1.0, 4.0),
     closed("export.optics.effective_radius", 0.5, 1000.0),
     closed("export.optics.air_density", 0.01, 10.0),
+    above("export.nanovdb.tolerance", 0.0, 1.0),
     above("control.target.scale", 0.0, 1.0e5),
     closed("control.target.rotate_y", -360.0, 360.0),
     closed("control.target.translate", -1.0e5, 1.0e5),
@@ -274,6 +275,7 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         ("export.detail.rest_smoothing", e.detail.rest_smoothing),
         ("export.optics.effective_radius", e.optics.effective_radius),
         ("export.optics.air_density", e.optics.air_density),
+        ("export.nanovdb.tolerance", e.nanovdb.tolerance),
     ] {
         one(key, x);
     }
@@ -481,6 +483,7 @@ pub(crate) fn issues(c: &ShotConfig) -> Vec<Issue> {
     check_physics(&mut k, &c.physics, c);
     check_adaptive(&mut k, &c.adaptive, c);
     check_export(&mut k, &c.export, &c.domain);
+    check_handoff(&mut k, &c.export);
     // control.target: its mesh or VDB read and placed in the domain (config::art)
     k.issues.extend(super::art::target_issues(c));
     if c.gpu.adapter.trim().is_empty() {
@@ -951,6 +954,92 @@ fn check_export(k: &mut Checks, e: &ExportConfig, d: &DomainConfig) {
     }
 }
 
+/// `export.usd` and `export.nanovdb`: the layer needs the VDB files it points at; NanoVDB's
+/// grids must be grids of the VDB files, and only float grids can be quantised.
+fn check_handoff(k: &mut Checks, e: &ExportConfig) {
+    if e.usd && !e.vdb.enabled {
+        k.fail(
+            &["export.usd"],
+            "the USD layer's fields point at the VDB files, and export.vdb.enabled is false: enable the VDB files or set export.usd: false".into(),
+        );
+    }
+    let n = &e.nanovdb;
+    if !n.enabled {
+        return;
+    }
+    let names = crate::export::vdb_grid_names(e);
+    if names.is_empty() {
+        k.fail(
+            &["export.nanovdb"],
+            "every export.grids name is empty, so there is no grid to write; name one or set export.nanovdb: false".into(),
+        );
+        return;
+    }
+    let list = names
+        .iter()
+        .map(|g| g.name.as_str())
+        .collect::<Vec<_>>()
+        .join(", ");
+    let mut seen = std::collections::BTreeSet::new();
+    for (i, (name, own)) in n.grids.0.iter().enumerate() {
+        let key = match own {
+            Some(_) => format!("export.nanovdb.grids.{name}"),
+            None => format!("export.nanovdb.grids[{i}]"),
+        };
+        if !names.iter().any(|g| &g.name == name) {
+            k.fail(
+                &[key.as_str(), "export.nanovdb.grids"],
+                format!("{name:?} is not a grid of the VDB files (they hold: {list})"),
+            );
+        } else if !seen.insert(name.as_str()) {
+            k.fail(
+                &[key.as_str(), "export.nanovdb.grids"],
+                format!("{name:?} is listed twice"),
+            );
+        }
+    }
+    for g in &names {
+        let own = n
+            .grids
+            .0
+            .iter()
+            .find(|(name, _)| *name == g.name)
+            .map(|(_, p)| *p);
+        let precision = match own {
+            None if !n.grids.0.is_empty() => continue, // not selected
+            Some(Some(p)) => p,
+            _ => n.precision,
+        };
+        if g.vector() && precision != NanoPrecision::Float {
+            let key = format!("export.nanovdb.grids.{}", g.name);
+            let keys: Vec<&str> = match own {
+                Some(Some(_)) => vec![key.as_str()],
+                _ => vec!["export.nanovdb.precision", "export.nanovdb"],
+            };
+            k.fail(
+                &keys,
+                format!(
+                    "{} quantises float grids only, and {:?} is a vector grid (NanoVDB stores it as Vec3f and has no quantised vector type): give it its own precision, e.g. export.nanovdb.grids: {{density: {}, {}: float}}, or leave it out of export.nanovdb.grids",
+                    precision.name(),
+                    g.name,
+                    precision.name(),
+                    g.name
+                ),
+            );
+        }
+        if g.name.len() > crate::io::nanovdb::MAX_NAME_BYTES {
+            k.fail(
+                &["export.nanovdb.grids"],
+                format!(
+                    "grid name {:?} is longer than NanoVDB's {} bytes",
+                    g.name,
+                    crate::io::nanovdb::MAX_NAME_BYTES
+                ),
+            );
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1098,6 +1187,8 @@ mod tests {
             look_at: [0.0; 3],
             fov_deg: 40.0,
         });
+        // serialised only when set
+        c.export.nanovdb.enabled = true;
         // Every f64 of the serialised config (JSON keeps 4.0 apart from 4) is range-checked.
         fn floats(v: &serde_json::Value, path: &str, out: &mut Vec<String>) {
             match v {

@@ -5,8 +5,9 @@
 //! exactly (an index permutation, no resampling) and back.
 pub mod optics;
 pub mod profile;
+pub mod usd;
 
-use crate::config::{ShotConfig, UpAxis, VectorClass, VelocityTime};
+use crate::config::{ExportConfig, NanoPrecision, ShotConfig, UpAxis, VectorClass, VelocityTime};
 use crate::io::vdb::{MetaValue, CLASS_FOG_VOLUME, CLASS_UNKNOWN};
 use crate::splat::{GridTransform, Leaf, SparseGrid, LEAF_DIM, LEAF_VOXELS};
 use serde::{Deserialize, Serialize};
@@ -54,22 +55,7 @@ impl ExportSpace {
     /// Grid aliases: the configured ones plus the profile's, where they name a written grid and
     /// clash with nothing configured.
     pub fn aliases(cfg: &ShotConfig) -> BTreeMap<String, String> {
-        let g = &cfg.export.grids;
-        let mut out = g.aliases.clone();
-        let names = [&g.density, &g.temperature, &g.vapor, &g.velocity];
-        for (alias, key) in profile::defaults(cfg.export.profile).aliases {
-            let target = match *key {
-                "density" => &g.density,
-                "temperature" => &g.temperature,
-                "vapor" => &g.vapor,
-                _ => &g.velocity,
-            };
-            let clash = names.iter().any(|n| n.as_str() == *alias) || out.contains_key(*alias);
-            if !target.is_empty() && !clash {
-                out.insert(alias.to_string(), target.clone());
-            }
-        }
-        out
+        aliases_of(&cfg.export)
     }
 
     /// Factor from simulated m/s to the velocity grid's unit (before the scale).
@@ -262,6 +248,104 @@ impl ExportSpace {
             ),
         ]
     }
+}
+
+/// Grid aliases of an export config: the configured ones plus the profile's, where they name
+/// a written grid and clash with nothing configured.
+pub fn aliases_of(e: &ExportConfig) -> BTreeMap<String, String> {
+    let g = &e.grids;
+    let mut out = g.aliases.clone();
+    let names = [&g.density, &g.temperature, &g.vapor, &g.velocity];
+    for (alias, key) in profile::defaults(e.profile).aliases {
+        let target = match *key {
+            "density" => &g.density,
+            "temperature" => &g.temperature,
+            "vapor" => &g.vapor,
+            _ => &g.velocity,
+        };
+        let clash = names.iter().any(|n| n.as_str() == *alias) || out.contains_key(*alias);
+        if !target.is_empty() && !clash {
+            out.insert(alias.to_string(), target.clone());
+        }
+    }
+    out
+}
+
+/// What a grid of the VDB files holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GridKind {
+    /// density, temperature, vapor: float fog volumes.
+    Scalar,
+    /// The velocity (vec3).
+    Velocity,
+    /// A rest-position grid (vec3, points).
+    Rest,
+}
+
+/// A grid of the VDB files, in file order: a grid, then its aliases (OpenVDB instances of it).
+#[derive(Debug, Clone, PartialEq)]
+pub struct VdbGridName {
+    pub name: String,
+    pub kind: GridKind,
+    /// For an alias: the grid it names again.
+    pub alias_of: Option<String>,
+}
+
+impl VdbGridName {
+    /// A vec3 grid (velocity, rest).
+    pub fn vector(&self) -> bool {
+        self.kind != GridKind::Scalar
+    }
+}
+
+/// Every grid name the VDB files of `e` hold (what the writer writes, whatever the frame).
+pub fn vdb_grid_names(e: &ExportConfig) -> Vec<VdbGridName> {
+    let g = &e.grids;
+    let rest2 = format!("{}2", g.rest);
+    let dual = !g.rest.is_empty() && e.detail.rest_period > 0;
+    let grids = [
+        (g.density.as_str(), GridKind::Scalar),
+        (g.temperature.as_str(), GridKind::Scalar),
+        (g.vapor.as_str(), GridKind::Scalar),
+        (g.velocity.as_str(), GridKind::Velocity),
+        (g.rest.as_str(), GridKind::Rest),
+        (if dual { rest2.as_str() } else { "" }, GridKind::Rest),
+    ];
+    let aliases = aliases_of(e);
+    let mut out = Vec::new();
+    for (name, kind) in grids.into_iter().filter(|(n, _)| !n.is_empty()) {
+        out.push(VdbGridName {
+            name: name.to_string(),
+            kind,
+            alias_of: None,
+        });
+        for (alias, target) in &aliases {
+            if target == name {
+                out.push(VdbGridName {
+                    name: alias.clone(),
+                    kind,
+                    alias_of: Some(name.to_string()),
+                });
+            }
+        }
+    }
+    out
+}
+
+/// The grids `export.nanovdb` writes, in VDB file order, each with its precision (vector grids:
+/// `float`, which validation makes sure of).
+pub fn nanovdb_grids(e: &ExportConfig) -> Vec<(VdbGridName, NanoPrecision)> {
+    let n = &e.nanovdb;
+    vdb_grid_names(e)
+        .into_iter()
+        .filter_map(|g| {
+            if n.grids.0.is_empty() {
+                return Some((g, n.precision));
+            }
+            let own = n.grids.0.iter().find(|(name, _)| *name == g.name)?.1;
+            Some((g, own.unwrap_or(n.precision)))
+        })
+        .collect()
 }
 
 pub fn velocity_time_name(t: VelocityTime) -> &'static str {

@@ -1,7 +1,8 @@
 //! `nimbus farm report`: the farm's last job. Checks every frame of every wedge against its
 //! run's manifest (each file's size and SHA-256), and with an export stage every exported frame
-//! against its export directory's manifest, and writes `farm_report.json` and the wedge
-//! contact sheet. Run again at any time; it only reads the runs.
+//! against its export directory's manifest, the USD layers those manifests record too, and
+//! writes `farm_report.json` and the wedge contact sheet. Run again at any time; it only reads
+//! the runs.
 use super::plan::{run_dir, ExportSettings, FarmPlan, REPORT, SHEET};
 use super::sheet::{self, SheetRow};
 use crate::error::{Error, Result};
@@ -36,6 +37,12 @@ pub struct WedgeReport {
     /// records whose files all match that manifest (sizes, SHA-256).
     pub export_dir: Option<String>,
     pub frames_exported: Option<u32>,
+    /// The run's USD layer (`export.usd`) and the export directory's, when their manifests
+    /// record one, checked like the frames (size, SHA-256).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub usd_layer: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub export_usd_layer: Option<String>,
     pub complete: bool,
 }
 
@@ -127,6 +134,8 @@ fn verify_run(plan: &FarmPlan, dir: &Path) -> (WedgeReport, Vec<(u32, String)>) 
         frames_rendered: None,
         export_dir: None,
         frames_exported: None,
+        usd_layer: None,
+        export_usd_layer: None,
         complete: false,
     };
     let manifest = match Manifest::load(dir) {
@@ -148,7 +157,12 @@ fn verify_run(plan: &FarmPlan, dir: &Path) -> (WedgeReport, Vec<(u32, String)>) 
             rep.frames_verified += 1;
         }
     }
-    rep.complete = rep.manifest_complete && rep.frames_verified == expected;
+    let layer_ok = verify_layer(dir, "", &manifest, &mut rep).map(|(path, ok)| {
+        rep.usd_layer = Some(path);
+        ok
+    });
+    rep.complete =
+        rep.manifest_complete && rep.frames_verified == expected && layer_ok != Some(false);
     if let Some(e) = &plan.export {
         let exported = verify_export(plan, dir, e, &mut rep);
         rep.frames_exported = Some(exported);
@@ -251,5 +265,26 @@ fn verify_export(plan: &FarmPlan, dir: &Path, e: &ExportSettings, rep: &mut Wedg
             }
         }
     }
+    if let Some((path, ok)) = verify_layer(&dest, &prefix, &manifest, rep) {
+        rep.export_usd_layer = Some(format!("{prefix}{path}"));
+        rep.complete &= ok;
+    }
     exported
+}
+
+/// The USD layer a manifest records, checked against the file (size, SHA-256): its path and
+/// whether it matches; `None` when the manifest records none.
+fn verify_layer(
+    dir: &Path,
+    prefix: &str,
+    m: &Manifest,
+    rep: &mut WedgeReport,
+) -> Option<(String, bool)> {
+    let rec = m.usd.as_ref()?;
+    let as_frame = FrameRecord {
+        frame: 0,
+        files: vec![rec.clone()],
+    };
+    let ok = verify_frame(dir, prefix, &as_frame, rep, None);
+    Some((rec.path.clone(), ok))
 }

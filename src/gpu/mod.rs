@@ -2,11 +2,13 @@
 //! [`stage::Stage`] every GPU stage is declared with, buffer helpers, shader loading, and the
 //! generic passes (prefix scan, timestamps).
 pub mod buffers;
+pub mod limits;
 pub mod live;
 pub mod scan;
 pub mod shaders;
 pub mod stage;
 pub mod timing;
+pub mod validation;
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -27,6 +29,10 @@ pub struct Context {
     pub timestamps: bool,
     /// The constants every stage's WGSL is compiled with (workgroup sizes, dispatch limit).
     pub prelude: shaders::Prelude,
+    /// What bounds a shot's size on this device (`NIMBUS_GPU_LIMITS` applied).
+    pub limits: limits::DeviceLimits,
+    /// Opened with validation (`NIMBUS_GPU_VALIDATION`): a validation error ends the process.
+    pub validation: bool,
     /// Times the host has waited for the GPU ([`Context::wait`]); stats.jsonl records the
     /// waits per frame.
     waits: AtomicU64,
@@ -36,7 +42,21 @@ impl Context {
     /// Opens the adapter the config asks for: `auto` prefers a discrete GPU, then any other;
     /// a name substring picks the first adapter whose name contains it (case-insensitive).
     pub fn new(cfg: &GpuConfig) -> Result<Self> {
+        let caps = limits::Caps::from_env()?;
+        let validation = validation::requested();
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        // Validation only when asked for (debug builds would otherwise load the layer wherever
+        // it is installed, and the tests' speed would depend on it); WGPU_VALIDATION still works
+        // for logging alone.
+        if validation {
+            validation::arm();
+            // DEBUG too: wgpu registers its debug messenger (through which the layer's
+            // messages reach `log`) only with it
+            desc.flags
+                .insert(wgpu::InstanceFlags::VALIDATION | wgpu::InstanceFlags::DEBUG);
+        } else if std::env::var_os("WGPU_VALIDATION").is_none() {
+            desc.flags.remove(wgpu::InstanceFlags::VALIDATION);
+        }
         let backends = match cfg.backend {
             Backend::Auto => {
                 wgpu::Backends::from_env().unwrap_or(wgpu::Backends::VULKAN | wgpu::Backends::GL)
@@ -66,6 +86,15 @@ impl Context {
         if info.backend == wgpu::Backend::Gl && backends.contains(wgpu::Backends::VULKAN) {
             log::warn!("{}", gl_fallback_warning(&info.name));
         }
+        // A validation run without the layer would validate nothing and pass.
+        if validation && validation::vulkan_layer_present(&adapter) == Some(false) {
+            return Err(Error::NoGpu(format!(
+                "{}=1 but the Vulkan loader finds no {} (Debian: apt-get install \
+                 vulkan-validationlayers, as tools/setup.sh does)",
+                validation::ENV,
+                validation::VULKAN_LAYER
+            )));
+        }
         let wanted = wgpu::Features::TIMESTAMP_QUERY;
         let features = adapter.features() & wanted;
         let limits = adapter.limits();
@@ -82,6 +111,14 @@ impl Context {
         required_limits.max_compute_workgroup_size_x = limits.max_compute_workgroup_size_x.min(256);
         required_limits.max_compute_workgroup_storage_size =
             limits.max_compute_workgroup_storage_size.min(32768);
+        let mut memory = limits::device_memory(&adapter);
+        if !caps.is_empty() {
+            log::warn!(
+                "{}: the device's limits are lowered on purpose ({caps:?})",
+                limits::CAP_ENV
+            );
+        }
+        caps.apply(&mut required_limits, &mut memory);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("nimbus"),
             required_features: features,
@@ -93,11 +130,13 @@ impl Context {
         .map_err(|e| Error::NoGpu(format!("adapter {} refused a device: {e}", info.name)))?;
         let prelude = shaders::Prelude::for_device(&device.limits(), info.device_type)?;
         Ok(Self {
+            limits: limits::DeviceLimits::new(&device.limits(), memory),
             device,
             queue,
             timestamps: features.contains(wgpu::Features::TIMESTAMP_QUERY),
             adapter_info: info,
             prelude,
+            validation,
             waits: AtomicU64::new(0),
         })
     }
@@ -114,6 +153,34 @@ impl Context {
     /// Host waits so far (see [`Context::wait`]).
     pub fn waits(&self) -> u64 {
         self.waits.load(Ordering::Relaxed)
+    }
+
+    /// Everything recorded about the adapter and the device nimbus opened on it, for benches
+    /// and the GPU machine's record: name, backend, type, vendor and device ids, driver,
+    /// subgroup sizes, the limits that bound a shot, timestamps, validation, the prelude.
+    pub fn describe(&self) -> serde_json::Value {
+        let i = &self.adapter_info;
+        let p = &self.prelude;
+        serde_json::json!({
+            "name": i.name,
+            "backend": format!("{:?}", i.backend),
+            "device_type": format!("{:?}", i.device_type),
+            "vendor": format!("{:#06x}", i.vendor),
+            "device": format!("{:#06x}", i.device),
+            "driver": i.driver,
+            "driver_info": i.driver_info,
+            "subgroup_size": [i.subgroup_min_size, i.subgroup_max_size],
+            "limits": self.limits,
+            "timestamps": self.timestamps,
+            "validation": self.validation,
+            "prelude": {
+                "wg_particles": p.wg_particles,
+                "wg_block": p.wg_block,
+                "wg_scan": p.wg_scan,
+                "max_groups_x": p.max_groups_x,
+                "loop_budget": p.loop_budget,
+            },
+        })
     }
 
     /// Adapter name as written into manifests and checkpoints.

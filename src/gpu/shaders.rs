@@ -24,6 +24,15 @@ pub const WG_SCAN_CPU: u32 = 8;
 /// Loop iterations an invocation may run on llvmpipe, with a margin below its 65535.
 pub const CPU_LOOP_BUDGET: u32 = 60_000;
 
+/// The environment variable that forces every workgroup size (`WG_PARTICLES`, `WG_BLOCK` and
+/// `WG_SCAN`) to one value, 32, 64, 128 or 256: the test suites run with each, so that no kernel
+/// depends on the sizes nimbus picks (docs/ARCHITECTURE.md "Across adapters").
+pub const WORKGROUP_ENV: &str = "NIMBUS_GPU_WORKGROUP";
+
+/// The workgroup sizes [`WORKGROUP_ENV`] may force (the merge kernel needs 27 threads, one per
+/// neighbour cell; a scan block of 2048 values must split into whole quads per thread).
+pub const FORCEABLE_WORKGROUPS: [u32; 4] = [32, 64, 128, 256];
+
 /// Constants prepended to every stage's WGSL.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Prelude {
@@ -53,15 +62,20 @@ impl Default for Prelude {
 }
 
 impl Prelude {
-    /// The prelude for a device of this type with these limits.
+    /// The prelude for a device of this type with these limits (and the workgroup size
+    /// [`WORKGROUP_ENV`] forces, if set).
     pub fn for_device(limits: &wgpu::Limits, device_type: wgpu::DeviceType) -> Result<Self> {
         let cpu = device_type == wgpu::DeviceType::Cpu;
-        let p = Self {
+        let mut p = Self {
             max_groups_x: limits.max_compute_workgroups_per_dimension,
             loop_budget: if cpu { CPU_LOOP_BUDGET } else { u32::MAX },
             wg_scan: if cpu { WG_SCAN_CPU } else { WG_SCAN_GPU },
             ..Self::default()
         };
+        if let Some(wg) = forced_workgroup()? {
+            log::warn!("{WORKGROUP_ENV}={wg}: every workgroup has {wg} threads (a test setting)");
+            p = p.with_workgroup(wg);
+        }
         if limits.max_compute_invocations_per_workgroup < p.wg_block
             || limits.max_compute_workgroup_size_x < p.wg_block
         {
@@ -71,6 +85,17 @@ impl Prelude {
             )));
         }
         Ok(p)
+    }
+
+    /// This prelude with every workgroup size `wg` (one of [`FORCEABLE_WORKGROUPS`]).
+    pub fn with_workgroup(self, wg: u32) -> Self {
+        assert!(FORCEABLE_WORKGROUPS.contains(&wg), "workgroup size {wg}");
+        Self {
+            wg_particles: wg,
+            wg_block: wg,
+            wg_scan: wg,
+            ..self
+        }
     }
 
     fn wgsl(&self) -> String {
@@ -83,6 +108,19 @@ impl Prelude {
             self.max_groups_x,
             self.loop_budget
         )
+    }
+}
+
+/// The workgroup size [`WORKGROUP_ENV`] forces, if any.
+fn forced_workgroup() -> Result<Option<u32>> {
+    let Ok(v) = std::env::var(WORKGROUP_ENV) else {
+        return Ok(None);
+    };
+    match v.trim().parse::<u32>() {
+        Ok(wg) if FORCEABLE_WORKGROUPS.contains(&wg) => Ok(Some(wg)),
+        _ => Err(Error::InvalidInput(format!(
+            "{WORKGROUP_ENV}={v}: one of {FORCEABLE_WORKGROUPS:?} (threads per workgroup)"
+        ))),
     }
 }
 

@@ -32,6 +32,18 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic_with(path, |f| f.write_all(bytes))
 }
 
+/// `write_atomic_with` through a 1 MiB buffer: `fill` writes the content in pieces.
+pub fn write_atomic_buffered(
+    path: &Path,
+    fill: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
+) -> Result<()> {
+    write_atomic_with(path, |f| {
+        let mut w = std::io::BufWriter::with_capacity(1 << 20, f);
+        fill(&mut w)?;
+        std::io::Write::flush(&mut w)
+    })
+}
+
 /// Like `write_atomic`, with the content produced by `fill` into the temporary file.
 pub fn write_atomic_with(
     path: &Path,

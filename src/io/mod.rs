@@ -5,6 +5,7 @@ pub mod checkpoint;
 pub mod exr;
 pub mod heat_map;
 pub mod inspect;
+pub mod nanovdb;
 pub mod obj;
 pub mod ply;
 pub mod vdb;

@@ -9,6 +9,7 @@ pub mod rerender;
 pub mod resume;
 pub mod run;
 pub mod run_dir;
+pub mod usd_layer;
 pub mod watchdog;
 pub mod writer;
 

@@ -57,6 +57,9 @@ pub struct Manifest {
     pub preroll: Option<PrerollRecord>,
     /// The command line that resumes this run.
     pub resume_command: String,
+    /// The USD layer `<shot>.usda` (`export.usd`), rewritten with every frame recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub usd: Option<FileRecord>,
     pub frames: Vec<FrameRecord>,
     /// True once every frame of the range is written.
     pub complete: bool,
@@ -226,6 +229,7 @@ mod tests {
             sources: vec![],
             preroll: None,
             resume_command: String::new(),
+            usd: None,
             frames: vec![],
             complete: false,
         };

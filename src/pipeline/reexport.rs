@@ -6,8 +6,9 @@
 //!   frame whose files are missing or differ from the manifest, and checks that the new files
 //!   have exactly the recorded size and SHA-256 (the splat is deterministic and the caches hold
 //!   the simulation's own f32 values): the manifest is not rewritten.
-//! - With other settings it writes `exports/<name>/` under the run (vdb/, exr/, preview/ and its
-//!   own manifest.json, which lists the frames exported so far); `<name>` defaults to a hash of
+//! - With other settings it writes `exports/<name>/` under the run (vdb/, exr/, preview/, nvdb/,
+//!   the USD layer and its own manifest.json, which lists the frames exported so far; the layer
+//!   holds the same frames); `<name>` defaults to a hash of
 //!   the export settings, so farm jobs with the same `--set`s share one directory. Its manifest
 //!   is updated under an exclusive lock of `exports/<name>/.lock`, held only for that update.
 //!
@@ -177,6 +178,7 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
         Some(Mutex::new(m))
     };
 
+    let layer = super::usd_layer::LayerWriter::new(&wcfg);
     let total = frames.len();
     let done = Mutex::new(0usize);
     let results: Vec<Result<(u32, bool)>> = frames
@@ -212,7 +214,7 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
                 .ok_or_else(|| Error::Runtime("export: frame not written".into()))?;
             match &out_manifest {
                 None => check_same(rec, &new, &ply)?,
-                Some(m) => record(&dest, m, new)?,
+                Some(m) => record(&dest, m, new, &layer)?,
             }
             progress(&done, total, rec.frame, "written", t);
             Ok((rec.frame, true))
@@ -239,8 +241,17 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
             let m = reload(&dest, m)?;
             writer.finish_run(&m)?;
         }
-        None if !summary.written.is_empty() => writer.finish_run(&manifest)?,
-        None => {}
+        None => {
+            if !summary.written.is_empty() {
+                writer.finish_run(&manifest)?;
+            }
+            if layer.restore(run_dir, &manifest)? {
+                eprintln!(
+                    "export: {} re-made as recorded",
+                    crate::export::usd::layer_name(&cfg.shot)
+                );
+            }
+        }
     }
     Ok(summary)
 }
@@ -316,7 +327,12 @@ fn check_same(rec: &FrameRecord, new: &FrameRecord, ply: &FileRecord) -> Result<
 
 /// Adds a frame to the export's manifest on disk, under the export directory's lock (other
 /// processes may be exporting other frames into it).
-fn record(dest: &Path, m: &Mutex<Manifest>, rec: FrameRecord) -> Result<()> {
+fn record(
+    dest: &Path,
+    m: &Mutex<Manifest>,
+    rec: FrameRecord,
+    layer: &super::usd_layer::LayerWriter,
+) -> Result<()> {
     let mut fresh = m.lock().unwrap_or_else(|e| e.into_inner());
     let lock = lock_file(dest)?;
     let mut current = match Manifest::load(dest) {
@@ -326,6 +342,7 @@ fn record(dest: &Path, m: &Mutex<Manifest>, rec: FrameRecord) -> Result<()> {
     current.record_frame(rec);
     current.complete =
         (current.frame_start..=current.frame_end).all(|f| current.frame(f).is_some());
+    layer.update(dest, &mut current)?;
     current.save(dest)?;
     *fresh = current;
     drop(lock);

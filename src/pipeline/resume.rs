@@ -31,6 +31,7 @@ fn resume_options(out_dir: &Path, log: LogFormat) -> RunOptions {
         out_dir: out_dir.to_path_buf(),
         log,
         start: Start::Resume,
+        device: None,
     }
 }
 

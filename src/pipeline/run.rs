@@ -31,16 +31,24 @@ pub struct RunOptions {
     pub out_dir: PathBuf,
     pub log: LogFormat,
     pub start: Start,
+    /// The device, opened (and the shot checked against it) before the run directory was
+    /// touched; `None`: `run` opens it.
+    pub device: Option<Arc<gpu::Context>>,
 }
 
 /// `nimbus run CONFIG`: a new run of `cfg` into `out_dir` (created if missing; refused when it
 /// holds an earlier run, unless `force`: see `run_dir`). Resuming is `super::resume`.
 pub fn run_fresh(cfg: &ShotConfig, out_dir: &Path, log: LogFormat, force: bool) -> Result<()> {
+    // The device first, and whether it holds the shot: a shot it cannot hold is refused (exit
+    // 4, the limit and the largest particle count that fits) before anything is written.
+    let ctx = Arc::new(gpu::Context::new(&cfg.gpu)?);
+    crate::sim::footprint::check_shot(&ctx, cfg, config::lattice_count(&cfg.domain) as u64)?;
     let lock = RunLock::acquire(out_dir, Create::IfMissing, "run")?;
     let opts = RunOptions {
         out_dir: out_dir.to_path_buf(),
         log,
         start: Start::Fresh { force },
+        device: Some(ctx),
     };
     run(cfg, &opts, &lock)
 }
@@ -89,7 +97,10 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     };
     let in_preroll = preroll_done < preroll;
 
-    let ctx = Arc::new(gpu::Context::new(&cfg.gpu)?);
+    let ctx = match &opts.device {
+        Some(ctx) => ctx.clone(),
+        None => Arc::new(gpu::Context::new(&cfg.gpu)?),
+    };
     let adapter = ctx.adapter_name();
     let (mut sim, first_frame) = match &resumed {
         None => (Simulation::new(ctx.clone(), cfg)?, cfg.output.frames.start),
@@ -185,6 +196,9 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
         Some(_) => StatsLog::load_until(run_dir, first_frame)?,
         None => StatsLog::default(),
     };
+    // A resumed run's layer holds what the manifest records (a lost or stale one is re-made).
+    let layer = super::usd_layer::LayerWriter::new(cfg);
+    layer.update(run_dir, &mut manifest)?;
     manifest.save(run_dir)?;
 
     let end = cfg.output.frames.end;
@@ -218,6 +232,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
 
     let mut loop_state = LoopState {
         in_flight: 0,
+        layer,
         manifest,
         stats,
         pending_stats: Vec::new(),
@@ -315,10 +330,9 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                 phase_ms: report.phases.by_key(),
                 diagnostics,
             });
-            let skip_write = loop_state
-                .manifest
-                .frame(frame)
-                .is_some_and(|rec| super::records::frame_intact(run_dir, rec));
+            let skip_write = loop_state.manifest.frame(frame).is_some_and(|rec| {
+                writer.has_all_files(rec) && super::records::frame_intact(run_dir, rec)
+            });
             progress.phase(frame, "splat + write", state.len() as u64);
             send(
                 &job_tx,
@@ -367,6 +381,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     result?;
     drained?;
     loop_state.manifest.complete = true;
+    loop_state.layer.update(run_dir, &mut loop_state.manifest)?;
     loop_state.manifest.save(run_dir)?;
     writer.finish_run(&loop_state.manifest)?;
     progress.note(
@@ -382,6 +397,8 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
 
 struct LoopState {
     in_flight: usize,
+    /// The USD layer, rewritten with the manifest's new frames.
+    layer: super::usd_layer::LayerWriter,
     manifest: Manifest,
     stats: StatsLog,
     /// Stats of frames still with the writer: a stats line lands with its frame's files.
@@ -418,6 +435,7 @@ impl LoopState {
                 s.phase_ms.extend(done.phase_ms);
                 self.stats.push(s);
             }
+            self.layer.update(run_dir, &mut self.manifest)?;
             self.manifest.save(run_dir)?;
             self.stats.save(run_dir)?;
             progress.frame_done(done.frame, done.particles, done.wall_ms);

@@ -3,8 +3,8 @@
 //! nimbus's own files in a run directory are: `.lock`; `manifest.json` when it parses as a
 //! nimbus manifest; then, by that manifest, every file it lists, every frame file named by its
 //! shot (the shot the newest checkpoint records when the manifest is lost) (`vdb/<shot>.<digits>.vdb`, `exr/<shot>.<digits>.exr`, `preview/<shot>.<digits>.png|exr`, `particles/<shot>.<digits>.ply`,
-//! a frame written just before a kill is not listed yet), `preview/contact_sheet.png` and
-//! `preview/<shot>.mp4`;
+//! `nvdb/<shot>.<digits>.nvdb`; a frame written just before a kill is not listed yet),
+//! `preview/contact_sheet.png`, `preview/<shot>.mp4` and the USD layer `<shot>.usda`;
 //! `stats.jsonl` when the manifest is nimbus's or every line is a stats line; checkpoint files
 //! (`checkpoints/ckpt_<digits>.nck` starting with the checkpoint magic); and temporary files
 //! (`*.nimbus-tmp`, stale once the lock is held); and under `exports/<name>/` (`nimbus
@@ -164,7 +164,10 @@ pub fn prepare_fresh(dir: &Path, force: bool) -> Result<()> {
 
 /// `kind/<shot>.<digits>.<ext>` with the extensions nimbus writes there, or the contact sheet.
 fn frame_file_of(shot: &str, rel: &str) -> bool {
-    if rel == "preview/contact_sheet.png" || rel == format!("preview/{shot}.mp4") {
+    if rel == "preview/contact_sheet.png"
+        || rel == format!("preview/{shot}.mp4")
+        || rel == crate::export::usd::layer_name(shot)
+    {
         return true;
     }
     let Some((kind, name)) = rel.split_once('/') else {
@@ -175,6 +178,7 @@ fn frame_file_of(shot: &str, rel: &str) -> bool {
         "exr" => &["exr"],
         "preview" => &["png", "exr"],
         "particles" => &["ply"],
+        "nvdb" => &["nvdb"],
         _ => return false,
     };
     let Some(rest) = name.strip_prefix(shot).and_then(|r| r.strip_prefix('.')) else {

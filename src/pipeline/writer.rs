@@ -108,6 +108,7 @@ impl FrameWriter {
             sources: crate::sim::sources::records(cfg),
             preroll: super::records::PrerollRecord::of(cfg),
             resume_command: super::naming::resume_command(&self.run_dir),
+            usd: None,
             frames: Vec::new(),
             complete: false,
         })
@@ -187,17 +188,26 @@ impl FrameWriter {
             files.push(file_record(&self.run_dir, &path)?);
             phase_ms.insert("write_particles".into(), ms(t));
         }
-        // Last, so the grids move into the file instead of being copied; listed first.
-        if c.export.vdb.enabled {
-            let t = Instant::now();
-            let path = frame_file(&self.run_dir, "vdb", &c.shot, job.frame, pad, "vdb");
-            crate::io::vdb::write_file(
-                &path,
-                &self.vdb_file(grids, job.frame),
-                &self.vdb_options(),
-            )?;
-            files.insert(0, file_record(&self.run_dir, &path)?);
-            phase_ms.insert("write_vdb".into(), ms(t));
+        // Last, so the grids move into the file instead of being copied; listed first, then
+        // the NanoVDB file made from the same grids.
+        if c.export.vdb.enabled || c.export.nanovdb.enabled {
+            let file = self.vdb_file(grids, job.frame);
+            let mut head = Vec::new();
+            if c.export.vdb.enabled {
+                let t = Instant::now();
+                let path = frame_file(&self.run_dir, "vdb", &c.shot, job.frame, pad, "vdb");
+                crate::io::vdb::write_file(&path, &file, &self.vdb_options())?;
+                head.push(file_record(&self.run_dir, &path)?);
+                phase_ms.insert("write_vdb".into(), ms(t));
+            }
+            if c.export.nanovdb.enabled {
+                let t = Instant::now();
+                let path = frame_file(&self.run_dir, "nvdb", &c.shot, job.frame, pad, "nvdb");
+                self.write_nanovdb(&path, &file)?;
+                head.push(file_record(&self.run_dir, &path)?);
+                phase_ms.insert("write_nanovdb".into(), ms(t));
+            }
+            files.splice(0..0, head);
         }
         Ok(WrittenFrame {
             frame: job.frame,
@@ -211,6 +221,17 @@ impl FrameWriter {
         })
     }
 
+    /// A frame record holds exactly the files this config writes (a resume with other export
+    /// settings writes its frames again).
+    pub fn has_all_files(&self, rec: &FrameRecord) -> bool {
+        let want = self.frame_files(rec.frame);
+        want.len() == rec.files.len()
+            && want.iter().zip(&rec.files).all(|(p, f)| {
+                p.strip_prefix(&self.run_dir)
+                    .is_ok_and(|r| r == Path::new(&f.path))
+            })
+    }
+
     /// The files a frame of this config has, in the order of its manifest record.
     pub fn frame_files(&self, frame: u32) -> Vec<PathBuf> {
         let c = &self.cfg;
@@ -219,6 +240,9 @@ impl FrameWriter {
         let mut v = Vec::new();
         if c.export.vdb.enabled {
             v.push(f("vdb", "vdb"));
+        }
+        if c.export.nanovdb.enabled {
+            v.push(f("nvdb", "nvdb"));
         }
         if c.export.exr.enabled {
             v.push(f("exr", "exr"));
@@ -352,6 +376,37 @@ impl FrameWriter {
         ]
     }
 
+    /// The frame's NanoVDB file (`export.nanovdb`): the selected grids of the VDB file, in its
+    /// order and frame, float or quantised (`io::nanovdb`).
+    fn write_nanovdb(&self, path: &Path, file: &VdbFile) -> Result<()> {
+        use crate::io::nanovdb::{GridClass, NanoGrid, NanoValues};
+        use crate::io::vdb::GridData;
+        let n = &self.cfg.export.nanovdb;
+        let mut grids = Vec::new();
+        for (g, precision) in crate::export::nanovdb_grids(&self.cfg.export) {
+            let source = g.alias_of.as_deref().unwrap_or(&g.name);
+            let Some(vg) = file.grids.iter().find(|v| v.name == source) else {
+                return Err(crate::Error::Runtime(format!(
+                    "internal: NanoVDB grid '{source}' is not in the frame's grids"
+                )));
+            };
+            let values = match &vg.data {
+                GridData::Float(s) => NanoValues::Float(s, quantise(precision, s, n.tolerance)),
+                GridData::Vec3(s) => NanoValues::Vec3(s),
+            };
+            grids.push(NanoGrid {
+                name: g.name.clone(),
+                class: GridClass::from_openvdb(vg.class),
+                values,
+            });
+        }
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir).map_err(|e| crate::Error::io(dir, e))?;
+        }
+        crate::io::nanovdb::write_file(path, &grids)?;
+        Ok(())
+    }
+
     fn vdb_options(&self) -> VdbOptions {
         VdbOptions {
             compression: self.cfg.export.vdb.compression,
@@ -405,4 +460,40 @@ impl FrameWriter {
 
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
+}
+
+/// NanoVDB's storage for a float grid; FpN's tolerance is `tolerance` x the range (max - min)
+/// of the grid's active values in this frame.
+fn quantise(
+    p: crate::config::NanoPrecision,
+    g: &SparseGrid<f32>,
+    tolerance: f64,
+) -> crate::io::nanovdb::Quantise {
+    use crate::config::NanoPrecision as P;
+    use crate::io::nanovdb::Quantise as Q;
+    match p {
+        P::Float => Q::Float,
+        P::Fp4 => Q::Fp4,
+        P::Fp8 => Q::Fp8,
+        P::Fp16 => Q::Fp16,
+        P::Fpn => Q::FpN {
+            tolerance: fpn_tolerance(g, tolerance),
+        },
+    }
+}
+
+/// `tolerance` x (max - min) of the active values, in f32 (0 for an empty grid).
+pub fn fpn_tolerance(g: &SparseGrid<f32>, tolerance: f64) -> f32 {
+    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+    for leaf in &g.leaves {
+        for n in (0..crate::splat::LEAF_VOXELS).filter(|&n| leaf.is_active(n)) {
+            lo = lo.min(leaf.values[n]);
+            hi = hi.max(leaf.values[n]);
+        }
+    }
+    if hi < lo {
+        0.0
+    } else {
+        (tolerance * (hi - lo) as f64) as f32
+    }
 }

@@ -101,14 +101,25 @@ pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
     s
 }
 
+/// Layers of wall particles at the floor and at the ceiling: spaced d, down to depth h0.
+fn wall_layers(cfg: &ShotConfig) -> usize {
+    let (_, d) = lattice(cfg);
+    ((kernel_radius(cfg) / d[1] - 0.5).ceil() as usize).max(1)
+}
+
+/// How many wall particles [`boundary_particles`] makes (without making them).
+pub fn boundary_count(cfg: &ShotConfig) -> usize {
+    let (n, _) = lattice(cfg);
+    2 * wall_layers(cfg) * n[0] * n[2]
+}
+
 /// Floor and ceiling walls: the x/z lattice, layers spaced d below y = 0 and above y = size
 /// down to depth h0 (so a fluid particle at the wall has a full neighbourhood), w = the
 /// environment temperature of the floor (ceiling). Returned in cell order with their wall table
 /// (`build_wall_table`: the first and last y rows of cells only).
 pub fn boundary_particles(cfg: &ShotConfig, grid: &GridParams) -> (Vec<[f32; 4]>, Vec<u32>) {
     let (n, d) = lattice(cfg);
-    let h = kernel_radius(cfg);
-    let layers = ((h / d[1] - 0.5).ceil() as usize).max(1);
+    let layers = wall_layers(cfg);
     let size_y = cfg.domain.size[1];
     let t_floor = environment_temperature(&cfg.physics, 0.0);
     let t_ceil = environment_temperature(&cfg.physics, size_y);

@@ -15,6 +15,7 @@ pub mod adaptive;
 pub mod buffers;
 pub mod control;
 pub mod diagnostics;
+pub mod footprint;
 pub mod grid;
 pub mod grid_params;
 #[cfg(feature = "test-hooks")]

@@ -115,21 +115,17 @@ impl Simulation {
                 "output.substeps and output.frame_seconds must be positive".into(),
             ));
         }
-        let factor = if cfg.adaptive.enabled {
-            cfg.adaptive.capacity_factor.max(1.0)
-        } else {
-            1.0
-        };
-        let capacity = (((n as f64 * factor).ceil() as u64).max(n as u64)).next_multiple_of(64);
-        let limits = ctx.device.limits();
-        let max_binding = limits
-            .max_storage_buffer_binding_size
-            .min(limits.max_buffer_size);
-        if capacity * 16 > max_binding || capacity > u32::MAX as u64 / 2 {
+        // the device holds the shot, or it is refused before anything is allocated (exit 4,
+        // with the limit and the largest count that fits; `run` checked it already)
+        let target = Target::load(cfg)?;
+        let shot = crate::sim::footprint::ShotSize::with_target(cfg, n as u64, target.as_ref())?;
+        let capacity = shot.capacity();
+        if capacity > u32::MAX as u64 / 2 {
             return Err(Error::InvalidInput(format!(
-                "{n} particles (capacity {capacity}) exceed the GPU's largest storage buffer ({max_binding} bytes); use a larger spacing"
+                "{n} particles (capacity {capacity}): more than nimbus's u32 particle indices hold"
             )));
         }
+        crate::sim::footprint::check(&ctx, &shot, || None)?;
         let capacity = capacity as u32;
         let mut grid = GridParams::for_shot(cfg);
         for (per, a, name) in [(grid.periodic_x(), 0, "x"), (grid.periodic_z(), 2, "z")] {
@@ -143,7 +139,6 @@ impl Simulation {
         grid.n_boundary = boundary.0.len() as u32;
         let params = PbfParams::for_shot(cfg);
         let b = ParticleBuffers::new(&ctx, state, capacity, &grid, &boundary, clock.next_id)?;
-        let target = Target::load(cfg)?;
         let mut thermo = ThermoStage::new(&ctx, cfg, &b, target.as_ref())?;
         thermo.set_layers(LayerBuoyancy::of_state(cfg, state));
         // the controller's state is a function of the particles: a resume from a checkpoint

@@ -107,6 +107,19 @@ pub fn blender_available() -> bool {
     ok
 }
 
+/// Whether spirv-val (Debian spirv-tools) runs here. Under CI=true (where .ci/run installs it)
+/// a missing one fails the test instead of skipping it.
+pub fn spirv_val_available() -> bool {
+    let ok = Command::new("spirv-val")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok && std::env::var("CI").as_deref() == Ok("true") {
+        panic!("CI=true but spirv-val is not on PATH: CI must install it (tools/setup.sh: spirv-tools)");
+    }
+    ok
+}
+
 /// Whether /usr/bin/python3 has pyopenvdb (the real OpenVDB). Under CI=true (where .ci/run
 /// installs python3-openvdb) a missing one fails the test instead of skipping it.
 pub fn pyopenvdb_available() -> bool {
@@ -118,6 +131,27 @@ pub fn pyopenvdb_available() -> bool {
         panic!("CI=true but /usr/bin/python3 has no pyopenvdb: CI must install python3-openvdb (tools/setup.sh)");
     }
     ok
+}
+
+/// Whether /usr/bin/python3 imports every module of `modules` (e.g. numpy, netCDF4). Under
+/// CI=true (where .ci/run installs them with tools/setup.sh) a missing one fails the test.
+pub fn py_modules_available(modules: &[&str]) -> bool {
+    let missing: Vec<&str> = modules
+        .iter()
+        .copied()
+        .filter(|m| {
+            !Command::new("/usr/bin/python3")
+                .args(["-c", &format!("import {m}")])
+                .output()
+                .is_ok_and(|o| o.status.success())
+        })
+        .collect();
+    if !missing.is_empty() && std::env::var("CI").as_deref() == Ok("true") {
+        panic!(
+            "CI=true but /usr/bin/python3 lacks {missing:?}: CI must install them (tools/setup.sh)"
+        );
+    }
+    missing.is_empty()
 }
 
 /// Runs tools/render_blender.py headless with `args` (after `--`); returns the process output

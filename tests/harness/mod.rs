@@ -213,3 +213,26 @@ pub fn max_rel_err<const N: usize>(gpu: &[[f64; N]], cpu: &[[f64; N]], floor: f6
         .fold(0.0, f64::max)
         / scale
 }
+
+/// Moves every position lying within 1e-4 of a slice width of a cell or x-slice boundary of
+/// `grid` 2e-4 slice widths away from it. The sort key is the floor of a quotient, and Vulkan
+/// lets a division be 2.5 ulp off (and a driver may fuse a multiply and an add), so a position
+/// within a few ulp of a boundary may get either key on another adapter; everywhere else the
+/// key, and with it the grid build, is exact on any adapter. Returns how many were moved.
+#[allow(clippy::needless_range_loop)] // three axes of three arrays
+pub fn off_cell_boundaries(grid: &GridParams, pos: &mut [[f32; 4]]) -> usize {
+    let mut moved = 0;
+    for p in pos.iter_mut() {
+        for a in 0..3 {
+            let width = grid.cell_size[a] as f64 / if a == 0 { grid.x_slices as f64 } else { 1.0 };
+            let u = (p[a] as f64 - grid.domain_min[a] as f64) / width;
+            let off = u - u.round();
+            if off.abs() < 1e-4 {
+                let away = if off < 0.0 { -2e-4 } else { 2e-4 };
+                p[a] = (grid.domain_min[a] as f64 + (u.round() + away) * width) as f32;
+                moved += 1;
+            }
+        }
+    }
+    moved
+}

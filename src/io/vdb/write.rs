@@ -11,7 +11,7 @@ use super::{
     COMPRESS_BLOSC, COMPRESS_ZIP, FILE_VERSION, LIBRARY_VERSION, MAGIC,
 };
 use crate::error::{Error, Result};
-use crate::io::atomic::write_atomic_with;
+use crate::io::atomic::write_atomic_buffered;
 use crate::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use rayon::prelude::*;
 use sha2::{Digest, Sha256};
@@ -176,7 +176,7 @@ fn put_transform(out: &mut Vec<u8>, t: &GridTransform) {
 
 /// Position of a leaf in OpenVDB's tree order: root key (origin & !4095, ordered as `Coord`),
 /// child index in the 32^3 node, child index in the 16^3 node.
-fn tree_key(o: [i32; 3]) -> ([i32; 3], u32, u32) {
+pub(crate) fn tree_key(o: [i32; 3]) -> ([i32; 3], u32, u32) {
     let root = o.map(|c| c & !4095);
     let n5 = (((o[0] & 4095) >> 7) << 10) | (((o[1] & 4095) >> 7) << 5) | ((o[2] & 4095) >> 7);
     let n4 = (((o[0] & 127) >> 3) << 8) | (((o[1] & 127) >> 3) << 4) | ((o[2] & 127) >> 3);
@@ -184,7 +184,7 @@ fn tree_key(o: [i32; 3]) -> ([i32; 3], u32, u32) {
 }
 
 /// Leaf indices in tree order; rejects origins off the 8-grid and duplicate leaves.
-fn tree_order<T: VdbValue>(g: &SparseGrid<T>) -> Result<Vec<usize>> {
+pub(crate) fn tree_order<T: VdbValue>(g: &SparseGrid<T>) -> Result<Vec<usize>> {
     if let Some(l) = g
         .leaves
         .iter()
@@ -450,7 +450,7 @@ pub struct EncodedFile {
 }
 
 impl EncodedFile {
-    fn write_to(&self, w: &mut impl Write) -> std::io::Result<()> {
+    fn write_to(&self, w: &mut dyn Write) -> std::io::Result<()> {
         let mut g = 0;
         for (i, c) in self.chunks.iter().enumerate() {
             w.write_all(c)?;
@@ -592,10 +592,6 @@ pub fn encode(file: &VdbFile, opts: &VdbOptions) -> Result<EncodedFile> {
 /// Writes a VDB file atomically; returns its size in bytes.
 pub fn write_file(path: &Path, file: &VdbFile, opts: &VdbOptions) -> Result<u64> {
     let enc = encode(file, opts)?;
-    write_atomic_with(path, |f| {
-        let mut w = std::io::BufWriter::with_capacity(1 << 20, f);
-        enc.write_to(&mut w)?;
-        w.flush()
-    })?;
+    write_atomic_buffered(path, |w| enc.write_to(w))?;
     Ok(enc.len)
 }
