@@ -1,5 +1,5 @@
-//! `nimbus bench detail RUN_DIR`: the figures of `export.detail` (docs/RENDERING.md "Sub-particle
-//! detail", docs/PERFORMANCE.md), measured on a run's particle caches (the run needs
+//! `nimbus bench detail RUN_DIR`: the figures of `export.detail` (docs/RENDERING.md "Detail at the
+//! surface", docs/PERFORMANCE.md), measured on a run's particle caches (the run needs
 //! `export.particles` and `export.detail.enabled` or `export.grids.rest`, so the caches hold the
 //! rest positions). Per frame, at `--voxel` (default: spacing / 4), with the run's detail settings
 //! (detail switched on if the run had it off):
@@ -21,6 +21,7 @@
 //! - time: `FrameWriter::write` of the frame with the run's grids at that voxel size and VDB only
 //!   (no EXR, preview or cache): splat + detail, and the VDB write, against the simulation's own
 //!   milliseconds per frame from the run's stats.jsonl.
+use super::surface::{self, fft};
 use crate::config::ShotConfig;
 use crate::error::{Error, Result};
 use crate::export::ExportSpace;
@@ -28,7 +29,6 @@ use crate::pipeline::records::Manifest;
 use crate::pipeline::writer::{FrameJob, FrameWriter};
 use crate::sim::rest::{RestClock, RestCodec, RestFrame};
 use crate::sim::ParticleState;
-use super::surface::{self, fft};
 use crate::splat::detail::{DetailNoise, EdgeSums, NoiseSpace};
 use crate::splat::{splat_with_rest, RestInput, SparseGrid, SplatFields, SplatParams};
 use serde_json::json;
@@ -193,14 +193,9 @@ pub fn bench_detail(
             let ew = high_energy(&dw, spacing);
             row["energy_below_spacing_ratio"] = json!(e1 / e0);
             row["energy_below_spacing_ratio_world"] = json!(ew / e0);
-            if let Some(sf) = surface::surface_figures(
-                &d0,
-                &d1,
-                opts.boundary,
-                2.0 * spacing,
-                spacing,
-                spacing,
-            ) {
+            if let Some(sf) =
+                surface::surface_figures(&d0, &d1, opts.boundary, 2.0 * spacing, spacing, spacing)
+            {
                 row["inside_rms_change"] = json!(sf.inside_rms_change);
                 row["inside_voxels"] = json!(sf.inside_voxels);
                 row["shell_energy_ratio"] = json!(sf.shell_energy_ratio);
@@ -825,7 +820,10 @@ fn exact_correlation(
                 .edge(&sums, x, r)
                 .map_or(0.0, |(v, m)| v * (1.0 + k * m).max(0.0))
         };
-        let (dr, dw) = (detailed(noise_rest, norm[0]), detailed(noise_world, norm[1]));
+        let (dr, dw) = (
+            detailed(noise_rest, norm[0]),
+            detailed(noise_world, norm[1]),
+        );
         let v0 = b0.get(ijk) as f64;
         own_xy += d0 * v0;
         own_xx += d0 * d0;

@@ -367,10 +367,7 @@ pub fn boundary_thickness(g: &Dense, tau: f64, reach: f64) -> Vec<f64> {
                         g.sample([0, 1, 2].map(|a| p[a] as f64 + s * u[a]))
                     })
                     .collect();
-                let top = profile[n as usize..]
-                    .iter()
-                    .copied()
-                    .fold(0.0f64, f64::max);
+                let top = profile[n as usize..].iter().copied().fold(0.0f64, f64::max);
                 let Some(i90) = profile.iter().position(|&v| v >= 0.9 * top) else {
                     continue;
                 };

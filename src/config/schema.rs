@@ -643,7 +643,8 @@ pub struct ExportConfig {
     pub velocity_time: Option<VelocityTime>,
     /// Write `particles/<shot>.<frame>.ply` per frame (what `nimbus export` re-splats).
     pub particles: bool,
-    /// Sub-particle procedural detail, evaluated in the particles' rest frame (`splat::detail`).
+    /// Procedural detail at the cloud's surface, evaluated in the particles' rest frame
+    /// (`splat::detail`).
     pub detail: DetailConfig,
     /// The physical meaning of the density grid: what turns it into extinction
     /// (`export::optics`). Left out of the serialisation at its defaults, so the hashes and

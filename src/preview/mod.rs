@@ -34,8 +34,8 @@ use crate::error::{Error, Result};
 use crate::splat::SparseGrid;
 use glam::DVec3;
 use rayon::prelude::*;
-use std::path::{Path, PathBuf};
 pub use sky::Sky;
+use std::path::{Path, PathBuf};
 use volume::Volume;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -348,11 +348,11 @@ fn encode_srgb(x: f64) -> u8 {
 /// each channel, which keeps white clouds white and leaves the sky a little more saturated.
 const FILMIC_8BIT: [u8; 129] = [
     0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5, 6, 7, 8, 9,
-    10, 11, 12, 13, 15, 16, 18, 20, 22, 24, 26, 28, 31, 34, 37, 40, 43, 47, 51, 55, 59, 64, 69,
-    74, 79, 84, 90, 96, 102, 108, 115, 121, 128, 134, 141, 147, 153, 160, 166, 172, 178, 184, 190,
-    195, 200, 205, 210, 214, 219, 222, 226, 229, 233, 236, 238, 241, 243, 245, 247, 248, 250, 251,
-    252, 253, 254, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255,
-    255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255,
+    10, 11, 12, 13, 15, 16, 18, 20, 22, 24, 26, 28, 31, 34, 37, 40, 43, 47, 51, 55, 59, 64, 69, 74,
+    79, 84, 90, 96, 102, 108, 115, 121, 128, 134, 141, 147, 153, 160, 166, 172, 178, 184, 190, 195,
+    200, 205, 210, 214, 219, 222, 226, 229, 233, 236, 238, 241, 243, 245, 247, 248, 250, 251, 252,
+    253, 254, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255,
+    255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255,
 ];
 
 /// The Filmic display value (0 to 1, sRGB-encoded) of scene-linear `x`.
@@ -422,7 +422,12 @@ pub fn sky_image(params: &PreviewParams) -> Result<LinearImage> {
     let sky = params.sky();
     let data = (0..params.height)
         .flat_map(|y| (0..params.width).map(move |x| (x, y)))
-        .map(|(x, y)| sky.radiance(params.ray(x, y)).as_vec3().extend(0.0).to_array())
+        .map(|(x, y)| {
+            sky.radiance(params.ray(x, y))
+                .as_vec3()
+                .extend(0.0)
+                .to_array()
+        })
         .collect();
     Ok(LinearImage {
         width: params.width,

@@ -90,7 +90,9 @@ impl Sky {
         let flat = DVec3::new(d.x, 0.0, d.z);
         let sflat = DVec3::new(self.sun.x, 0.0, self.sun.z);
         let az = if flat.length_squared() > 1e-18 && sflat.length_squared() > 1e-18 {
-            (flat.normalize().dot(sflat.normalize())).clamp(-1.0, 1.0).acos()
+            (flat.normalize().dot(sflat.normalize()))
+                .clamp(-1.0, 1.0)
+                .acos()
         } else {
             0.0
         };
@@ -130,7 +132,8 @@ impl Sky {
         let (mut wu, mut wd) = (0.0, 0.0);
         let n = 48;
         for i in 0..2 * n {
-            let el = -std::f64::consts::FRAC_PI_2 + (i as f64 + 0.5) / (2 * n) as f64 * std::f64::consts::PI;
+            let el = -std::f64::consts::FRAC_PI_2
+                + (i as f64 + 0.5) / (2 * n) as f64 * std::f64::consts::PI;
             for j in 0..2 * n {
                 let az = (j as f64 + 0.5) / (2 * n) as f64 * std::f64::consts::TAU;
                 let d = DVec3::new(el.cos() * az.cos(), el.sin(), el.cos() * az.sin());
@@ -248,8 +251,7 @@ fn single_scattering(d: DVec3, sun: DVec3) -> DVec3 {
         let t_sun = transmittance(q, sun);
         let r = (-h / RAYLEIGH_HEIGHT).exp();
         let m = (-h / MIE_HEIGHT).exp();
-        let scatter =
-            DVec3::from_array(RAYLEIGH) * (r * phase_r) + DVec3::splat(MIE * m * phase_m);
+        let scatter = DVec3::from_array(RAYLEIGH) * (r * phase_r) + DVec3::splat(MIE * m * phase_m);
         l += t_view * t_sun * scatter * ds;
         tau += ext * ds;
     }
@@ -273,7 +275,12 @@ mod tests {
         for c in 0..3 {
             let r = e[c] / blender[c];
             eprintln!("channel {c}: {} vs Blender's {}", e[c], blender[c]);
-            assert!((0.75..1.25).contains(&r), "channel {c}: {} vs {}", e[c], blender[c]);
+            assert!(
+                (0.75..1.25).contains(&r),
+                "channel {c}: {} vs {}",
+                e[c],
+                blender[c]
+            );
         }
     }
 
@@ -284,7 +291,10 @@ mod tests {
         let horizon = s.radiance(DVec3::new(-0.26, 0.02, 0.97).normalize());
         let ground = s.radiance(DVec3::new(0.0, -0.3, 1.0).normalize());
         assert!(zenith.z > zenith.x, "{zenith}");
-        assert!(horizon.x / horizon.z > zenith.x / zenith.z, "{horizon} {zenith}");
+        assert!(
+            horizon.x / horizon.z > zenith.x / zenith.z,
+            "{horizon} {zenith}"
+        );
         assert!(ground.length() < horizon.length(), "{ground} {horizon}");
         // the table reads back what it holds
         let d = direction(s.sun, 0.3, 0.4);

@@ -238,7 +238,6 @@ impl DetailNoise {
         th.sin() * a + th.cos() * b
     }
 
-
     /// The detailed density of a voxel from its kernel sums, at world position `x` with rest
     /// coordinates `rest`, before the frame's mass factor, and the voxel's weight m in that
     /// factor (the edge: 1 at the surface and outside, 0 in the core). `None` where the
@@ -266,9 +265,8 @@ impl DetailNoise {
         // about 0.2): the displacement fades out where the cloud fraction does; and it stays
         // within 60% of the kernel radius (a soft limit), so that no crease reaches the core
         let reach = 0.6 * h;
-        let d = reach
-            * (self.displacement(x, rest, omega) / reach).tanh()
-            * smoothstep(0.02, 0.3, c);
+        let d =
+            reach * (self.displacement(x, rest, omega) / reach).tanh() * smoothstep(0.02, 0.3, c);
         let w = self.sharp + omega * (self.soft - self.sharp);
         let value = q_in * smoothstep(-w, w, phi + d);
         let m = 1.0 - smoothstep(0.0, h, phi);
@@ -294,7 +292,16 @@ fn octave_means() -> [f64; 2] {
             ((i >> 5) & 31) as f64 * 0.414 + (i >> 10) as f64 * 0.133,
             (i >> 10) as f64 * 0.732,
         ];
-        let v = value_noise3(p[0], p[2], p[1], 1.0, 1.0, 64, 64, pcg_hash(0x5eed ^ (i >> 12)));
+        let v = value_noise3(
+            p[0],
+            p[2],
+            p[1],
+            1.0,
+            1.0,
+            64,
+            64,
+            pcg_hash(0x5eed ^ (i >> 12)),
+        );
         let [sb, sw] = shapes(v);
         b += sb;
         w += sw;
@@ -367,7 +374,10 @@ mod tests {
             assert!((plane_fraction(u) + plane_fraction(-u) - 1.0).abs() < 1e-12);
         }
         for u in [-0.9, -0.3, 0.0, 0.25, 0.7] {
-            assert!((distance_of_fraction(plane_fraction(u)) - u).abs() < 1e-9, "{u}");
+            assert!(
+                (distance_of_fraction(plane_fraction(u)) - u).abs() < 1e-9,
+                "{u}"
+            );
         }
         assert_eq!(distance_of_fraction(1.0), 1.0);
         assert_eq!(distance_of_fraction(0.0), -1.0);
@@ -422,8 +432,14 @@ mod tests {
         let world = DetailNoise::new(&p, dom, 5.0, [0.3, 0.7], 1000.0);
         let x = [100.0, 50.0, 30.0];
         let r = [[140.0, 70.0, 10.0], [120.0, 60.0, 35.0]];
-        assert_eq!(world.displacement(x, r, 0.5), world.displacement(x, [x, x], 0.5));
-        assert_eq!(rest.displacement(x, [x, x], 0.5), world.displacement(x, r, 0.5));
+        assert_eq!(
+            world.displacement(x, r, 0.5),
+            world.displacement(x, [x, x], 0.5)
+        );
+        assert_eq!(
+            rest.displacement(x, [x, x], 0.5),
+            world.displacement(x, r, 0.5)
+        );
         assert_ne!(rest.displacement(x, r, 0.5), world.displacement(x, r, 0.5));
     }
 
@@ -475,7 +491,10 @@ mod tests {
         // a voxel above the surface: nearly the cloud's own density; a voxel below: nearly 0
         let (above, _) = at(40.0).unwrap();
         let (below, mb) = at(-40.0).unwrap();
-        assert!(above > 0.95 * q && below < 0.05 * q && mb == 1.0, "{above} {below}");
+        assert!(
+            above > 0.95 * q && below < 0.05 * q && mb == 1.0,
+            "{above} {below}"
+        );
         // the base of a cloud (it lies above the plane): the normal points down, so the edge
         // is the wispy one, 2.5 voxels each side
         let (mid, _) = at(0.0).unwrap();
