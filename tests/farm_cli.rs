@@ -110,6 +110,62 @@ fn dry_run_writes_the_plan_and_submits_nothing() {
     );
 }
 
+/// A shot with a pre-roll: the plan records its frames (each simulation task simulates them
+/// before frame 1), and the dry run says so.
+#[test]
+fn dry_run_plans_the_preroll() {
+    let base = fresh_dir("farm_dry_run_preroll");
+    let farm = base.join("farm");
+    let yaml = base.join("tiny_preroll.yaml");
+    let tiny = std::fs::read_to_string(sample("tiny.yaml")).unwrap();
+    // 12 s of pre-roll at tiny's 5 s frames: 3 frames
+    let shot = tiny.replacen(
+        "  frame_seconds: 5.0\n",
+        "  frame_seconds: 5.0\n  preroll: 12\n",
+        1,
+    );
+    assert_ne!(
+        shot, tiny,
+        "samples/tiny.yaml changed: put the pre-roll elsewhere"
+    );
+    std::fs::write(&yaml, shot).unwrap();
+    let o = nimbus()
+        .args(["farm", "submit"])
+        .arg(&yaml)
+        .args(["--time-limit", "10:00", "--dry-run", "--out"])
+        .arg(&farm)
+        .env("PATH", path_without_sbatch(&base))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(farm.join("farm.json")).unwrap()).unwrap();
+    assert_eq!(plan["preroll_frames"], 3, "{plan}");
+    assert_eq!(plan["frame_start"], 1);
+    // status reads it from the plan, without a scheduler to ask
+    let status = nimbus()
+        .args(["farm", "status", "--log-format", "json"])
+        .arg(&farm)
+        .env("PATH", path_without_sbatch(&base))
+        .output()
+        .unwrap();
+    let s: serde_json::Value =
+        serde_json::from_slice(&status.stdout).unwrap_or_else(|e| panic!("{e}: {}", text(&status)));
+    assert_eq!(s["preroll_frames"], 3, "{s}");
+    let status = nimbus()
+        .args(["farm", "status"])
+        .arg(&farm)
+        .env("PATH", path_without_sbatch(&base))
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&status.stdout);
+    assert!(
+        out.contains("frames 1..=8, after a pre-roll of 3 frames"),
+        "{}",
+        text(&status)
+    );
+}
+
 #[test]
 fn invalid_wedge_values_and_flags_are_refused_before_anything_is_written() {
     let base = fresh_dir("farm_bad_wedge");
