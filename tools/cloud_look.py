@@ -128,7 +128,7 @@ def main():
         print(f"  boundary 10-90% thickness: median {v[1]:.2f} voxels ({bt['scene_units_median']:.1f} units), quartiles {v[0]:.2f}-{v[2]:.2f}")
     cl = out.get("cloud_luminance")
     if cl:
-        print(f"  cloud pixels' luminance: p5 {cl['p5']:.3f}, p50 {cl['p50']:.3f}, p95 {cl['p95']:.3f}, p95/p5 {cl['ratio_95_5']:.2f}")
+        print(f"  cloud pixels' luminance: p5 {cl['p5']:.3f}, p50 {cl['p50']:.3f}, p95 {cl['p95']:.3f}, p95/p5 {cl['ratio_95_5']:.2f} (sRGB-encoded {cl.get('ratio_95_5_srgb', float('nan')):.2f})")
     print(json.dumps(out, sort_keys=True))
 
 

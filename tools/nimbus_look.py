@@ -226,16 +226,25 @@ def luminance(img):
     return 0.2126 * lin[..., 0] + 0.7152 * lin[..., 1] + 0.0722 * lin[..., 2]
 
 
+def linear_to_srgb(v):
+    v = np.asarray(v, np.float64)
+    return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(np.maximum(v, 0.0), 1 / 2.4) - 0.055)
+
+
 def luminance_percentiles(img, mask):
-    """5th, 50th and 95th percentile of the cloud pixels' luminance and the 95th / 5th ratio."""
+    """5th, 50th and 95th percentile of the cloud pixels' (linear) luminance and the 95th / 5th
+    ratio; also the ratio of the two percentiles sRGB-encoded, as the display shows them
+    (`ratio_95_5_srgb`: the figure of 1.3 that issue 37 quoted for the look before it)."""
     y = luminance(img)[mask]
     if y.size == 0:
         return None
     p5, p50, p95 = np.percentile(y, [5, 50, 95])
+    e5, e95 = linear_to_srgb(p5), linear_to_srgb(p95)
     return {
         "p5": float(p5),
         "p50": float(p50),
         "p95": float(p95),
         "ratio_95_5": float(p95 / p5) if p5 > 0 else float("inf"),
+        "ratio_95_5_srgb": float(e95 / e5) if e5 > 0 else float("inf"),
         "pixels": int(y.size),
     }
