@@ -412,8 +412,8 @@ pub fn surface_figures(
     let mask: Vec<bool> = a.values.iter().map(|&x| x >= tau).collect();
     let sd = signed_distance(&mask, a.dims);
     let (mut num, mut den, mut n_in) = (0.0, 0.0, 0usize);
-    for i in 0..sd.len() {
-        if sd[i] * v > inside {
+    for (i, &di) in sd.iter().enumerate() {
+        if di * v > inside {
             let d = b.values[i] - a.values[i];
             num += d * d;
             den += a.values[i] * a.values[i];
@@ -423,8 +423,8 @@ pub fn surface_figures(
     let ha = high_pass(a, wavelength);
     let hb = high_pass(b, wavelength);
     let (mut ea, mut eb, mut n_sh) = (0.0, 0.0, 0usize);
-    for i in 0..sd.len() {
-        if sd[i].abs() * v <= shell {
+    for (i, &di) in sd.iter().enumerate() {
+        if di.abs() * v <= shell {
             ea += ha[i] * ha[i];
             eb += hb[i] * hb[i];
             n_sh += 1;

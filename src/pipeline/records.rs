@@ -109,7 +109,7 @@ impl PrerollRecord {
     pub fn of(cfg: &crate::config::ShotConfig) -> Option<Self> {
         let frames = cfg.output.preroll_frames();
         let fs = cfg.output.frame_seconds;
-        (frames > 0).then(|| Self {
+        (frames > 0).then_some(Self {
             frames,
             seconds: frames as f64 * fs,
             first_frame_time: (frames as f64 + 1.0) * fs,

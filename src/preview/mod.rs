@@ -357,7 +357,8 @@ const FILMIC_8BIT: [u8; 129] = [
 
 /// The Filmic display value (0 to 1, sRGB-encoded) of scene-linear `x`.
 pub fn filmic(x: f64) -> f64 {
-    if !(x > 0.0) {
+    // NaN and non-positive: black
+    if x.is_nan() || x <= 0.0 {
         return 0.0;
     }
     let s = ((x / 0.18).log2() + 12.0) / 0.1875;

@@ -123,8 +123,8 @@ impl EdgeSums {
         self.dens += w * q;
         self.cloud += w * s;
         self.cloud_h += w * s * h;
-        for a in 0..3 {
-            let g = dw * e[a];
+        for (a, &ea) in e.iter().enumerate() {
+            let g = dw * ea;
             self.grad_cov[a] += g;
             self.grad_cloud[a] += g * s;
         }
