@@ -1239,6 +1239,11 @@ mod tests {
                 direction: 45.0,
             }],
         });
+        // keys left out of the JSON at their defaults (the manifest's config of earlier shots
+        // stays the same) are set here, so that they are in it
+        c.output.preroll = 8.0;
+        c.export.optics.effective_radius = 12.0;
+        c.export.optics.air_density = 1.0;
         assert_eq!(issues(&c), vec![]);
         let mut want = Vec::new();
         floats(&serde_json::to_value(&c).unwrap(), "", &mut want);
