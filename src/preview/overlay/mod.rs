@@ -91,8 +91,18 @@ pub fn draw_domain_box(img: &mut LinearImage, params: &PreviewParams, size: [f64
     }
 }
 
-/// Blends `color` over pixel i with opacity `a` (alpha channel: at least `a`).
-pub fn blend(img: &mut LinearImage, i: usize, color: DVec3, a: f64) {
+/// The scene-linear radiance an overlay colour is drawn with. Overlay colours are given as they
+/// should look (display-referred, 0 to 1); the previews' radiances are physical (a sun of
+/// irradiance 145.5, exposure 2^-2.4, Filmic), under which a radiance of 1 is a dark grey. A
+/// colour of 1 becomes 3.75 stops over Filmic's middle grey after the exposure: near its white.
+pub fn display_color(color: DVec3, params: &PreviewParams) -> DVec3 {
+    color * (0.18 * 3.75f64.exp2() / params.exposure)
+}
+
+/// Blends `color` (display-referred, `display_color`) over pixel i with opacity `a` (alpha
+/// channel: at least `a`).
+pub fn blend(img: &mut LinearImage, params: &PreviewParams, i: usize, color: DVec3, a: f64) {
+    let color = display_color(color, params);
     let a = a.clamp(0.0, 1.0) as f32;
     let px = &mut img.data[i];
     for (c, v) in px.iter_mut().zip(color.as_vec3().to_array()) {
@@ -158,7 +168,7 @@ pub fn draw_segment(
             let cover = (0.5 * width + 0.5 - d).clamp(0.0, 1.0);
             if cover > 0.0 {
                 let i = (py * img.width + px) as usize;
-                blend(img, i, color, alpha * cover);
+                blend(img, params, i, color, alpha * cover);
             }
         }
     }

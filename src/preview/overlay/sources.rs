@@ -10,7 +10,7 @@
 //! dimmed (the floor of the fill, faint outline or wires), so its place is still visible.
 //! Footprints wrap across periodic faces as the heating does; wireframes are drawn where the
 //! centre is, unwrapped.
-use super::{blend, draw_segment, edge, ground_hit, line_width, PALETTE};
+use super::{blend, display_color, draw_segment, edge, ground_hit, line_width, PALETTE};
 use crate::config::{Axis, HeatSource, ShotConfig, SourceShape};
 use crate::error::{Error, Result};
 use crate::preview::{LinearImage, PreviewParams};
@@ -140,7 +140,7 @@ impl SourceOverlay {
             .collect();
         let mut bg = clear.clone();
         for (g, &k) in ground.iter().enumerate() {
-            let color = PALETTE[k % PALETTE.len()];
+            let color = display_color(PALETTE[k % PALETTE.len()], params);
             for (i, b) in bg.iter_mut().enumerate() {
                 let a = FILL_ALPHA * fill[g * n + i] * (DIM + (1.0 - DIM) * sched[k].1);
                 if a > 0.0 {
@@ -184,7 +184,7 @@ impl SourceOverlay {
                         (-reach..=reach).any(|dx| (dx != 0 || dy != 0) && outside(dx, dy))
                     });
                     if on_edge {
-                        blend(img, i, color, alpha);
+                        blend(img, params, i, color, alpha);
                     }
                 }
             }

@@ -52,7 +52,7 @@ impl TargetGhost {
             if let Some(hit) = hit {
                 let shade = [0.75, 1.0, 0.55][hit.face];
                 let a = GHOST_MIN + GHOST_ADD * (1.0 - (-hit.length / (4.0 * cell)).exp());
-                blend(img, i, COLOR * shade, a);
+                blend(img, params, i, COLOR * shade, a);
             }
         }
         let reach = (0.5 * line_width(h)).ceil() as i64;
@@ -68,7 +68,7 @@ impl TargetGhost {
                 let edge = (-reach..=reach)
                     .any(|dy| (-reach..=reach).any(|dx| face(x + dx, y + dy) != Some(f)));
                 if edge {
-                    blend(img, (y * w as i64 + x) as usize, COLOR, LINE_ALPHA);
+                    blend(img, params, (y * w as i64 + x) as usize, COLOR, LINE_ALPHA);
                 }
             }
         }
