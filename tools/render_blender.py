@@ -119,7 +119,7 @@ def parse_args():
         "--framing",
         choices=["auto", "domain", "volume"],
         default="auto",
-        help="box the camera frames and --density-scale auto measures: the run's simulation "
+        help="box the camera frames: the run's simulation "
         "domain from its manifest (domain; the same for every frame, and what nimbus's preview "
         "frames), or the volume's bounding box (volume); auto (default): domain for a run "
         "directory, volume for a lone .vdb",
