@@ -4,10 +4,11 @@ mod harness;
 
 use nimbus::config::{GpuConfig, ShotConfig};
 use nimbus::gpu::Context;
+use nimbus::ground::{ParticleState, SimClock};
 use nimbus::sim::hooks::{Buf, Step};
 use nimbus::sim::reference::grid::{build_cell_table, for_each_neighbor};
 use nimbus::sim::reference::pbf as mirror;
-use nimbus::sim::{ParticleState, SimClock, Simulation};
+use nimbus::sim::Simulation;
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
 

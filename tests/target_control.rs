@@ -6,7 +6,8 @@ mod common;
 use common::*;
 use nimbus::config::{GpuConfig, ShotConfig};
 use nimbus::gpu::Context;
-use nimbus::sim::{ParticleState, Simulation};
+use nimbus::ground::ParticleState;
+use nimbus::sim::Simulation;
 use std::path::Path;
 use std::sync::Arc;
 

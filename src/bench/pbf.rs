@@ -5,7 +5,8 @@
 //! `tools/bench_pbf_vs_splishsplash.py` builds for SPlisHSPlasH too).
 use crate::config::{GpuConfig, ShotConfig};
 use crate::error::{Error, Result};
-use crate::sim::{ParticleState, SimClock, Simulation};
+use crate::ground::{ParticleState, SimClock};
+use crate::sim::Simulation;
 use std::sync::Arc;
 
 /// Which scene `bench pbf` times.

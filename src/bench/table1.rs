@@ -48,7 +48,7 @@ const WARMUP_EXTENSION: u32 = 4;
 pub(super) fn scaled_config(origin: &str, text: &str, scale: f64) -> Result<ShotConfig> {
     let full = crate::config::load_str(text, origin, &[])?;
     let d = &full.domain;
-    let h0 = d.spacing * d.kernel_ratio;
+    let h0 = d.kernel_radius();
     let side = |s: f64| {
         let cells = (s * scale / d.spacing)
             .round()
@@ -344,7 +344,7 @@ mod tests {
         assert_eq!(a.domain.size, [832.0, 1600.0, 832.0]);
         // ... and the heating noise keeps 2 cells per axis
         assert_eq!(a.physics.heat_noise_scale, 416.0);
-        let (cell, period) = crate::sim::noise::lattice_for_extent(832.0, 416.0);
+        let (cell, period) = crate::ground::noise::lattice_for_extent(832.0, 416.0);
         assert_eq!((cell, period), (416.0, 2));
         // example 2's patches move and shrink with the width
         let (_, origin2, text2) = SCENARIOS[1];

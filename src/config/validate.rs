@@ -654,7 +654,7 @@ fn check_domain(k: &mut Checks, c: &ShotConfig) {
     if k.issues.len() > before {
         return; // the derived checks below need sane inputs
     }
-    let h0 = d.spacing * d.kernel_ratio;
+    let h0 = d.kernel_radius();
     for (i, axis) in AXES.iter().enumerate() {
         if h0 > d.size[i] {
             k.fail(

@@ -9,9 +9,10 @@ use super::writer::{FrameJob, FrameWriter, WrittenFrame};
 use crate::config::{self, ShotConfig};
 use crate::error::{Error, Result};
 use crate::gpu;
+use crate::ground::{ParticleState, SimClock};
 use crate::io::checkpoint;
 use crate::sim::rest::{self, RestTracker};
-use crate::sim::{ParticleState, SimClock, Simulation};
+use crate::sim::Simulation;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
@@ -123,21 +124,23 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
             Some(bytes) => Some(RestTracker::from_bytes(bytes)?),
             None => {
                 return Err(Error::InvalidInput(format!(
-                    "cannot resume: the checkpoint of frame {} holds no rest positions, and                      export.detail / export.grids.rest need them; resume with them off, or run                      again from the start",
+                    "cannot resume: the checkpoint of frame {} holds no rest positions, and \
+                     export.detail / export.grids.rest need them; resume with them off, or run \
+                     again from the start",
                     ck.header.frame
                 )))
             }
         },
     };
-    let rest_clock = rest::RestClock::from_config(cfg);
-    let rest_codec = rest::RestCodec::new(
+    let rest_clock = rest::rest_clock(cfg);
+    let rest_codec = crate::ground::rest::RestCodec::new(
         cfg.domain.size,
         [
             cfg.domain.periodic.contains(&config::Axis::X),
             cfg.domain.periodic.contains(&config::Axis::Z),
         ],
     );
-    let h0 = crate::sim::init::kernel_radius(cfg);
+    let h0 = cfg.domain.kernel_radius();
 
     let writer = FrameWriter::new(cfg, run_dir)?;
     let mut manifest = match (&resumed, Manifest::load(run_dir)) {

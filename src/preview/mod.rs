@@ -29,7 +29,7 @@ pub use sheet::{contact_sheet, write_contact_sheet};
 
 use crate::config::{DensityMode, PreviewConfig};
 use crate::error::{Error, Result};
-use crate::splat::SparseGrid;
+use crate::ground::SparseGrid;
 use glam::DVec3;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};

@@ -23,8 +23,8 @@ use crate::config::AdaptiveConfig;
 use crate::error::{Error, Result};
 use crate::gpu::buffers::{self, ParamSlots};
 use crate::gpu::live::LiveBuffer;
+use crate::gpu::program::{Dispatch, Program, Resources};
 use crate::gpu::scan::{PrefixScan, ScanOf};
-use crate::gpu::stage::{Dispatch, Resources, Stage};
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::grid_params::GridParams;
@@ -295,12 +295,12 @@ pub struct FrameTotals {
 pub struct AdaptiveStage {
     params: AdaptiveParams,
     capacity: u32,
-    mark: Stage,
-    merge: Stage,
-    plan: Stage,
-    compact: Stage,
-    split: Stage,
-    stats: Stage,
+    mark: Program,
+    merge: Program,
+    plan: Program,
+    compact: Program,
+    split: Program,
+    stats: Program,
     param_buf: ParamSlots<AdaptiveParams>,
     colour_map: ParamSlots<ColourMap>,
     colours: ParamSlots<MergeColour>,
@@ -356,20 +356,20 @@ impl AdaptiveStage {
             ));
         }
         let d = &ctx.device;
-        let mark = Stage::new(ctx, "adaptive_mark.wgsl", &["adaptive_mark"])?;
-        let merge = Stage::new(ctx, "adaptive_merge.wgsl", &["adaptive_merge"])?;
-        let plan = Stage::new(
+        let mark = Program::new(ctx, "adaptive_mark.wgsl", &["adaptive_mark"])?;
+        let merge = Program::new(ctx, "adaptive_merge.wgsl", &["adaptive_merge"])?;
+        let plan = Program::new(
             ctx,
             "adaptive_plan.wgsl",
             &["merge_cells", "merge_dispatch"],
         )?;
-        let compact = Stage::new(
+        let compact = Program::new(
             ctx,
             "adaptive_compact.wgsl",
             &["compact_holes", "compact_move"],
         )?;
-        let split = Stage::new(ctx, "adaptive_split.wgsl", &["adaptive_split"])?;
-        let stats = Stage::new(
+        let split = Program::new(ctx, "adaptive_split.wgsl", &["adaptive_split"])?;
+        let stats = Program::new(
             ctx,
             "adaptive_stats.wgsl",
             &["totals_merge", "totals_split"],
@@ -503,7 +503,7 @@ impl AdaptiveStage {
     /// cell table is stale afterwards (the next grid build re-sorts).
     pub fn split_and_merge(&self, rec: &mut Recorder, live: &LiveBuffer) -> Result<()> {
         let b = &self.binds;
-        let one = |stage: &Stage, pass: &mut wgpu::ComputePass, entry, bind| {
+        let one = |stage: &Program, pass: &mut wgpu::ComputePass, entry, bind| {
             stage.dispatch(pass, entry, &[(bind, 0)], Dispatch::Live(live))
         };
         // Split phase 1: shape energy and marks.

@@ -1,11 +1,12 @@
-//! f64 mirror of shaders/grid.wgsl (`cell_keys`, `cell_scatter` and `cell_order`), the
-//! neighbour-grid build they compose with the scan, and the 27-cell neighbour walks of the other
-//! mirrors.
+//! The neighbour table on the host, in f64: the (cell, x slice) keys, the counting sort into a
+//! cell table and the 27-cell neighbour walks. The diagnostics and the boundary setup use it;
+//! it is also the f64 mirror of shaders/grid.wgsl (`cell_keys`, `cell_scatter` and
+//! `cell_order`), re-exported as `reference::grid`, and the walk of the other mirrors.
 //!
 //! As in every mirror, arrays of particles are `[f64; 3]`/`[f64; 4]` like the GPU's storage
 //! buffers, and the maths on one particle is `DVec3`, loaded from and stored to them.
-use super::common::min_image;
 use crate::sim::grid_params::GridParams;
+use crate::sim::kernels::{domain_size, min_image};
 use glam::DVec3;
 
 /// Mirror of `cell_keys`: the (cell, x slice) key of each position, and the count of each key
@@ -39,7 +40,15 @@ pub fn cell_scatter(keys: &[u32], mut cell_start: Vec<u32>) -> (Vec<u32>, Vec<u3
 /// `c * x_slices .. (c + 1) * x_slices`).
 pub fn build_cell_table(grid: &GridParams, pos: &[[f64; 3]]) -> (Vec<u32>, Vec<u32>) {
     let (keys, counts) = cell_keys(grid, pos);
-    let scanned = super::scan::exclusive_scan(&counts, counts.len(), 0);
+    // the counts' exclusive prefix sum (what the GPU's block scan computes, in integers)
+    let scanned: Vec<u32> = counts
+        .iter()
+        .scan(0u32, |sum, &c| {
+            let first = *sum;
+            *sum += c;
+            Some(first)
+        })
+        .collect();
     cell_scatter(&keys, scanned)
 }
 
@@ -76,7 +85,7 @@ pub fn for_each_wall_neighbor(
     mut f: impl FnMut(usize, DVec3),
 ) {
     let p = p.into();
-    let size = super::common::domain_size(grid);
+    let size = domain_size(grid);
     let periodic = [grid.periodic_x(), grid.periodic_z()];
     let slots = |n| grid.wall_cell_slots(wall_start, n);
     for_each_slot_of(grid, slots, grid.cell_coord(p), |k| {
@@ -129,7 +138,7 @@ pub fn for_each_neighbor(
     mut f: impl FnMut(usize, DVec3),
 ) {
     let p = p.into();
-    let size = super::common::domain_size(grid);
+    let size = domain_size(grid);
     let periodic = [grid.periodic_x(), grid.periodic_z()];
     for_each_slot(grid, cell_start, grid.cell_coord(p), |j| {
         f(j, min_image(p - DVec3::from(sorted_pos[j]), size, periodic));
@@ -207,7 +216,7 @@ mod tests {
         for &k in &keys {
             counts[k as usize + 1] += 1;
         }
-        let scanned = super::super::scan::exclusive_scan(&counts, counts.len(), 0);
+        let scanned = crate::sim::reference::scan::exclusive_scan(&counts, counts.len(), 0);
         let (order, table) = cell_scatter(&keys, scanned);
         let mut stable: Vec<u32> = (0..keys.len() as u32).collect();
         stable.sort_by_key(|&i| keys[i as usize]);

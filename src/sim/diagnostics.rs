@@ -4,9 +4,9 @@
 //! neighbour counts of the isolation measure are integers computed per particle in parallel
 //! (order-free) on the CPU cell table.
 use crate::config::ShotConfig;
+use crate::ground::ParticleState;
+use crate::sim::cell_table::{build_cell_table, for_each_neighbor};
 use crate::sim::grid_params::GridParams;
-use crate::sim::reference::grid::{build_cell_table, for_each_neighbor};
-use crate::sim::ParticleState;
 use glam::Vec4;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
@@ -33,7 +33,7 @@ pub fn particle_mass0(cfg: &ShotConfig) -> f64 {
 pub fn cloud_diagnostics(state: &ParticleState, cfg: &ShotConfig) -> BTreeMap<String, f64> {
     let n = state.len();
     let m0 = particle_mass0(cfg);
-    let h0 = cfg.domain.spacing * cfg.domain.kernel_ratio;
+    let h0 = cfg.domain.kernel_radius();
     let mass = |i: usize| m0 * (-(state.info[i][1] as f64)).exp2();
     let radius = |i: usize| h0 * (-(state.info[i][1] as f64) / 3.0).exp2();
     let cloudy = |i: usize| state.thermo[i][2] as f64 > CLOUDY_THRESHOLD;
@@ -226,7 +226,7 @@ pub fn atmosphere_diagnostics(
 ) -> BTreeMap<String, f64> {
     let p = &cfg.physics;
     let size = cfg.domain.size;
-    let h0 = cfg.domain.spacing * cfg.domain.kernel_ratio;
+    let h0 = cfg.domain.kernel_radius();
     let periodic = [
         cfg.domain.periodic.contains(&crate::config::Axis::X),
         cfg.domain.periodic.contains(&crate::config::Axis::Z),
@@ -245,7 +245,7 @@ pub fn atmosphere_diagnostics(
         mass += m;
         energy += m * (th[0] + p.adiabatic_lapse_rate * q[1] - p.latent_heat * th[2]);
         let [rate, vapor] =
-            crate::sim::reference::thermo::source_rates(&heat, &maps.values, q.to_array());
+            crate::sim::source_field::source_rates(&heat, &maps.values, q.to_array());
         heating += m * rate;
         moisture += m * vapor;
         if v.length() >= 0.999 * max_speed {

@@ -12,6 +12,7 @@ use crate::gpu::buffers::Readback;
 use crate::gpu::live::Live;
 use crate::gpu::timing::GpuTimer;
 use crate::gpu::Context;
+use crate::ground::{ParticleState, SimClock};
 use crate::sim::adaptive::{self, AdaptiveStage};
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::control::Target;
@@ -19,20 +20,10 @@ use crate::sim::grid::GridStage;
 use crate::sim::grid_params::GridParams;
 use crate::sim::pbf::{PbfParams, PbfStage};
 use crate::sim::phase::{Phase, PhaseTimes, Recorder, Timing};
-use crate::sim::smoothing::{SmoothParams, SmoothingStage};
+use crate::sim::smoothing::SmoothingStage;
 use crate::sim::thermo::{LayerBuoyancy, ThermoStage};
-use crate::sim::ParticleState;
 use std::collections::BTreeMap;
 use std::sync::Arc;
-
-/// Where the simulation stands; checkpoints store it next to the particles.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct SimClock {
-    pub frame: u32,
-    pub step: u64,
-    pub time: f64,
-    pub next_id: u32,
-}
 
 /// What one `step_frame` measured.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -147,7 +138,7 @@ impl Simulation {
             thermo.set_supply(&ctx, &t.update(state).0);
         }
         let adaptive = if cfg.adaptive.enabled {
-            let h0 = cfg.domain.spacing * cfg.domain.kernel_ratio;
+            let h0 = cfg.domain.kernel_radius();
             Some(AdaptiveStage::new(&ctx, &cfg.adaptive, &grid, h0, &b)?)
         } else {
             None
@@ -490,11 +481,6 @@ impl Simulation {
             info: data.get(parts.info),
             density,
         })
-    }
-
-    /// The smoothing parameters of a substep of `dt` (as the step records them).
-    pub fn smoothing_params(&self, dt: f64) -> SmoothParams {
-        SmoothParams::new(&self.cfg, dt)
     }
 }
 

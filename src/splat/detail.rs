@@ -14,7 +14,7 @@
 //!   same) that turns by the same angle every frame, pi / P, so two consecutive frames share
 //!   cos(pi / P) of their noise (0.92 at P = 8) where the linear weights' worst step shared
 //!   0.89;
-//! - N is fractal value noise (`sim::noise::value_noise3`, tiled over the periodic extents):
+//! - N is fractal value noise (`ground::noise::value_noise3`, tiled over the periodic extents):
 //!   octave o has wavelength scale / 2^o and weight 2^-o; an octave under two voxels is left out
 //!   (it would alias). Per octave, with g in [-1, 1): billowy = 2|g| - 1 (round puffs, sharp
 //!   creases), wispy = 2 (1 - |g|)^2 - 1 (thin ridges); N is their weighted mean, in [-1, 1];
@@ -22,8 +22,8 @@
 //!   detailed value is scaled by one factor per frame, sum(undetailed active) / sum(detailed), so
 //!   the grid's total mass is the undetailed one (up to what the threshold cuts).
 use crate::config::{DetailCharacter, ShotConfig};
-use crate::sim::noise::{fold_seed, lattice_for_extent, pcg_hash, value_noise3};
-use crate::sim::rest::{RestCodec, RestFrame};
+use crate::ground::noise::{fold_seed, lattice_for_extent, pcg_hash, value_noise3};
+use crate::ground::rest::{RestCodec, RestFrame};
 
 /// Where the noise is evaluated: the rest frame (the product) or world space (only for the
 /// measurement in `bench::detail`, the comparison of docs/RENDERING.md).
@@ -64,7 +64,7 @@ pub struct RestInput<'a> {
     /// One entry per particle of the splatted state, same order.
     pub rest: &'a RestFrame,
     pub codec: RestCodec,
-    /// Blend weights of field A and B (`sim::rest::RestClock::weights`).
+    /// Blend weights of field A and B (`ground::rest::RestClock::weights`).
     pub weights: [f64; 2],
     /// Field B is in use (`RestClock::dual`): its grid is written.
     pub dual: bool,
