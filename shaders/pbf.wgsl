@@ -42,7 +42,7 @@ struct PbfParams {
     split_expansion_weight: f32,
     // per level l: (h_l, poly6 factor 315/(64 pi h^9), spiky factor -45/(pi h^6), m_l): no pow or
     // exp2 per neighbour pair (the dominant cost on CPU Vulkan)
-    lv: array<vec4<f32>, 8>,
+    lv: array<vec4<f32>, MAX_LEVEL + 1u>,
 }
 
 @group(0) @binding(0) var<uniform> grid: GridParams;
@@ -85,7 +85,7 @@ fn pass_consts() -> K {
 }
 
 fn level_of(i: u32) -> u32 {
-    return min(info[i].y, 7u);
+    return min(info[i].y, MAX_LEVEL);
 }
 // Level constants by constant-index reads and selects: a per-lane indexed read of the table is a
 // scalar loop over the SIMD lanes on llvmpipe, a select chain is 7 vector ops.
@@ -97,7 +97,7 @@ fn lv_of(l: u32) -> vec4<f32> {
     v = select(v, prm.lv[4], l == 4u);
     v = select(v, prm.lv[5], l == 5u);
     v = select(v, prm.lv[6], l == 6u);
-    v = select(v, prm.lv[7], l >= 7u);
+    v = select(v, prm.lv[7], l >= MAX_LEVEL);
     return v;
 }
 // poly6 and spiky gradient of a level from its table row lv = lv_of(l) (same values as

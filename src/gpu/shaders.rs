@@ -22,6 +22,13 @@ pub const WG_SCAN_GPU: u32 = WG_BLOCK;
 /// docs/PERFORMANCE.md "Table 1 / Session 10").
 pub const WG_SCAN_CPU: u32 = 8;
 
+/// The finest adaptive particle level, defined here alone: the config's range of
+/// `adaptive.max_level`, the level tables of the PBF and smoothing programs (`MAX_LEVEL + 1` rows;
+/// `MAX_LEVEL` in WGSL), and the level clamps host and GPU apply. The tables are read by select
+/// chains unrolled for 8 rows (pbf.wgsl `lv_of`, smoothing.wgsl `level_row`); a test holds the
+/// two together.
+pub const MAX_LEVEL: u32 = 7;
+
 /// Loop iterations an invocation may run on llvmpipe, with a margin below its 65535.
 pub const CPU_LOOP_BUDGET: u32 = 60_000;
 
@@ -101,13 +108,14 @@ impl Prelude {
 
     fn wgsl(&self) -> String {
         format!(
-            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst WG_SCAN: u32 = {}u;\nconst SCAN_ITEMS: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\n",
+            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst WG_SCAN: u32 = {}u;\nconst SCAN_ITEMS: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\nconst MAX_LEVEL: u32 = {}u;\n",
             self.wg_particles,
             self.wg_block,
             self.wg_scan,
             SCAN_BLOCK / self.wg_scan,
             self.max_groups_x,
-            self.loop_budget
+            self.loop_budget,
+            MAX_LEVEL
         )
     }
 }
@@ -413,5 +421,25 @@ mod tests {
         let mut all: Vec<String> = super::WALKS.iter().map(|w| w.name.to_string()).collect();
         all.sort();
         assert_eq!(used, all, "each walk of WALKS generated once");
+    }
+
+    #[test]
+    fn the_level_tables_select_chains_cover_max_level() {
+        // lv_of (pbf.wgsl) and level_row (smoothing.wgsl) pick rows 1..MAX_LEVEL by one select
+        // each, the last for every level at or above MAX_LEVEL
+        for (file, fun) in [
+            ("pbf.wgsl", "fn lv_of("),
+            ("smoothing.wgsl", "fn level_row("),
+        ] {
+            let src = super::raw(file).unwrap();
+            let body = &src[src.find(fun).unwrap()..];
+            let body = &body[..body.find("\n}").unwrap()];
+            assert_eq!(
+                body.matches("select(").count() as u32,
+                super::MAX_LEVEL,
+                "{file} {fun}"
+            );
+            assert!(body.contains("l >= MAX_LEVEL"), "{file} {fun}");
+        }
     }
 }

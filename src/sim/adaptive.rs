@@ -32,8 +32,6 @@ use crate::sim::phase::{Phase, Recorder};
 
 /// Levels the counters buffer has room for (`MAX_LEVELS` in shaders/shared/adaptive.wgsl).
 pub const MAX_LEVELS: u32 = 24;
-/// Largest `max_level`: mass units 2^max_level per level-0 particle stay far inside u64 sums.
-pub const MAX_LEVEL_LIMIT: u32 = 20;
 /// Largest `min_distance` for which the 27 cells around a merging cell hold every particle the
 /// room check needs: |midpoint - x_i| < h_l / 2 <= 2^(-1/3) L / 2 and h_new <= L.
 pub const MAX_MIN_DISTANCE: f64 = 0.6;
@@ -74,12 +72,6 @@ impl AdaptiveParams {
     /// Validated parameters of a shot (count and next_id are set per run).
     pub fn new(cfg: &AdaptiveConfig, h0: f64, capacity: u32) -> Result<Self> {
         let bad = |key: &str, msg: String| Err(Error::Config(format!("adaptive.{key}: {msg}")));
-        if cfg.max_level > MAX_LEVEL_LIMIT {
-            return bad(
-                "max_level",
-                format!("{} is above the limit {MAX_LEVEL_LIMIT}", cfg.max_level),
-            );
-        }
         let ordered = cfg.merge_threshold < cfg.split_threshold;
         if !ordered {
             return bad(

@@ -33,7 +33,7 @@ pub struct PbfParams {
     /// The share of that correction split particles get (`solver.split_expansion_weight`).
     pub split_expansion_weight: f32,
     /// Per level l (0..8): (h_l, 315 / (64 pi h_l^9), -45 / (pi h_l^6), m_l).
-    pub levels: [[f32; 4]; 8],
+    pub levels: [[f32; 4]; crate::gpu::shaders::MAX_LEVEL as usize + 1],
 }
 
 impl PbfParams {

@@ -228,7 +228,7 @@ impl LayerBuoyancy {
             let th = state.thermo[i];
             let t0 = environment_temperature(p, y);
             let force = p.buoyancy * (th[0] as f64 - t0) / t0 - p.cloud_weight * th[2] as f64;
-            let m = (-(state.info[i][1].min(7) as f64)).exp2();
+            let m = (-(state.info[i][1].min(crate::gpu::shaders::MAX_LEVEL) as f64)).exp2();
             let (k0, k1, f) = layer_weights(y, layer_height, n);
             for (k, w) in [(k0, 1.0 - f), (k1, f)] {
                 sum[k] += w * m * force;
