@@ -231,16 +231,19 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                 .map(|t| Arc::new(t.update(&state, frame, &rest_clock, &rest_codec, h0)));
             let state = Arc::new(state);
             let clock = sim.clock();
-            let mut diagnostics = report.diagnostics.clone();
-            diagnostics.extend(crate::sim::diagnostics::cloud_diagnostics(&state, cfg));
-            diagnostics.extend(crate::sim::diagnostics::atmosphere_diagnostics(
+            let cloud = crate::sim::diagnostics::cloud_diagnostics(&state, cfg);
+            let atmosphere = crate::sim::diagnostics::atmosphere_diagnostics(
                 &state,
                 cfg,
                 &initial_layers,
                 clock.time,
                 sim.heat_maps(),
-            ));
-            if let Some(msg) = time_step_warning(frame, &diagnostics, cfg) {
+            );
+            let mut diagnostics = report.diagnostics.to_map();
+            cloud.insert_into(&mut diagnostics);
+            atmosphere.insert_into(&mut diagnostics);
+            let clamped = atmosphere.clamped_particles;
+            if let Some(msg) = time_step_warning(frame, &report.diagnostics, clamped, cfg) {
                 progress.note("warning", &msg);
             }
             loop_state.pending_stats.push(FrameStats {
@@ -426,21 +429,20 @@ fn install_signal_handlers() -> Result<Arc<AtomicBool>> {
 /// never silent: one warning line for the frame.
 fn time_step_warning(
     frame: u32,
-    d: &std::collections::BTreeMap<String, f64>,
+    d: &crate::sim::StepDiagnostics,
+    clamped: u64,
     cfg: &ShotConfig,
 ) -> Option<String> {
-    let clamped = d.get("clamped_particles").copied().unwrap_or(0.0);
-    let cfl = d.get("cfl_max").copied().unwrap_or(0.0);
-    let substeps = d.get("substeps").copied().unwrap_or(0.0);
+    let cfl = d.cfl_max;
     let mut parts = Vec::new();
-    if clamped > 0.0 {
+    if clamped > 0 {
         parts.push(format!(
             "{clamped:.0} particles at the speed clamp solver.max_speed = {} m/s",
             cfg.solver.max_speed
         ));
     }
     // the CFL control chose the substeps from the frame's start; at the cap it cannot follow
-    if substeps >= cfg.output.max_substeps as f64 && cfl > cfg.output.cfl {
+    if d.substeps >= cfg.output.max_substeps && cfl > cfg.output.cfl {
         parts.push(format!(
             "particles moved {cfl:.2} kernel radii per substep (output.cfl {}): raise output.max_substeps ({})",
             cfg.output.cfl, cfg.output.max_substeps

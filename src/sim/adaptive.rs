@@ -682,8 +682,8 @@ mod tests {
     fn params_validation_rejects_bad_config() {
         let ok = AdaptiveConfig::default();
         assert!(AdaptiveParams::new(&ok, 0.1, 10).is_ok());
-        let breakers: [fn(&mut AdaptiveConfig); 5] = [
-            |c: &mut AdaptiveConfig| c.max_level = 40,
+        // (max_level's range is the config's alone: config::validate, tests/config_limits.rs)
+        let breakers: [fn(&mut AdaptiveConfig); 4] = [
             |c: &mut AdaptiveConfig| c.merge_threshold = c.split_threshold,
             |c: &mut AdaptiveConfig| c.min_distance = 0.9,
             |c: &mut AdaptiveConfig| c.split_offset = 0.0,

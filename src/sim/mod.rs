@@ -17,6 +17,7 @@ pub mod cell_table;
 pub mod control;
 pub mod diagnostics;
 pub mod footprint;
+pub mod frame_report;
 pub mod grid;
 pub mod grid_params;
 #[cfg(feature = "test-hooks")]
@@ -36,7 +37,8 @@ pub mod target_volume;
 pub mod thermo;
 pub mod wind;
 
+pub use frame_report::{FrameReport, StepDiagnostics};
 pub use phase::{Phase, PhaseTimes, Timing};
 pub use simulation::{
-    compression_error, density_error, iterations_per_substep, speed_ratio, FrameReport, Simulation,
+    compression_error, density_error, iterations_per_substep, speed_ratio, Simulation,
 };
