@@ -42,7 +42,7 @@ struct PbfParams {
     split_expansion_weight: f32,
     // per level l: (h_l, poly6 factor 315/(64 pi h^9), spiky factor -45/(pi h^6), m_l): no pow or
     // exp2 per neighbour pair (the dominant cost on CPU Vulkan)
-    lv: array<vec4<f32>, 8>,
+    lv: array<vec4<f32>, MAX_LEVEL + 1u>,
 }
 
 @group(0) @binding(0) var<uniform> grid: GridParams;
@@ -85,7 +85,7 @@ fn pass_consts() -> K {
 }
 
 fn level_of(i: u32) -> u32 {
-    return min(info[i].y, 7u);
+    return min(info[i].y, MAX_LEVEL);
 }
 // Level constants by constant-index reads and selects: a per-lane indexed read of the table is a
 // scalar loop over the SIMD lanes on llvmpipe, a select chain is 7 vector ops.
@@ -97,7 +97,7 @@ fn lv_of(l: u32) -> vec4<f32> {
     v = select(v, prm.lv[4], l == 4u);
     v = select(v, prm.lv[5], l == 5u);
     v = select(v, prm.lv[6], l == 6u);
-    v = select(v, prm.lv[7], l >= 7u);
+    v = select(v, prm.lv[7], l >= MAX_LEVEL);
     return v;
 }
 // poly6 and spiky gradient of a level from its table row lv = lv_of(l) (same values as
@@ -274,24 +274,7 @@ fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
 
 // The old search around the current position (no mask): particles whose substep moved them more
 // than a cell from their start (no anchor).
-fn lam_scan(a: ptr<function, LamAcc>, me: Me, packed: bool) {
-    let c = cell_coord(me.p, grid);
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            let rows = row_entries(me.p, c, dy, dz, grid);
-            for (var s = 0u; s < 2u; s++) {
-                let e = select(rows.xy, rows.zw, s == 1u);
-                if (e.x == e.y) { continue; }
-                let j_end = cell_start[e.y];
-                for (var j = cell_start[e.x]; j < j_end; j++) { _ = lam_fluid(a, me, j, packed); }
-                if (!wall_reach(c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
-                let we = e - vec2<u32>(wall_shift(c.y + dy, c.z + dz, grid));
-                let k_end = bcell_start[we.y];
-                for (var k = bcell_start[we.x]; k < k_end; k++) { lam_wall(a, me, k); }
-            }
-        }
-    }
-}
+//!walk lam_scan
 
 // ---- neighbour mask ----
 // Sub-cell units per cell edge; cells are >= h0, so boxes at least SUB units apart (per-axis
@@ -493,35 +476,7 @@ fn lam_build(a: ptr<function, LamAcc>, me: Me, an: Anchor) -> Mask {
     }
     return m;
 }
-fn lam_masked(a: ptr<function, LamAcc>, me: Me, an: Anchor, m: Mask) {
-    var off = 0u;
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            let rows = anchor_row(an, dy, dz);
-            for (var s = 0u; s < 2u; s++) {
-                let e = select(rows.xy, rows.zw, s == 1u);
-                if (e.x == e.y) { continue; }
-                let j0 = cell_start[e.x];
-                let j1 = cell_start[e.y];
-                let nb = seg_bits(off, j1 - j0, me.k.single);
-                var bits = mask_get(m, off, nb);
-                off += j1 - j0;
-                // one loop over both words, two neighbours per trip (each trip costs lane-mask bookkeeping)
-                while (any(bits != vec2<u32>(0u))) {
-                    let k1 = pop_bit(&bits);
-                    let k2 = pop_bit(&bits);
-                    _ = lam_fluid(a, me, j0 + k1.x, true);
-                    if (k2.y != 0u) { _ = lam_fluid(a, me, j0 + k2.x, true); }
-                }
-                for (var j = j0 + nb; j < j1; j++) { _ = lam_fluid(a, me, j, true); }
-                if (!wall_reach(an.c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
-                let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
-                let k_end = bcell_start[we.y];
-                for (var k = bcell_start[we.x]; k < k_end; k++) { lam_wall(a, me, k); }
-            }
-        }
-    }
-}
+//!walk lam_masked
 
 // The first iteration's lambda: builds the neighbour mask (vel, pred.w, pos.w; pred.w alone,
 // the other threads read only pred's xyz) and, with more than one level, puts the level into
@@ -650,53 +605,8 @@ fn delta_wall(dp: ptr<function, vec3<f32>>, me: Me, k: u32) {
     }
 }
 
-fn delta_scan(dp: ptr<function, vec3<f32>>, me: Me) {
-    let c = cell_coord(me.p, grid);
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            let rows = row_entries(me.p, c, dy, dz, grid);
-            for (var s = 0u; s < 2u; s++) {
-                let e = select(rows.xy, rows.zw, s == 1u);
-                if (e.x == e.y) { continue; }
-                let j_end = cell_start[e.y];
-                for (var j = cell_start[e.x]; j < j_end; j++) { delta_fluid(dp, me, j); }
-                if (!wall_reach(c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
-                let we = e - vec2<u32>(wall_shift(c.y + dy, c.z + dz, grid));
-                let k_end = bcell_start[we.y];
-                for (var k = bcell_start[we.x]; k < k_end; k++) { delta_wall(dp, me, k); }
-            }
-        }
-    }
-}
-fn delta_masked(dp: ptr<function, vec3<f32>>, me: Me, an: Anchor, m: Mask) {
-    var off = 0u;
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            let rows = anchor_row(an, dy, dz);
-            for (var s = 0u; s < 2u; s++) {
-                let e = select(rows.xy, rows.zw, s == 1u);
-                if (e.x == e.y) { continue; }
-                let j0 = cell_start[e.x];
-                let j1 = cell_start[e.y];
-                let nb = seg_bits(off, j1 - j0, me.k.single);
-                var bits = mask_get(m, off, nb);
-                off += j1 - j0;
-                // one loop over both words, two neighbours per trip (each trip costs lane-mask bookkeeping)
-                while (any(bits != vec2<u32>(0u))) {
-                    let k1 = pop_bit(&bits);
-                    let k2 = pop_bit(&bits);
-                    delta_fluid(dp, me, j0 + k1.x);
-                    if (k2.y != 0u) { delta_fluid(dp, me, j0 + k2.x); }
-                }
-                for (var j = j0 + nb; j < j1; j++) { delta_fluid(dp, me, j); }
-                if (!wall_reach(an.c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
-                let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
-                let k_end = bcell_start[we.y];
-                for (var k = bcell_start[we.x]; k < k_end; k++) { delta_wall(dp, me, k); }
-            }
-        }
-    }
-}
+//!walk delta_scan
+//!walk delta_masked
 
 // Position correction over the mask's neighbours (every compute_delta follows a compute_lambda
 // of the same substep).
@@ -861,53 +771,8 @@ fn visc_wall(a: ptr<function, Visc>, me: Vi, k: u32) {
         (*a).rho += c.lv0.w * wsym(r2, me.lv, c.lv0);
     }
 }
-fn visc_scan(a: ptr<function, Visc>, me: Vi) {
-    let c = cell_coord(me.p, grid);
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            let rows = row_entries(me.p, c, dy, dz, grid);
-            for (var s = 0u; s < 2u; s++) {
-                let e = select(rows.xy, rows.zw, s == 1u);
-                if (e.x == e.y) { continue; }
-                let j_end = cell_start[e.y];
-                for (var j = cell_start[e.x]; j < j_end; j++) { visc_pair(a, me, j); }
-                if (!wall_reach(c.y + dy, me.p.y, max(me.lv.x, me.k.h0), grid)) { continue; }
-                let we = e - vec2<u32>(wall_shift(c.y + dy, c.z + dz, grid));
-                let k_end = bcell_start[we.y];
-                for (var k = bcell_start[we.x]; k < k_end; k++) { visc_wall(a, me, k); }
-            }
-        }
-    }
-}
-fn visc_masked(a: ptr<function, Visc>, me: Vi, an: Anchor, m: Mask) {
-    var off = 0u;
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            let rows = anchor_row(an, dy, dz);
-            for (var s = 0u; s < 2u; s++) {
-                let e = select(rows.xy, rows.zw, s == 1u);
-                if (e.x == e.y) { continue; }
-                let j0 = cell_start[e.x];
-                let j1 = cell_start[e.y];
-                let nb = seg_bits(off, j1 - j0, me.k.single);
-                var bits = mask_get(m, off, nb);
-                off += j1 - j0;
-                // one loop over both words, two neighbours per trip (each trip costs lane-mask bookkeeping)
-                while (any(bits != vec2<u32>(0u))) {
-                    let k1 = pop_bit(&bits);
-                    let k2 = pop_bit(&bits);
-                    visc_pair(a, me, j0 + k1.x);
-                    if (k2.y != 0u) { visc_pair(a, me, j0 + k2.x); }
-                }
-                for (var j = j0 + nb; j < j1; j++) { visc_pair(a, me, j); }
-                if (!wall_reach(an.c.y + dy, me.p.y, max(me.lv.x, me.k.h0), grid)) { continue; }
-                let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
-                let k_end = bcell_start[we.y];
-                for (var k = bcell_start[we.x]; k < k_end; k++) { visc_wall(a, me, k); }
-            }
-        }
-    }
-}
+//!walk visc_scan
+//!walk visc_masked
 @compute @workgroup_size(WG_PARTICLES)
 fn viscosity_confine(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);

@@ -57,15 +57,15 @@ fn radius_of_level(level: u32) -> f32 {
 // (docs/PERFORMANCE.md "PBF / Session 12").
 struct Pc {
     // level l: (radius_of_level(l), spiky_factor(f0, l), volume0 2^-l)
-    lv: array<vec3<f32>, 8>,
+    lv: array<vec3<f32>, MAX_LEVEL + 1u>,
     h02: f32,
     eps: f32,
     image: Image,
 }
 fn pair_consts() -> Pc {
     let f0 = spiky_factor0();
-    var lv: array<vec3<f32>, 8>;
-    for (var l = 0u; l < 8u; l++) {
+    var lv: array<vec3<f32>, MAX_LEVEL + 1u>;
+    for (var l = 0u; l < MAX_LEVEL + 1u; l++) {
         lv[l] = vec3<f32>(radius_of_level(l), spiky_factor(f0, l), S.volume0 * exp2(-f32(l)));
     }
     return Pc(lv, S.h0 * S.h0, S.epsilon, image_of(grid));
@@ -79,7 +79,7 @@ fn level_row(pc: Pc, l: u32) -> vec3<f32> {
     v = select(v, pc.lv[4], l == 4u);
     v = select(v, pc.lv[5], l == 5u);
     v = select(v, pc.lv[6], l == 6u);
-    return select(v, pc.lv[7], l >= 7u);
+    return select(v, pc.lv[7], l >= MAX_LEVEL);
 }
 // Spiky gradient factor -45 / (pi h^6) of level 0 (once per particle, not per pair).
 fn spiky_factor0() -> f32 {

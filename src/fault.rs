@@ -4,10 +4,12 @@
 //! simulating frame N; `NIMBUS_FAULT=nan:N` makes the temperature of particle 0 NaN in the state
 //! read back after frame N (for the divergence watchdog); `NIMBUS_FAULT=slow:MS` sleeps MS
 //! milliseconds in every frame (a run that stays alive while a test starts other processes on
-//! its directory; the output is unchanged). Unset (always, outside tests) it costs one relaxed load.
+//! its directory; the output is unchanged). Read only in builds with the `test-hooks` feature (the
+//! crate's own tests: the binary they run is built with it); elsewhere the points do nothing.
 use std::sync::atomic::{AtomicU32, Ordering};
-use std::sync::OnceLock;
 
+// Without the feature nothing constructs one: every point sees `None`.
+#[cfg_attr(not(feature = "test-hooks"), allow(dead_code))]
 enum Fault {
     Rename { pattern: String, nth: u32 },
     Frame(u32),
@@ -15,7 +17,14 @@ enum Fault {
     Slow(u64),
 }
 
+#[cfg(not(feature = "test-hooks"))]
 fn fault() -> Option<&'static Fault> {
+    None
+}
+
+#[cfg(feature = "test-hooks")]
+fn fault() -> Option<&'static Fault> {
+    use std::sync::OnceLock;
     static F: OnceLock<Option<Fault>> = OnceLock::new();
     F.get_or_init(|| {
         let v = std::env::var("NIMBUS_FAULT").ok()?;
@@ -35,7 +44,7 @@ fn fault() -> Option<&'static Fault> {
 }
 
 /// Called by `io::atomic` before renaming a finished temporary file onto `path`.
-pub fn before_rename(path: &std::path::Path) {
+pub(crate) fn before_rename(path: &std::path::Path) {
     static COUNT: AtomicU32 = AtomicU32::new(0);
     if let Some(Fault::Rename { pattern, nth }) = fault() {
         if path.to_string_lossy().contains(pattern.as_str())
@@ -48,7 +57,7 @@ pub fn before_rename(path: &std::path::Path) {
 }
 
 /// Called by the frame loop between the substeps of a frame.
-pub fn during_frame(frame: u32) {
+pub(crate) fn during_frame(frame: u32) {
     match fault() {
         Some(Fault::Frame(n)) if *n == frame => {
             eprintln!("NIMBUS_FAULT: aborting while simulating frame {frame}");
@@ -60,7 +69,7 @@ pub fn during_frame(frame: u32) {
 }
 
 /// Called by the frame loop on the state read back after a frame.
-pub fn poison_state(frame: u32, state: &mut crate::sim::ParticleState) {
+pub(crate) fn poison_state(frame: u32, state: &mut crate::ground::ParticleState) {
     if let Some(Fault::Nan(n)) = fault() {
         if *n == frame {
             if let Some(t) = state.thermo.first_mut() {

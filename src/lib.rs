@@ -5,8 +5,10 @@ pub mod config;
 pub mod error;
 pub mod export;
 pub mod farm;
-pub mod fault;
+/// Fault points for the crash tests (`NIMBUS_FAULT`); inert unless built with `test-hooks`.
+mod fault;
 pub mod gpu;
+pub mod ground;
 pub mod io;
 pub mod pipeline;
 pub mod preview;

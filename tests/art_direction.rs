@@ -12,9 +12,10 @@ mod common;
 use common::*;
 use nimbus::config::{GpuConfig, ShotConfig};
 use nimbus::gpu::Context;
+use nimbus::ground::{ParticleState, SimClock};
 use nimbus::sim::reference::thermo::wind_at;
 use nimbus::sim::thermo::ThermoParams;
-use nimbus::sim::{ParticleState, SimClock, Simulation};
+use nimbus::sim::Simulation;
 use std::path::Path;
 use std::sync::Arc;
 

@@ -1,8 +1,8 @@
 //! Checkpoint format: bit-exact round trip, detection of every kind of damage, resume selection,
 //! pruning, temporary-file cleanup, and failing disks (tmpfs that fills up, injected faults).
+use nimbus::ground::ParticleState;
 use nimbus::io::atomic::TMP_SUFFIX;
 use nimbus::io::checkpoint::{self as ckpt, Checkpoint, CheckpointHeader, SkipReason};
-use nimbus::sim::ParticleState;
 use nimbus::Error;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

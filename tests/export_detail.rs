@@ -3,9 +3,9 @@
 //! export of the same run in its own directory with the undetailed mass.
 mod common;
 use common::*;
+use nimbus::ground::SparseGrid;
 use nimbus::io::vdb::{read_file, GridData, MetaValue};
 use nimbus::pipeline::records::sha256_hex;
-use nimbus::splat::SparseGrid;
 use std::path::{Path, PathBuf};
 
 /// tiny, cloudy from the first frame (supersaturated), with detail that shows at its own 25 m

@@ -86,7 +86,7 @@ fn houdini_profile_reads_right_in_openvdb() {
 }
 
 /// (index, value) of every active voxel.
-fn active<T: Copy>(g: &nimbus::splat::SparseGrid<T>) -> Vec<([i32; 3], T)> {
+fn active<T: Copy>(g: &nimbus::ground::SparseGrid<T>) -> Vec<([i32; 3], T)> {
     let mut v = Vec::new();
     for l in &g.leaves {
         for n in 0..512 {

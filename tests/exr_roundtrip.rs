@@ -1,8 +1,8 @@
 //! The density atlas EXR reads back with the exr crate (pixels and attributes) and with
 //! `exrheader` (skipped with a note when absent); the same grid gives the same bytes.
 use exr::prelude::*;
+use nimbus::ground::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use nimbus::io::exr::{atlas_layout, encode_density_atlas, write_density_atlas};
-use nimbus::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use std::collections::BTreeMap;
 use std::process::Command;
 

@@ -6,12 +6,12 @@ mod harness;
 
 use nimbus::config::AdaptiveConfig;
 use nimbus::gpu::Context;
+use nimbus::ground::ParticleState;
 use nimbus::sim::adaptive::{level_mass_units, AdaptiveParams, AdaptiveReport, AdaptiveStage};
 use nimbus::sim::buffers::ParticleBuffers;
 use nimbus::sim::grid_params::GridParams;
 use nimbus::sim::reference::adaptive::{self as mirror, RefParticles};
 use nimbus::sim::reference::grid::build_cell_table;
-use nimbus::sim::ParticleState;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

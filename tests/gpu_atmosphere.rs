@@ -3,8 +3,9 @@
 //! particles. docs/PHYSICS.md quotes the figures these tests print.
 use nimbus::config::{GpuConfig, ShotConfig};
 use nimbus::gpu::Context;
+use nimbus::ground::{ParticleState, SimClock};
 use nimbus::sim::diagnostics::{initial_layer_mass, layer_mass_ratios};
-use nimbus::sim::{ParticleState, SimClock, Simulation};
+use nimbus::sim::Simulation;
 use std::sync::Arc;
 
 fn ctx() -> Arc<Context> {

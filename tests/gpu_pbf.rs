@@ -4,10 +4,11 @@ mod harness;
 
 use nimbus::config::{GpuConfig, ShotConfig};
 use nimbus::gpu::Context;
+use nimbus::ground::{ParticleState, SimClock};
 use nimbus::sim::hooks::{Buf, Step};
 use nimbus::sim::reference::grid::{build_cell_table, for_each_neighbor};
 use nimbus::sim::reference::pbf as mirror;
-use nimbus::sim::{ParticleState, SimClock, Simulation};
+use nimbus::sim::Simulation;
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
 
@@ -526,8 +527,8 @@ fn a_box_at_rest_under_gravity_settles() {
     for frame in 0..30 {
         let d = sim.step_frame().unwrap().diagnostics;
         if frame >= 20 {
-            worst_mean = worst_mean.max(d["density_error_mean"]);
-            worst_max = worst_max.max(d["density_error_max"]);
+            worst_mean = worst_mean.max(d.density_error_mean);
+            worst_max = worst_max.max(d.density_error_max);
         }
     }
     let s = sim.state().unwrap();
@@ -607,7 +608,7 @@ fn a_stirred_box_at_the_shots_time_step_stays_calm() {
     let mut late_max = 0.0;
     for f in 0..40 {
         let d = sim.step_frame().unwrap().diagnostics;
-        worst_error = worst_error.max(d["density_error_mean"]);
+        worst_error = worst_error.max(d.density_error_mean);
         if f >= 30 {
             late_max += max_speed(&sim) / 10.0;
         }

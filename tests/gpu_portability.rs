@@ -93,7 +93,7 @@ fn folded_dispatches_give_the_same_frames() {
     let b = run(folded);
     assert!(a.len() > 1000);
     assert_eq!(a.len(), b.len());
-    let bytes = |s: &nimbus::sim::ParticleState| {
+    let bytes = |s: &nimbus::ground::ParticleState| {
         [
             bytemuck::cast_slice::<_, u8>(&s.pos).to_vec(),
             bytemuck::cast_slice::<_, u8>(&s.vel).to_vec(),

@@ -8,11 +8,11 @@ use nimbus::gpu::live::{Live, LiveBuffer};
 use nimbus::gpu::scan::{PrefixScan, ScanOf};
 use nimbus::gpu::shaders::{WG_SCAN_CPU, WG_SCAN_GPU};
 use nimbus::gpu::Context;
+use nimbus::ground::ParticleState;
 use nimbus::sim::grid::GridStage;
 use nimbus::sim::grid_params::GridParams;
 use nimbus::sim::phase::{Phase, Recorder};
 use nimbus::sim::reference::grid::build_cell_table;
-use nimbus::sim::ParticleState;
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
 

@@ -8,6 +8,7 @@ mod harness;
 
 use nimbus::config::ShotConfig;
 use nimbus::gpu::Context;
+use nimbus::ground::ParticleState;
 use nimbus::sim::control::Target;
 use nimbus::sim::grid_params::GridParams;
 use nimbus::sim::reference::grid::build_cell_table;
@@ -17,7 +18,6 @@ use nimbus::sim::reference::smoothing::{
 use nimbus::sim::reference::thermo::thermo_step;
 use nimbus::sim::smoothing::{SmoothParams, SmoothingStage};
 use nimbus::sim::thermo::{initial_thermo, LayerBuoyancy, ThermoParams, ThermoStage};
-use nimbus::sim::ParticleState;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

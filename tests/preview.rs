@@ -1,12 +1,12 @@
 //! Preview: sky alone, Beer-Lambert, sun side vs shadow side, determinism, files, contact sheet.
 use glam::DVec3;
+use nimbus::ground::ParticleState;
+use nimbus::ground::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use nimbus::preview::particles::{render_particles, ParticleColor};
 use nimbus::preview::{
     auto_camera, contact_sheet, png_bytes, render, write_contact_sheet, write_frame_preview,
     Camera, LinearImage, PreviewParams,
 };
-use nimbus::sim::ParticleState;
-use nimbus::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 
 /// A grid of `dim`^3 voxels (voxel 1 m, centres at i + 0.5) with `f` as density where positive.
 fn grid_from(dim: i32, f: impl Fn([f64; 3]) -> f32) -> SparseGrid<f32> {

@@ -51,7 +51,7 @@ const ENVS: [Env; 3] = [
 
 /// The binding map wgpu-hal makes from a pipeline layout: Vulkan numbers each group's bindings
 /// densely in the layout's order (nimbus's layouts hold every binding of the stage's file,
-/// sorted, `gpu::stage::reflect`).
+/// sorted, `gpu::program::reflect`).
 fn binding_map(module: &naga::Module) -> spv::BindingMap {
     let mut bindings: Vec<naga::ResourceBinding> = module
         .global_variables
@@ -148,7 +148,7 @@ fn every_entry_point_passes_spirv_val() {
             .validate(&module)
             .unwrap();
             let bindings = binding_map(&module);
-            // the constants a stage declares (PBF's SCORR_N), as Stage::with_constants gives them
+            // the constants a stage declares (PBF's SCORR_N), as Program::with_constants gives them
             let mut own = naga::back::PipelineConstants::default();
             for (_, o) in module.overrides.iter() {
                 let name = o.name.clone().unwrap_or_default();

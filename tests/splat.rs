@@ -1,7 +1,8 @@
 //! Splat: partition of unity on a lattice, periodic continuity, determinism, brute-force check.
+use nimbus::ground::ParticleState;
+use nimbus::ground::SparseGrid;
 use nimbus::sim::reference::common::{min_image, poly6};
-use nimbus::sim::ParticleState;
-use nimbus::splat::{splat, SparseGrid, SplatFields, SplatParams};
+use nimbus::splat::{splat, SplatFields, SplatParams};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -315,7 +316,7 @@ fn bad_parameters_are_errors_not_panics() {
 mod detail {
     use super::*;
     use nimbus::config::DetailCharacter;
-    use nimbus::sim::rest::{RestCodec, RestFrame};
+    use nimbus::ground::rest::{RestCodec, RestFrame};
     use nimbus::splat::detail::NoiseSpace;
     use nimbus::splat::{splat_with_rest, DetailParams, RestInput};
 

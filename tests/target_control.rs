@@ -6,7 +6,8 @@ mod common;
 use common::*;
 use nimbus::config::{GpuConfig, ShotConfig};
 use nimbus::gpu::Context;
-use nimbus::sim::{ParticleState, Simulation};
+use nimbus::ground::ParticleState;
+use nimbus::sim::Simulation;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -188,7 +189,10 @@ fn control_raises_the_cloud_inside_the_target() {
         let mut iou = 0.0;
         for _ in 0..40 {
             let (report, _) = sim.step_frame_with_state().unwrap();
-            iou = report.diagnostics["target_iou"];
+            iou = report
+                .diagnostics
+                .target_iou
+                .expect("target_iou with a target");
         }
         let (top, inside) = cloud_in_target(&sim.state().unwrap());
         eprintln!("control {enabled}: cloud top {top:.0} m, {inside} cloud particles in the target, IoU {iou:.3}");

@@ -2,8 +2,8 @@
 //! (`vdb_print`, `pyopenvdb` under /usr/bin/python3; skipped with a note when absent) and by
 //! vdb-rs. Grids are synthetic: a sphere of density and random sparse blocks that straddle the
 //! 4096 / 128 node boundaries on both sides of zero.
+use nimbus::ground::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use nimbus::io::vdb::{self, Compression, GridData, MetaValue, VdbFile, VdbGrid, VdbOptions};
-use nimbus::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use rand::{Rng, SeedableRng};
 use std::collections::BTreeMap;
 use std::path::Path;

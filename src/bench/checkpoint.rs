@@ -1,7 +1,7 @@
 //! Checkpoint size per particle and write / read+validate time (figures for docs/PERFORMANCE.md).
 use crate::error::{Error, Result};
+use crate::ground::ParticleState;
 use crate::io::checkpoint::{self, Checkpoint, CheckpointHeader};
-use crate::sim::ParticleState;
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Instant;

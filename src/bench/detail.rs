@@ -25,12 +25,13 @@ use super::surface::{self, fft};
 use crate::config::ShotConfig;
 use crate::error::{Error, Result};
 use crate::export::ExportSpace;
+use crate::ground::rest::{RestCodec, RestFrame};
+use crate::ground::ParticleState;
+use crate::ground::SparseGrid;
 use crate::pipeline::records::Manifest;
 use crate::pipeline::writer::{FrameJob, FrameWriter};
-use crate::sim::rest::{RestClock, RestCodec, RestFrame};
-use crate::sim::ParticleState;
 use crate::splat::detail::{DetailNoise, EdgeSums, NoiseSpace};
-use crate::splat::{splat_with_rest, RestInput, SparseGrid, SplatFields, SplatParams};
+use crate::splat::{splat_with_rest, RestInput, SplatFields, SplatParams};
 use serde_json::json;
 use std::path::Path;
 use std::sync::Arc;
@@ -83,7 +84,7 @@ pub fn bench_detail(
             cfg.domain.periodic.contains(&crate::config::Axis::Z),
         ],
     );
-    let clock = RestClock::from_config(&cfg);
+    let clock = crate::sim::rest::rest_clock(&cfg);
     let (a, b) = frames.unwrap_or((
         manifest.frames.first().map_or(0, |f| f.frame),
         manifest.frames.last().map_or(0, |f| f.frame),
@@ -881,7 +882,7 @@ fn sample3(g: &SparseGrid<[f32; 3]>, p: [f64; 3]) -> Option<[f64; 3]> {
         let i = [0, 1, 2].map(|a| b[a] as i32 + o[a]);
         let o = i.map(|v| v & !7);
         let leaf = g.leaves.binary_search_by(|l| l.origin.cmp(&o)).ok()?;
-        let n = crate::splat::Leaf::<[f32; 3]>::offset(i[0], i[1], i[2]);
+        let n = crate::ground::Leaf::<[f32; 3]>::offset(i[0], i[1], i[2]);
         if !g.leaves[leaf].is_active(n) {
             return None;
         }

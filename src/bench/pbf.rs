@@ -5,7 +5,8 @@
 //! `tools/bench_pbf_vs_splishsplash.py` builds for SPlisHSPlasH too).
 use crate::config::{GpuConfig, ShotConfig};
 use crate::error::{Error, Result};
-use crate::sim::{ParticleState, SimClock, Simulation};
+use crate::ground::{ParticleState, SimClock};
+use crate::sim::Simulation;
 use std::sync::Arc;
 
 /// Which scene `bench pbf` times.
@@ -223,7 +224,7 @@ pub fn bench_pbf(b: &PbfBench) -> Result<serde_json::Value> {
         .iter()
         .map(|k| phases.get(*k).copied().unwrap_or(0.0))
         .sum();
-    let diag = last.map(|r| r.diagnostics).unwrap_or_default();
+    let diag = last.map(|r| r.diagnostics.to_map()).unwrap_or_default();
     let adaptive = match adaptive_fits {
         Ok(()) => adaptive_memory(&ctx, &adaptive_cfg, b)?,
         Err(e) => serde_json::json!({ "fits": false, "refused": e.to_string() }),

@@ -1,8 +1,8 @@
 //! Preview render time of a procedural cumulus in a `dim`^3 grid.
 use super::splat::Mix;
 use crate::error::{Error, Result};
+use crate::ground::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use crate::preview::{auto_camera, render, PreviewParams};
-use crate::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use std::time::Instant;
 
 /// A cumulus-like density: a union of smooth blobs on a flat base, inside a `dim`^3 voxel box

@@ -1,6 +1,6 @@
 //! Splat throughput on a jittered particle lattice (all four fields, periodic x/z).
 use crate::error::{Error, Result};
-use crate::sim::ParticleState;
+use crate::ground::ParticleState;
 use crate::splat::{splat, SplatFields, SplatParams};
 use std::time::Instant;
 

@@ -11,7 +11,7 @@
 //!   grid (at or above `tau`, a face neighbour below), the grid sampled along its gradient
 //!   across the shell (`shell` either side); the distance over which it rises from 10% to 90%
 //!   of its largest value on the inward side.
-use crate::splat::SparseGrid;
+use crate::ground::SparseGrid;
 
 /// A grid copied into a dense box: the union of the grids' active boxes, grown by `pad` voxels.
 #[derive(Debug, Clone)]

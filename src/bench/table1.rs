@@ -48,7 +48,7 @@ const WARMUP_EXTENSION: u32 = 4;
 pub(super) fn scaled_config(origin: &str, text: &str, scale: f64) -> Result<ShotConfig> {
     let full = crate::config::load_str(text, origin, &[])?;
     let d = &full.domain;
-    let h0 = d.spacing * d.kernel_ratio;
+    let h0 = d.kernel_radius();
     let side = |s: f64| {
         let cells = (s * scale / d.spacing)
             .round()
@@ -93,13 +93,6 @@ fn non_adaptive(cfg: &ShotConfig) -> Result<ShotConfig> {
     Ok(c)
 }
 
-/// Particles above level 0 in a frame's diagnostics.
-fn refined(diag: &BTreeMap<String, f64>) -> f64 {
-    diag.iter()
-        .filter(|(k, _)| k.starts_with("particles_level_") && k.as_str() != "particles_level_0")
-        .fold(0.0, |a, (_, v)| a + v)
-}
-
 /// Per-run accumulation over the measured frames.
 #[derive(Default)]
 pub(super) struct Run {
@@ -110,7 +103,7 @@ pub(super) struct Run {
     splits: f64,
     merges: f64,
     skipped_splits: f64,
-    last: BTreeMap<String, f64>,
+    last: crate::sim::StepDiagnostics,
     /// Device bytes of the simulation (every stage's buffers).
     pub device_bytes: u64,
 }
@@ -135,8 +128,8 @@ impl Run {
             "wall".into(),
             json!(self.wall_ms / self.substeps.max(1) as f64),
         );
-        let levels: BTreeMap<&String, &f64> = self
-            .last
+        let last = self.last.to_map();
+        let levels: BTreeMap<&String, &f64> = last
             .iter()
             .filter(|(k, _)| k.starts_with("particles_level_"))
             .collect();
@@ -146,7 +139,7 @@ impl Run {
             "domain_size": cfg.domain.size,
             "max_particles": self.max_particles,
             "device_bytes": self.device_bytes,
-            "final_particles": self.last.get("particles"),
+            "final_particles": last.get("particles"),
             "final_particles_per_level": levels,
             "warmup_frames": warmup_frames,
             "measured_frames": frames,
@@ -192,7 +185,7 @@ pub(super) fn run(
         let rep = sim.step_frame()?;
         done += 1;
         r.max_particles = r.max_particles.max(sim.count() as f64);
-        let split = refined(&rep.diagnostics);
+        let split = rep.diagnostics.refined() as f64;
         log::info!(
             "{label}: warm-up frame {done}: {} particles, {split} refined",
             sim.count()
@@ -210,17 +203,16 @@ pub(super) fn run(
         let rep = sim.step_frame()?;
         r.wall_ms += t0.elapsed().as_secs_f64() * 1e3;
         // the CFL control may take more than output.substeps
-        let substeps = rep.diagnostics.get("substeps").copied();
-        r.substeps += substeps.unwrap_or(cfg.output.substeps as f64).max(1.0) as u64;
+        r.substeps += rep.diagnostics.substeps.max(1) as u64;
         for (k, v) in rep.phases.by_key() {
             *r.phase_ms.entry(k).or_insert(0.0) += v;
         }
         let d = &rep.diagnostics;
-        let get = |k: &str| d.get(k).copied().unwrap_or(0.0);
-        r.splits += get("splits");
-        r.merges += get("merges");
-        r.skipped_splits += get("skipped_splits");
-        r.max_particles = r.max_particles.max(get("particles"));
+        let sm = d.split_merge.unwrap_or_default();
+        r.splits += sm.splits as f64;
+        r.merges += sm.merges as f64;
+        r.skipped_splits += sm.skipped_splits as f64;
+        r.max_particles = r.max_particles.max(d.particles as f64);
         log::info!(
             "{label}: frame {}: {} particles, {} ms",
             f + 1,
@@ -272,7 +264,7 @@ pub fn bench_table1(scale: f64, frames: u32, warmup: u32) -> Result<Value> {
         )?;
         let speedup = rn.total_ms() / ra.total_ms();
         let split_merge = (ra.column_ms(&["split"]) + ra.column_ms(&["merge"])) / ra.total_ms();
-        let refined_now = refined(&ra.last);
+        let refined_now = ra.last.refined() as f64;
         for (r, adaptive) in [(&rn, false), (&ra, true)] {
             let cols: Vec<String> = COLUMNS
                 .iter()
@@ -344,7 +336,7 @@ mod tests {
         assert_eq!(a.domain.size, [832.0, 1600.0, 832.0]);
         // ... and the heating noise keeps 2 cells per axis
         assert_eq!(a.physics.heat_noise_scale, 416.0);
-        let (cell, period) = crate::sim::noise::lattice_for_extent(832.0, 416.0);
+        let (cell, period) = crate::ground::noise::lattice_for_extent(832.0, 416.0);
         assert_eq!((cell, period), (416.0, 2));
         // example 2's patches move and shrink with the width
         let (_, origin2, text2) = SCENARIOS[1];

@@ -2,8 +2,8 @@
 //! `tools/bench_openvdb.py` under `/usr/bin/python3`) on the same cloud-like grid and codec.
 use crate::config::Compression;
 use crate::error::{Error, Result};
+use crate::ground::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use crate::io::vdb::{self, VdbFile, VdbGrid, VdbOptions};
-use crate::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use rayon::prelude::*;
 use serde_json::json;
 use std::time::Instant;

@@ -218,6 +218,12 @@ fn d_kernel_ratio() -> f64 {
 fn d_periodic() -> Vec<Axis> {
     vec![Axis::X, Axis::Z]
 }
+impl DomainConfig {
+    /// The level-0 kernel radius h0 = spacing * kernel_ratio (m), defined here alone.
+    pub fn kernel_radius(&self) -> f64 {
+        self.spacing * self.kernel_ratio
+    }
+}
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -597,29 +603,8 @@ impl Default for AdaptiveConfig {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct GpuConfig {
-    /// `auto` or a case-insensitive substring of the adapter name.
-    pub adapter: String,
-    pub backend: Backend,
-}
-impl Default for GpuConfig {
-    fn default() -> Self {
-        Self {
-            adapter: "auto".into(),
-            backend: Backend::Auto,
-        }
-    }
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Backend {
-    Auto,
-    Vulkan,
-    Gl,
-}
+/// The `gpu` section: the device's own choice, defined where the device is opened.
+pub use crate::gpu::choice::{Backend, GpuConfig};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

@@ -14,8 +14,8 @@ pub const MAX_FRAME: u32 = 999_999_999;
 pub const MAX_SHOT_BYTES: usize = 200;
 /// Voxels per axis of the export grid above which a shot is refused.
 pub const MAX_VOXELS_PER_AXIS: f64 = 65536.0;
-/// Highest adaptive level: the PBF level table (`sim::pbf::PbfParams::levels`) has 8 rows.
-pub const MAX_LEVEL: u32 = 7;
+/// Highest adaptive level (`gpu::shaders::MAX_LEVEL`: the level tables' rows).
+pub const MAX_LEVEL: u32 = crate::gpu::shaders::MAX_LEVEL;
 /// Largest min_distance the adaptive stage accepts (`sim::adaptive::MAX_MIN_DISTANCE`).
 pub const MAX_MIN_DISTANCE: f64 = crate::sim::adaptive::MAX_MIN_DISTANCE;
 
@@ -675,7 +675,7 @@ fn check_domain(k: &mut Checks, c: &ShotConfig) {
     if k.issues.len() > before {
         return; // the derived checks below need sane inputs
     }
-    let h0 = d.spacing * d.kernel_ratio;
+    let h0 = d.kernel_radius();
     for (i, axis) in AXES.iter().enumerate() {
         if h0 > d.size[i] {
             k.fail(

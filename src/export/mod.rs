@@ -8,8 +8,8 @@ pub mod profile;
 pub mod usd;
 
 use crate::config::{ExportConfig, NanoPrecision, ShotConfig, UpAxis, VectorClass, VelocityTime};
+use crate::ground::{GridTransform, Leaf, SparseGrid, LEAF_DIM, LEAF_VOXELS};
 use crate::io::vdb::{MetaValue, CLASS_FOG_VOLUME, CLASS_UNKNOWN};
-use crate::splat::{GridTransform, Leaf, SparseGrid, LEAF_DIM, LEAF_VOXELS};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 

@@ -83,19 +83,6 @@ pub fn storage_zeroed<T>(device: &wgpu::Device, label: &str, count: usize) -> wg
     })
 }
 
-/// A uniform buffer holding `value`.
-pub fn uniform_init<T: bytemuck::Pod>(
-    device: &wgpu::Device,
-    label: &str,
-    value: &T,
-) -> wgpu::Buffer {
-    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some(label),
-        contents: bytemuck::bytes_of(value),
-        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-    })
-}
-
 /// Copies the first `count` elements of `buffer` back to the host (one wait).
 pub fn read_back<T: bytemuck::Pod>(
     ctx: &crate::gpu::Context,

@@ -28,7 +28,7 @@ pub struct DeviceLimits {
     /// Largest storage binding (bytes): a particle array is bound whole.
     pub max_storage_buffer_binding_size: u64,
     /// Most workgroups per dispatch dimension (dispatches fold into x * y, see
-    /// `gpu::stage::groups_for`).
+    /// `gpu::program::groups_for`).
     pub max_compute_workgroups_per_dimension: u32,
     /// Bytes of the largest device-local memory heap; `None` where the backend does not say
     /// (OpenGL).

@@ -6,7 +6,7 @@
 //! values here, every particle kernel reads `live.count` (shaders/shared/live.wgsl), and every
 //! dispatch over the particles is indirect with the arguments stored here. The host writes the
 //! buffer only between frames (after its one read-back) and reads it with the frame's state.
-use crate::gpu::stage::groups_for;
+use crate::gpu::program::groups_for;
 use crate::gpu::Context;
 
 /// Mirror of `Live` in shaders/shared/live.wgsl (byte layout must match).

@@ -1,19 +1,20 @@
 //! wgpu context (headless adapter choice, features, limits, the one host wait), the compute
-//! [`stage::Stage`] every GPU stage is declared with, buffer helpers, shader loading, and the
+//! [`program::Program`] every compute program is declared with, buffer helpers, shader loading, and the
 //! generic passes (prefix scan, timestamps).
 pub mod buffers;
+pub mod choice;
 pub mod limits;
 pub mod live;
+pub mod program;
 pub mod scan;
 pub mod shaders;
-pub mod stage;
 pub mod timing;
 pub mod validation;
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use crate::config::{Backend, GpuConfig};
 use crate::error::{Error, Result};
+use choice::{Backend, GpuConfig};
 
 /// What a machine without a usable adapter should do about it.
 pub const NO_ADAPTER_REMEDY: &str = "install the Vulkan driver of your GPU (NVIDIA/AMD/Intel); \
@@ -27,7 +28,7 @@ pub struct Context {
     pub adapter_info: wgpu::AdapterInfo,
     /// Timestamp queries are available: per-phase GPU timings come from them.
     pub timestamps: bool,
-    /// The constants every stage's WGSL is compiled with (workgroup sizes, dispatch limit).
+    /// The constants every program's WGSL is compiled with (workgroup sizes, dispatch limit).
     pub prelude: shaders::Prelude,
     /// What bounds a shot's size on this device (`NIMBUS_GPU_LIMITS` applied).
     pub limits: limits::DeviceLimits,

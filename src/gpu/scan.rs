@@ -8,7 +8,7 @@
 use crate::error::Result;
 use crate::gpu::buffers::{storage_zeroed, ParamSlots, Span};
 use crate::gpu::live::LiveBuffer;
-use crate::gpu::stage::{Dispatch, Stage};
+use crate::gpu::program::{Dispatch, Program};
 use crate::gpu::Context;
 
 const SHADER: &str = "scan.wgsl";
@@ -42,7 +42,7 @@ struct Level {
 /// An exclusive scan of the first `max_len` u32 of one input array into an output array (its
 /// own, or a span the caller lends), in one or more modes ([`ScanOf`]) that share the buffers.
 pub struct PrefixScan {
-    stage: Stage,
+    program: Program,
     params: ParamSlots<ScanParams>,
     param_group: wgpu::BindGroup,
     levels: Vec<Level>,
@@ -68,7 +68,7 @@ impl PrefixScan {
         live: &LiveBuffer,
         modes: &[ScanOf],
     ) -> Result<Self> {
-        let stage = Stage::new(ctx, SHADER, &["scan_reduce", "scan_blocks"])?;
+        let program = Program::new(ctx, SHADER, &["scan_reduce", "scan_blocks"])?;
         let block = crate::gpu::shaders::SCAN_BLOCK;
         // level k scans lens[k] values; its block totals are level k + 1's values
         let mut lens = vec![max_len.max(1)];
@@ -133,13 +133,13 @@ impl PrefixScan {
             ];
             levels.push(Level {
                 groups: len.div_ceil(block),
-                bind: stage.bind(ctx, &[&own])?,
+                bind: program.bind(ctx, &[&own])?,
             });
         }
         // the per-dispatch parameters: group 1, a dynamic offset picks mode and level
-        let param_group = stage.bind_group(ctx, 1, &[&[("sp", params.slot(0))]])?;
+        let param_group = program.bind_group(ctx, 1, &[&[("sp", params.slot(0))]])?;
         Ok(Self {
-            stage,
+            program,
             params,
             param_group,
             levels,
@@ -162,7 +162,7 @@ impl PrefixScan {
         let slot = |k: usize| self.params.offset((mode * self.levels.len() + k) as u32);
         let last = self.levels.len() - 1;
         for (k, lv) in self.levels[..last].iter().enumerate() {
-            self.stage.dispatch(
+            self.program.dispatch(
                 pass,
                 "scan_reduce",
                 &[(&lv.bind, 0), (group, slot(k))],
@@ -170,7 +170,7 @@ impl PrefixScan {
             );
         }
         for (k, lv) in self.levels.iter().enumerate().rev() {
-            self.stage.dispatch(
+            self.program.dispatch(
                 pass,
                 "scan_blocks",
                 &[(&lv.bind, 0), (group, slot(k))],

@@ -1,6 +1,7 @@
 //! Shader sources, embedded at build time. A stage file may pull shared code in with a line
 //! `//!include shared/NAME.wgsl` (WGSL has no includes; this is plain text substitution,
-//! each file included at most once). Every stage is preceded by the [`Prelude`]: constants the
+//! each file included at most once), and generate a neighbour walk with a line `//!walk NAME`
+//! ([`WALKS`]: one template, shared/walk.wgsl, for every pair function). Every stage is preceded by the [`Prelude`]: constants the
 //! Rust side owns (workgroup sizes, the dispatch limit), so that WGSL and Rust cannot disagree.
 use crate::error::{Error, Result};
 
@@ -20,6 +21,13 @@ pub const WG_SCAN_GPU: u32 = WG_BLOCK;
 /// the scan's barriers cost next to nothing (a scan of 137k values: 3.2 -> 1.4-1.9 ms,
 /// docs/PERFORMANCE.md "Table 1 / Session 10").
 pub const WG_SCAN_CPU: u32 = 8;
+
+/// The finest adaptive particle level, defined here alone: the config's range of
+/// `adaptive.max_level`, the level tables of the PBF and smoothing programs (`MAX_LEVEL + 1` rows;
+/// `MAX_LEVEL` in WGSL), and the level clamps host and GPU apply. The tables are read by select
+/// chains unrolled for 8 rows (pbf.wgsl `lv_of`, smoothing.wgsl `level_row`); a test holds the
+/// two together.
+pub const MAX_LEVEL: u32 = 7;
 
 /// Loop iterations an invocation may run on llvmpipe, with a margin below its 65535.
 pub const CPU_LOOP_BUDGET: u32 = 60_000;
@@ -100,13 +108,14 @@ impl Prelude {
 
     fn wgsl(&self) -> String {
         format!(
-            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst WG_SCAN: u32 = {}u;\nconst SCAN_ITEMS: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\n",
+            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst WG_SCAN: u32 = {}u;\nconst SCAN_ITEMS: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\nconst MAX_LEVEL: u32 = {}u;\n",
             self.wg_particles,
             self.wg_block,
             self.wg_scan,
             SCAN_BLOCK / self.wg_scan,
             self.max_groups_x,
-            self.loop_budget
+            self.loop_budget,
+            MAX_LEVEL
         )
     }
 }
@@ -143,6 +152,142 @@ const VARIANTS: &[(&str, &str, Words)] = &[
         &[("ELEM", "vec2<u32>"), ("WIDTH", "2")],
     ),
 ];
+
+/// The neighbour-walk template: sections `//!template KIND` (`scan`, `masked`).
+const WALK_TEMPLATE: &str = "shared/walk.wgsl";
+
+/// One neighbour walk made from [`WALK_TEMPLATE`] (its words are explained there).
+struct Walk {
+    /// The function's name; `//!walk NAME` in a stage puts it there.
+    name: &'static str,
+    /// The template's section: `scan` (around the position) or `masked` (the neighbour mask).
+    template: &'static str,
+    /// The accumulator's parameter name and pointee type.
+    acc: (&'static str, &'static str),
+    /// The particle's type, and any further parameters.
+    me: &'static str,
+    /// The call for a fluid candidate, `$` its index.
+    pair: &'static str,
+    /// The call for a wall particle, `$` its index; `None`: the walk leaves the walls out.
+    wall: Option<&'static str>,
+    /// The particle's kernel radius (the walls are walked within max(it, h0)).
+    reach: &'static str,
+}
+
+/// Every walk the stages generate. The masked and the scan walk of one pass share its pair
+/// function, so the mask changes which candidates are visited, never what a pair adds.
+const WALKS: &[Walk] = &[
+    Walk {
+        name: "lam_scan",
+        template: "scan",
+        acc: ("a", "LamAcc"),
+        me: "Me, packed: bool",
+        pair: "_ = lam_fluid(a, me, $, packed)",
+        wall: Some("lam_wall(a, me, $)"),
+        reach: "me.hi",
+    },
+    Walk {
+        name: "lam_masked",
+        template: "masked",
+        acc: ("a", "LamAcc"),
+        me: "Me",
+        pair: "_ = lam_fluid(a, me, $, true)",
+        wall: Some("lam_wall(a, me, $)"),
+        reach: "me.hi",
+    },
+    Walk {
+        name: "delta_scan",
+        template: "scan",
+        acc: ("dp", "vec3<f32>"),
+        me: "Me",
+        pair: "delta_fluid(dp, me, $)",
+        wall: Some("delta_wall(dp, me, $)"),
+        reach: "me.hi",
+    },
+    Walk {
+        name: "delta_masked",
+        template: "masked",
+        acc: ("dp", "vec3<f32>"),
+        me: "Me",
+        pair: "delta_fluid(dp, me, $)",
+        wall: Some("delta_wall(dp, me, $)"),
+        reach: "me.hi",
+    },
+    Walk {
+        name: "visc_scan",
+        template: "scan",
+        acc: ("a", "Visc"),
+        me: "Vi",
+        pair: "visc_pair(a, me, $)",
+        wall: Some("visc_wall(a, me, $)"),
+        reach: "me.lv.x",
+    },
+    Walk {
+        name: "visc_masked",
+        template: "masked",
+        acc: ("a", "Visc"),
+        me: "Vi",
+        pair: "visc_pair(a, me, $)",
+        wall: Some("visc_wall(a, me, $)"),
+        reach: "me.lv.x",
+    },
+];
+
+/// The WGSL of the walk `name` ([`WALKS`]).
+fn walk_source(name: &str) -> Result<String> {
+    let w = WALKS
+        .iter()
+        .find(|w| w.name == name)
+        .ok_or_else(|| Error::Runtime(format!("no neighbour walk '{name}' in WALKS")))?;
+    let template = raw(WALK_TEMPLATE)?;
+    let marker = format!("//!template {}\n", w.template);
+    let start = template
+        .find(&marker)
+        .ok_or_else(|| Error::Runtime(format!("{WALK_TEMPLATE}: no section '{}'", w.template)))?
+        + marker.len();
+    let section = &template[start..];
+    let section = &section[..section.find("//!template ").unwrap_or(section.len())];
+    let mut out = String::new();
+    let mut in_walls = false;
+    for line in section.lines() {
+        match line.trim() {
+            "//!walls" => in_walls = true,
+            "//!end walls" => in_walls = false,
+            _ if in_walls && w.wall.is_none() => {}
+            _ => {
+                out.push_str(line);
+                out.push('\n');
+            }
+        }
+    }
+    // WALK_ACC before WALK_A, its prefix
+    let out = out
+        .replace("WALK_NAME", w.name)
+        .replace("WALK_ACC", w.acc.1)
+        .replace("WALK_A", w.acc.0)
+        .replace("WALK_ME", w.me)
+        .replace("WALK_REACH", w.reach);
+    let out = calls(&out, "PAIR", w.pair)?;
+    calls(&out, "WALL", w.wall.unwrap_or(""))
+}
+
+/// Replaces every `WORD[[arg]]` in `text` by `call` with `$` = arg.
+fn calls(text: &str, word: &str, call: &str) -> Result<String> {
+    let open = format!("{word}[[");
+    let mut out = String::new();
+    let mut rest = text;
+    while let Some(i) = rest.find(&open) {
+        out.push_str(&rest[..i]);
+        rest = &rest[i + open.len()..];
+        let end = rest
+            .find("]]")
+            .ok_or_else(|| Error::Runtime(format!("{WALK_TEMPLATE}: {open} without ]]")))?;
+        out.push_str(&call.replace('$', &rest[..end]));
+        rest = &rest[end + 2..];
+    }
+    out.push_str(rest);
+    Ok(out)
+}
 
 /// Names of the compute stages (every `.wgsl` outside `shared/`, and the template variants).
 pub fn stage_names() -> impl Iterator<Item = &'static str> {
@@ -189,6 +334,8 @@ fn expand(name: &str, seen: &mut Vec<String>, out: &mut String) -> Result<()> {
     for line in raw(name)?.lines() {
         if let Some(inc) = line.trim().strip_prefix("//!include ") {
             expand(inc.trim(), seen, out)?;
+        } else if let Some(walk) = line.trim().strip_prefix("//!walk ") {
+            out.push_str(&walk_source(walk.trim())?);
         } else {
             out.push_str(line);
             out.push('\n');
@@ -243,7 +390,8 @@ mod tests {
     fn every_shader_compiles_through_naga() {
         // Shared files are valid modules on their own (templates only as their variants);
         // stages are checked with their includes.
-        let templates: Vec<&str> = super::VARIANTS.iter().map(|(_, t, _)| *t).collect();
+        let mut templates: Vec<&str> = super::VARIANTS.iter().map(|(_, t, _)| *t).collect();
+        templates.push(super::WALK_TEMPLATE);
         let files = super::SHADER_FILES.iter().map(|(n, _)| *n);
         for name in files.chain(super::stage_names()) {
             if !templates.contains(&name) {
@@ -251,5 +399,47 @@ mod tests {
             }
         }
         assert!(!super::SHADER_FILES.is_empty(), "no shaders found");
+    }
+
+    #[test]
+    fn every_walk_is_used_once_and_fully_expanded() {
+        let mut used = Vec::new();
+        for (name, text) in super::SHADER_FILES {
+            for line in text.lines() {
+                if let Some(w) = line.trim().strip_prefix("//!walk ") {
+                    used.push(w.trim().to_string());
+                    let src =
+                        super::walk_source(w.trim()).unwrap_or_else(|e| panic!("{name}: {e}"));
+                    for word in ["WALK_", "PAIR[[", "WALL[[", "//!"] {
+                        assert!(!src.contains(word), "{name}: {w} keeps {word}:\n{src}");
+                    }
+                    assert!(src.contains(&format!("fn {}(", w.trim())), "{w}");
+                }
+            }
+        }
+        used.sort();
+        let mut all: Vec<String> = super::WALKS.iter().map(|w| w.name.to_string()).collect();
+        all.sort();
+        assert_eq!(used, all, "each walk of WALKS generated once");
+    }
+
+    #[test]
+    fn the_level_tables_select_chains_cover_max_level() {
+        // lv_of (pbf.wgsl) and level_row (smoothing.wgsl) pick rows 1..MAX_LEVEL by one select
+        // each, the last for every level at or above MAX_LEVEL
+        for (file, fun) in [
+            ("pbf.wgsl", "fn lv_of("),
+            ("smoothing.wgsl", "fn level_row("),
+        ] {
+            let src = super::raw(file).unwrap();
+            let body = &src[src.find(fun).unwrap()..];
+            let body = &body[..body.find("\n}").unwrap()];
+            assert_eq!(
+                body.matches("select(").count() as u32,
+                super::MAX_LEVEL,
+                "{file} {fun}"
+            );
+            assert!(body.contains("l >= MAX_LEVEL"), "{file} {fun}");
+        }
     }
 }

@@ -8,8 +8,8 @@
 //! world position of the centre of voxel (0,0,0)). Attributes are written sorted by name (as
 //! OpenEXR does) so the same grid always gives the same bytes.
 use crate::error::{Error, Result};
+use crate::ground::SparseGrid;
 use crate::io::atomic::write_atomic;
-use crate::splat::SparseGrid;
 use exr::prelude::*;
 use std::path::Path;
 

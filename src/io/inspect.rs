@@ -1,9 +1,9 @@
 //! `nimbus inspect FILE`: a human-readable description of a file nimbus writes, chosen by its
 //! magic bytes (checkpoint, VDB, NanoVDB, EXR; other formats register here as they are added).
 use crate::error::{Error, Result};
+use crate::ground::SparseGrid;
 use crate::io::checkpoint::{self, format};
 use crate::io::vdb::{self, GridData};
-use crate::splat::SparseGrid;
 use std::fmt::Write as _;
 use std::io::Read;
 use std::path::Path;
@@ -28,7 +28,7 @@ pub fn stats<T: Copy>(g: &SparseGrid<T>, scalar: impl Fn(&T) -> f64) -> Stats {
         sum: 0.0,
     };
     for leaf in &g.leaves {
-        for n in (0..crate::splat::LEAF_VOXELS).filter(|&n| leaf.is_active(n)) {
+        for n in (0..crate::ground::LEAF_VOXELS).filter(|&n| leaf.is_active(n)) {
             let v = scalar(&leaf.values[n]);
             s.active += 1;
             s.min = s.min.min(v);
@@ -235,7 +235,7 @@ fn describe_nanovdb(path: &Path) -> Result<String> {
             g.bytes,
             if g.checksum_ok { "ok" } else { "MISMATCH" }
         );
-        let t = crate::splat::GridTransform {
+        let t = crate::ground::GridTransform {
             voxel_size: g.voxel_size,
             origin: g.origin,
         };
@@ -250,8 +250,8 @@ fn describe_nanovdb(path: &Path) -> Result<String> {
 }
 
 fn as_grid<T: Copy>(
-    leaves: &[crate::splat::Leaf<T>],
-    transform: crate::splat::GridTransform,
+    leaves: &[crate::ground::Leaf<T>],
+    transform: crate::ground::GridTransform,
     background: T,
 ) -> SparseGrid<T> {
     SparseGrid {

@@ -13,8 +13,8 @@
 //! (`RestCodec::encode` of the value read back gives the run's u16 again).
 use crate::error::{Error, Result};
 use crate::export::ExportSpace;
-use crate::sim::rest::{RestCodec, RestFrame};
-use crate::sim::ParticleState;
+use crate::ground::rest::{RestCodec, RestFrame};
+use crate::ground::ParticleState;
 use std::path::Path;
 
 /// Per-vertex properties, in file order: (PLY type, name).

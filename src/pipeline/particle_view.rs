@@ -10,8 +10,8 @@ use super::records::Manifest;
 use super::rerender::{check_recorded, remove_if_present};
 use crate::config::ShotConfig;
 use crate::error::{Error, Result};
+use crate::ground::ParticleState;
 use crate::preview::particles::{draw_level_legend, render_levels};
-use crate::sim::ParticleState;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -53,7 +53,7 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
         )));
     }
     let space = crate::export::ExportSpace::from_config(cfg);
-    let h0 = crate::sim::init::kernel_radius(cfg);
+    let h0 = cfg.domain.kernel_radius();
     let max_level = if cfg.adaptive.enabled {
         cfg.adaptive.max_level
     } else {

@@ -139,7 +139,7 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
     }
     let run_space = ExportSpace::from_config(&run_cfg);
     let codec = cfg.export.tracks_rest().then(|| {
-        crate::sim::rest::RestCodec::new(
+        crate::ground::rest::RestCodec::new(
             run_cfg.domain.size,
             [
                 run_cfg.domain.periodic.contains(&crate::config::Axis::X),

@@ -9,9 +9,10 @@ use super::writer::{FrameJob, FrameWriter, WrittenFrame};
 use crate::config::{self, ShotConfig};
 use crate::error::{Error, Result};
 use crate::gpu;
+use crate::ground::{ParticleState, SimClock};
 use crate::io::checkpoint;
 use crate::sim::rest::{self, RestTracker};
-use crate::sim::{ParticleState, SimClock, Simulation};
+use crate::sim::Simulation;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
@@ -145,28 +146,28 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
         (_, false) => None,
         (None, true) => Some(RestTracker::default()),
         // the rest positions start with the first written frame
-        (Some(ck), true) if ck.extra.contains_key(PREROLL_SECTION) => {
-            Some(RestTracker::default())
-        }
+        (Some(ck), true) if ck.extra.contains_key(PREROLL_SECTION) => Some(RestTracker::default()),
         (Some(ck), true) => match ck.extra.get(rest::CHECKPOINT_SECTION) {
             Some(bytes) => Some(RestTracker::from_bytes(bytes)?),
             None => {
                 return Err(Error::InvalidInput(format!(
-                    "cannot resume: the checkpoint of frame {} holds no rest positions, and                      export.detail / export.grids.rest need them; resume with them off, or run                      again from the start",
+                    "cannot resume: the checkpoint of frame {} holds no rest positions, and \
+                     export.detail / export.grids.rest need them; resume with them off, or run \
+                     again from the start",
                     ck.header.frame
                 )))
             }
         },
     };
-    let rest_clock = rest::RestClock::from_config(cfg);
-    let rest_codec = rest::RestCodec::new(
+    let rest_clock = rest::rest_clock(cfg);
+    let rest_codec = crate::ground::rest::RestCodec::new(
         cfg.domain.size,
         [
             cfg.domain.periodic.contains(&config::Axis::X),
             cfg.domain.periodic.contains(&config::Axis::Z),
         ],
     );
-    let h0 = crate::sim::init::kernel_radius(cfg);
+    let h0 = cfg.domain.kernel_radius();
 
     let writer = FrameWriter::new(cfg, run_dir)?;
     let mut manifest = match (&resumed, Manifest::load(run_dir)) {
@@ -311,16 +312,19 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                 .map(|t| Arc::new(t.update(&state, frame, &rest_clock, &rest_codec, h0)));
             let state = Arc::new(state);
             let clock = sim.clock();
-            let mut diagnostics = report.diagnostics.clone();
-            diagnostics.extend(crate::sim::diagnostics::cloud_diagnostics(&state, cfg));
-            diagnostics.extend(crate::sim::diagnostics::atmosphere_diagnostics(
+            let cloud = crate::sim::diagnostics::cloud_diagnostics(&state, cfg);
+            let atmosphere = crate::sim::diagnostics::atmosphere_diagnostics(
                 &state,
                 cfg,
                 &initial_layers,
                 clock.time,
                 sim.heat_maps(),
-            ));
-            if let Some(msg) = time_step_warning(frame, &diagnostics, cfg) {
+            );
+            let mut diagnostics = report.diagnostics.to_map();
+            cloud.insert_into(&mut diagnostics);
+            atmosphere.insert_into(&mut diagnostics);
+            let clamped = atmosphere.clamped_particles;
+            if let Some(msg) = time_step_warning(frame, &report.diagnostics, clamped, cfg) {
                 progress.note("warning", &msg);
             }
             loop_state.pending_stats.push(FrameStats {
@@ -548,21 +552,20 @@ fn install_signal_handlers() -> Result<Arc<AtomicBool>> {
 /// never silent: one warning line for the frame.
 fn time_step_warning(
     frame: u32,
-    d: &std::collections::BTreeMap<String, f64>,
+    d: &crate::sim::StepDiagnostics,
+    clamped: u64,
     cfg: &ShotConfig,
 ) -> Option<String> {
-    let clamped = d.get("clamped_particles").copied().unwrap_or(0.0);
-    let cfl = d.get("cfl_max").copied().unwrap_or(0.0);
-    let substeps = d.get("substeps").copied().unwrap_or(0.0);
+    let cfl = d.cfl_max;
     let mut parts = Vec::new();
-    if clamped > 0.0 {
+    if clamped > 0 {
         parts.push(format!(
             "{clamped:.0} particles at the speed clamp solver.max_speed = {} m/s",
             cfg.solver.max_speed
         ));
     }
     // the CFL control chose the substeps from the frame's start; at the cap it cannot follow
-    if substeps >= cfg.output.max_substeps as f64 && cfl > cfg.output.cfl {
+    if d.substeps >= cfg.output.max_substeps && cfl > cfg.output.cfl {
         parts.push(format!(
             "particles moved {cfl:.2} kernel radii per substep (output.cfl {}): raise output.max_substeps ({})",
             cfg.output.cfl, cfg.output.max_substeps

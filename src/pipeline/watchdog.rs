@@ -4,7 +4,7 @@
 //! naming the first bad field and particle; the frames before it and the last good checkpoint
 //! stay, and the manifest stays `complete: false`.
 use crate::config::ShotConfig;
-use crate::sim::ParticleState;
+use crate::ground::ParticleState;
 
 /// Speeds are clamped to `solver.max_speed` once per substep; later corrections (XSPH,
 /// position projection) move a particle a little past it, never this far.

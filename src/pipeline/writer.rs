@@ -5,10 +5,11 @@ use super::records::{file_record, FrameRecord, Manifest};
 use crate::config::ShotConfig;
 use crate::error::Result;
 use crate::export::ExportSpace;
+use crate::ground::rest::{RestClock, RestCodec, RestFrame};
+use crate::ground::ParticleState;
+use crate::ground::{GridTransform, SparseGrid};
 use crate::io::vdb::{VdbFile, VdbGrid, VdbOptions};
-use crate::sim::rest::{RestClock, RestCodec, RestFrame};
-use crate::sim::ParticleState;
-use crate::splat::{GridTransform, SparseGrid, SplatGrids};
+use crate::splat::SplatGrids;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -81,7 +82,7 @@ impl FrameWriter {
             splat,
             preview,
             overlay,
-            rest_clock: RestClock::from_config(cfg),
+            rest_clock: crate::sim::rest::rest_clock(cfg),
         })
     }
 
@@ -271,7 +272,7 @@ impl FrameWriter {
         let info = crate::io::ply::CacheInfo {
             space: s,
             rest: rest.map(|r| (r, self.rest_codec)),
-            h0: crate::sim::init::kernel_radius(&self.cfg),
+            h0: self.cfg.domain.kernel_radius(),
             m0: self.particle_mass,
             comments: vec![
                 format!("nimbus {} shot {} frame {frame}", crate::VERSION, self.cfg.shot),
@@ -486,7 +487,7 @@ fn quantise(
 pub fn fpn_tolerance(g: &SparseGrid<f32>, tolerance: f64) -> f32 {
     let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
     for leaf in &g.leaves {
-        for n in (0..crate::splat::LEAF_VOXELS).filter(|&n| leaf.is_active(n)) {
+        for n in (0..crate::ground::LEAF_VOXELS).filter(|&n| leaf.is_active(n)) {
             lo = lo.min(leaf.values[n]);
             hi = hi.max(leaf.values[n]);
         }

@@ -31,7 +31,7 @@ pub use sheet::{contact_sheet, write_contact_sheet};
 
 use crate::config::{DensityMode, PreviewConfig, ShotConfig};
 use crate::error::{Error, Result};
-use crate::splat::SparseGrid;
+use crate::ground::SparseGrid;
 use glam::DVec3;
 use rayon::prelude::*;
 pub use sky::Sky;

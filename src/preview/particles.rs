@@ -3,7 +3,7 @@
 //! so ties go to the lower particle index: deterministic.
 use super::{LinearImage, PreviewParams};
 use crate::error::Result;
-use crate::sim::ParticleState;
+use crate::ground::ParticleState;
 use glam::{DVec3, Vec4};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -2,7 +2,7 @@
 //! table of leaf slots over the leaves' bounding box, a dilated leaf occupancy for empty-space
 //! skipping, and a coarse copy of the density with the optical depth towards the sun and towards
 //! the zenith precomputed at its cell centres.
-use crate::splat::{SparseGrid, LEAF_DIM, LEAF_VOXELS};
+use crate::ground::{SparseGrid, LEAF_DIM, LEAF_VOXELS};
 use glam::{DVec3, IVec3};
 use rayon::prelude::*;
 

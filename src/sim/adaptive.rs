@@ -23,8 +23,8 @@ use crate::config::AdaptiveConfig;
 use crate::error::{Error, Result};
 use crate::gpu::buffers::{self, ParamSlots};
 use crate::gpu::live::LiveBuffer;
+use crate::gpu::program::{Dispatch, Program, Resources};
 use crate::gpu::scan::{PrefixScan, ScanOf};
-use crate::gpu::stage::{Dispatch, Resources, Stage};
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::grid_params::GridParams;
@@ -32,8 +32,6 @@ use crate::sim::phase::{Phase, Recorder};
 
 /// Levels the counters buffer has room for (`MAX_LEVELS` in shaders/shared/adaptive.wgsl).
 pub const MAX_LEVELS: u32 = 24;
-/// Largest `max_level`: mass units 2^max_level per level-0 particle stay far inside u64 sums.
-pub const MAX_LEVEL_LIMIT: u32 = 20;
 /// Largest `min_distance` for which the 27 cells around a merging cell hold every particle the
 /// room check needs: |midpoint - x_i| < h_l / 2 <= 2^(-1/3) L / 2 and h_new <= L.
 pub const MAX_MIN_DISTANCE: f64 = 0.6;
@@ -74,12 +72,6 @@ impl AdaptiveParams {
     /// Validated parameters of a shot (count and next_id are set per run).
     pub fn new(cfg: &AdaptiveConfig, h0: f64, capacity: u32) -> Result<Self> {
         let bad = |key: &str, msg: String| Err(Error::Config(format!("adaptive.{key}: {msg}")));
-        if cfg.max_level > MAX_LEVEL_LIMIT {
-            return bad(
-                "max_level",
-                format!("{} is above the limit {MAX_LEVEL_LIMIT}", cfg.max_level),
-            );
-        }
         let ordered = cfg.merge_threshold < cfg.split_threshold;
         if !ordered {
             return bad(
@@ -295,12 +287,12 @@ pub struct FrameTotals {
 pub struct AdaptiveStage {
     params: AdaptiveParams,
     capacity: u32,
-    mark: Stage,
-    merge: Stage,
-    plan: Stage,
-    compact: Stage,
-    split: Stage,
-    stats: Stage,
+    mark: Program,
+    merge: Program,
+    plan: Program,
+    compact: Program,
+    split: Program,
+    stats: Program,
     param_buf: ParamSlots<AdaptiveParams>,
     colour_map: ParamSlots<ColourMap>,
     colours: ParamSlots<MergeColour>,
@@ -356,20 +348,20 @@ impl AdaptiveStage {
             ));
         }
         let d = &ctx.device;
-        let mark = Stage::new(ctx, "adaptive_mark.wgsl", &["adaptive_mark"])?;
-        let merge = Stage::new(ctx, "adaptive_merge.wgsl", &["adaptive_merge"])?;
-        let plan = Stage::new(
+        let mark = Program::new(ctx, "adaptive_mark.wgsl", &["adaptive_mark"])?;
+        let merge = Program::new(ctx, "adaptive_merge.wgsl", &["adaptive_merge"])?;
+        let plan = Program::new(
             ctx,
             "adaptive_plan.wgsl",
             &["merge_cells", "merge_dispatch"],
         )?;
-        let compact = Stage::new(
+        let compact = Program::new(
             ctx,
             "adaptive_compact.wgsl",
             &["compact_holes", "compact_move"],
         )?;
-        let split = Stage::new(ctx, "adaptive_split.wgsl", &["adaptive_split"])?;
-        let stats = Stage::new(
+        let split = Program::new(ctx, "adaptive_split.wgsl", &["adaptive_split"])?;
+        let stats = Program::new(
             ctx,
             "adaptive_stats.wgsl",
             &["totals_merge", "totals_split"],
@@ -503,7 +495,7 @@ impl AdaptiveStage {
     /// cell table is stale afterwards (the next grid build re-sorts).
     pub fn split_and_merge(&self, rec: &mut Recorder, live: &LiveBuffer) -> Result<()> {
         let b = &self.binds;
-        let one = |stage: &Stage, pass: &mut wgpu::ComputePass, entry, bind| {
+        let one = |stage: &Program, pass: &mut wgpu::ComputePass, entry, bind| {
             stage.dispatch(pass, entry, &[(bind, 0)], Dispatch::Live(live))
         };
         // Split phase 1: shape energy and marks.
@@ -690,8 +682,8 @@ mod tests {
     fn params_validation_rejects_bad_config() {
         let ok = AdaptiveConfig::default();
         assert!(AdaptiveParams::new(&ok, 0.1, 10).is_ok());
-        let breakers: [fn(&mut AdaptiveConfig); 5] = [
-            |c: &mut AdaptiveConfig| c.max_level = 40,
+        // (max_level's range is the config's alone: config::validate, tests/config_limits.rs)
+        let breakers: [fn(&mut AdaptiveConfig); 4] = [
             |c: &mut AdaptiveConfig| c.merge_threshold = c.split_threshold,
             |c: &mut AdaptiveConfig| c.min_distance = 0.9,
             |c: &mut AdaptiveConfig| c.split_offset = 0.0,

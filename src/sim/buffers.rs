@@ -16,8 +16,8 @@ use crate::error::{Error, Result};
 use crate::gpu::buffers::{storage_init, storage_zeroed, ParamSlots, Span};
 use crate::gpu::live::{Live, LiveBuffer};
 use crate::gpu::Context;
+use crate::ground::ParticleState;
 use crate::sim::grid_params::GridParams;
-use crate::sim::ParticleState;
 
 pub struct ParticleBuffers {
     /// Particles the arrays hold at most (what split and merge may fill).
@@ -124,7 +124,7 @@ impl ParticleBuffers {
 }
 
 /// The particle set's buffers under the names every stage's WGSL binds them by.
-impl crate::gpu::stage::Resources for ParticleBuffers {
+impl crate::gpu::program::Resources for ParticleBuffers {
     fn resource(&self, name: &str) -> Option<wgpu::BindingResource<'_>> {
         let buffer = match name {
             "grid" => return Some(self.grid.slot(0)),

@@ -21,8 +21,8 @@
 //! continues byte for byte. The same binning gives `target_iou`, the intersection over union of
 //! the cloud voxels and the target voxels.
 use crate::config::{ShotConfig, TargetConfig};
+use crate::ground::ParticleState;
 use crate::io::obj::Mesh;
-use crate::sim::ParticleState;
 
 /// The controller's voxel grid: `n` cells along x, y, z tiling the domain exactly.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -76,8 +76,7 @@ impl VoxelGrid {
 
 /// Edge of the controller's voxels (m).
 pub fn voxel_size(cfg: &ShotConfig, t: &TargetConfig) -> f64 {
-    t.voxel_size
-        .unwrap_or(cfg.domain.spacing * cfg.domain.kernel_ratio)
+    t.voxel_size.unwrap_or(cfg.domain.kernel_radius())
 }
 
 /// The mesh's vertices placed in the domain: scaled, turned about y (from +x towards +z),

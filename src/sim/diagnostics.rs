@@ -4,9 +4,9 @@
 //! neighbour counts of the isolation measure are integers computed per particle in parallel
 //! (order-free) on the CPU cell table.
 use crate::config::ShotConfig;
+use crate::ground::ParticleState;
+use crate::sim::cell_table::{build_cell_table, for_each_neighbor};
 use crate::sim::grid_params::GridParams;
-use crate::sim::reference::grid::{build_cell_table, for_each_neighbor};
-use crate::sim::ParticleState;
 use glam::Vec4;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
@@ -30,10 +30,10 @@ pub fn particle_mass0(cfg: &ShotConfig) -> f64 {
 /// `isolation` = fraction of the cloud mass held by cloudy particles with fewer than
 /// [`ISOLATION_NEIGHBORS`] cloudy neighbours within their kernel radius h_i (0 when there is
 /// no cloud).
-pub fn cloud_diagnostics(state: &ParticleState, cfg: &ShotConfig) -> BTreeMap<String, f64> {
+pub fn cloud_diagnostics(state: &ParticleState, cfg: &ShotConfig) -> CloudDiagnostics {
     let n = state.len();
     let m0 = particle_mass0(cfg);
-    let h0 = cfg.domain.spacing * cfg.domain.kernel_ratio;
+    let h0 = cfg.domain.kernel_radius();
     let mass = |i: usize| m0 * (-(state.info[i][1] as f64)).exp2();
     let radius = |i: usize| h0 * (-(state.info[i][1] as f64) / 3.0).exp2();
     let cloudy = |i: usize| state.thermo[i][2] as f64 > CLOUDY_THRESHOLD;
@@ -91,28 +91,49 @@ pub fn cloud_diagnostics(state: &ParticleState, cfg: &ShotConfig) -> BTreeMap<St
         }
     }
 
-    let mut out = BTreeMap::new();
-    out.insert("total_water".into(), total_water);
-    out.insert("cloud_mass".into(), cloud_mass);
-    out.insert("cloudy_particles".into(), cloudy_particles as f64);
-    out.insert(
-        "temperature_mean".into(),
-        if total_mass > 0.0 {
+    CloudDiagnostics {
+        total_water,
+        cloud_mass,
+        cloudy_particles: cloudy_particles as u64,
+        temperature_mean: if total_mass > 0.0 {
             t_weighted / total_mass
         } else {
             0.0
         },
-    );
-    out.insert("temperature_max".into(), if n > 0 { t_max } else { 0.0 });
-    out.insert(
-        "isolation".into(),
-        if cloud_mass > 0.0 {
+        temperature_max: if n > 0 { t_max } else { 0.0 },
+        isolation: if cloud_mass > 0.0 {
             isolated_mass / cloud_mass
         } else {
             0.0
         },
-    );
-    out
+    }
+}
+
+/// The cloud's figures of a frame ([`cloud_diagnostics`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct CloudDiagnostics {
+    pub total_water: f64,
+    pub cloud_mass: f64,
+    pub cloudy_particles: u64,
+    pub temperature_mean: f64,
+    pub temperature_max: f64,
+    pub isolation: f64,
+}
+
+impl CloudDiagnostics {
+    /// Adds the figures under their stats.jsonl names.
+    pub fn insert_into(&self, out: &mut BTreeMap<String, f64>) {
+        for (k, v) in [
+            ("total_water", self.total_water),
+            ("cloud_mass", self.cloud_mass),
+            ("cloudy_particles", self.cloudy_particles as f64),
+            ("temperature_mean", self.temperature_mean),
+            ("temperature_max", self.temperature_max),
+            ("isolation", self.isolation),
+        ] {
+            out.insert(k.to_string(), v);
+        }
+    }
 }
 
 /// Horizontal layers of the per-layer mass ratio.
@@ -223,10 +244,10 @@ pub fn atmosphere_diagnostics(
     initial_layers: &[f64],
     time: f64,
     maps: &crate::sim::sources::HeatMaps,
-) -> BTreeMap<String, f64> {
+) -> AtmosphereDiagnostics {
     let p = &cfg.physics;
     let size = cfg.domain.size;
-    let h0 = cfg.domain.spacing * cfg.domain.kernel_ratio;
+    let h0 = cfg.domain.kernel_radius();
     let periodic = [
         cfg.domain.periodic.contains(&crate::config::Axis::X),
         cfg.domain.periodic.contains(&crate::config::Axis::Z),
@@ -245,7 +266,7 @@ pub fn atmosphere_diagnostics(
         mass += m;
         energy += m * (th[0] + p.adiabatic_lapse_rate * q[1] - p.latent_heat * th[2]);
         let [rate, vapor] =
-            crate::sim::reference::thermo::source_rates(&heat, &maps.values, q.to_array());
+            crate::sim::source_field::source_rates(&heat, &maps.values, q.to_array());
         heating += m * rate;
         moisture += m * vapor;
         if v.length() >= 0.999 * max_speed {
@@ -269,21 +290,9 @@ pub fn atmosphere_diagnostics(
     }
     let ratios = layer_mass_ratios(state, cfg, initial_layers);
     let frac = |x: f64| if cloud > 0.0 { x / cloud } else { 0.0 };
-    let mut out = BTreeMap::new();
     let min = ratios.iter().copied().fold(f64::INFINITY, f64::min);
     let max = ratios.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    out.insert(
-        "layer_mass_ratio_min".into(),
-        if ratios.is_empty() { 1.0 } else { min },
-    );
-    out.insert(
-        "layer_mass_ratio_max".into(),
-        if ratios.is_empty() { 1.0 } else { max },
-    );
-    out.insert("cloud_ceiling_fraction".into(), frac(ceiling));
-    out.insert("cloud_top10_fraction".into(), frac(top10));
-    out.insert("cloud_face_fraction".into(), frac(face));
-    let (base, top) = if cloud > 0.0 {
+    let (cloud_base, cloud_top) = if cloud > 0.0 {
         (
             cloud_quantile(&mut cloud_pts, cloud, 0.01),
             cloud_quantile(&mut cloud_pts, cloud, 0.99),
@@ -291,22 +300,59 @@ pub fn atmosphere_diagnostics(
     } else {
         (0.0, 0.0)
     };
-    out.insert("cloud_base".into(), base);
-    out.insert("cloud_top".into(), top);
     let mean = |x: f64| if mass > 0.0 { x / mass } else { 0.0 };
-    out.insert("static_energy_mean".into(), mean(energy));
-    out.insert(
-        "heat_input_mean".into(),
-        mean(heating) * cfg.output.frame_seconds,
-    );
-    out.insert(
-        "water_input".into(),
-        (heating * heat.ground_vapor as f64 + moisture)
+    AtmosphereDiagnostics {
+        layer_mass_ratio_min: if ratios.is_empty() { 1.0 } else { min },
+        layer_mass_ratio_max: if ratios.is_empty() { 1.0 } else { max },
+        cloud_ceiling_fraction: frac(ceiling),
+        cloud_top10_fraction: frac(top10),
+        cloud_face_fraction: frac(face),
+        cloud_base,
+        cloud_top,
+        static_energy_mean: mean(energy),
+        heat_input_mean: mean(heating) * cfg.output.frame_seconds,
+        water_input: (heating * heat.ground_vapor as f64 + moisture)
             * particle_mass0(cfg)
             * cfg.output.frame_seconds,
-    );
-    out.insert("clamped_particles".into(), clamped as f64);
-    out
+        clamped_particles: clamped as u64,
+    }
+}
+
+/// The atmosphere's figures of a frame ([`atmosphere_diagnostics`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct AtmosphereDiagnostics {
+    pub layer_mass_ratio_min: f64,
+    pub layer_mass_ratio_max: f64,
+    pub cloud_ceiling_fraction: f64,
+    pub cloud_top10_fraction: f64,
+    pub cloud_face_fraction: f64,
+    pub cloud_base: f64,
+    pub cloud_top: f64,
+    pub static_energy_mean: f64,
+    pub heat_input_mean: f64,
+    pub water_input: f64,
+    pub clamped_particles: u64,
+}
+
+impl AtmosphereDiagnostics {
+    /// Adds the figures under their stats.jsonl names.
+    pub fn insert_into(&self, out: &mut BTreeMap<String, f64>) {
+        for (k, v) in [
+            ("layer_mass_ratio_min", self.layer_mass_ratio_min),
+            ("layer_mass_ratio_max", self.layer_mass_ratio_max),
+            ("cloud_ceiling_fraction", self.cloud_ceiling_fraction),
+            ("cloud_top10_fraction", self.cloud_top10_fraction),
+            ("cloud_face_fraction", self.cloud_face_fraction),
+            ("cloud_base", self.cloud_base),
+            ("cloud_top", self.cloud_top),
+            ("static_energy_mean", self.static_energy_mean),
+            ("heat_input_mean", self.heat_input_mean),
+            ("water_input", self.water_input),
+            ("clamped_particles", self.clamped_particles as f64),
+        ] {
+            out.insert(k.to_string(), v);
+        }
+    }
 }
 
 #[cfg(test)]
@@ -355,18 +401,18 @@ mod tests {
         pts.push(([5.0, 90.0, 5.0], 280.0, 2e-3, 0));
         pts.push(([90.0, 10.0, 90.0], 300.0, 0.0, 1));
         let d = cloud_diagnostics(&state(&pts), &cfg);
-        assert_eq!(d["cloudy_particles"], 10.0);
+        assert_eq!(d.cloudy_particles, 10);
         let cloud = m0 * (9.0 * 1e-3 + 2e-3);
         assert!(
-            (d["cloud_mass"] - cloud).abs() < 1e-6 * cloud,
+            (d.cloud_mass - cloud).abs() < 1e-6 * cloud,
             "w is stored in f32"
         );
         let water = m0 * (10.0 * 0.01 + 9.0 * 1e-3 + 2e-3) + 0.5 * m0 * 0.01;
-        assert!((d["total_water"] - water).abs() < 1e-6 * water);
-        assert!((d["isolation"] - 2e-3 / (9.0 * 1e-3 + 2e-3)).abs() < 1e-6);
-        assert_eq!(d["temperature_max"], 300.0);
+        assert!((d.total_water - water).abs() < 1e-6 * water);
+        assert!((d.isolation - 2e-3 / (9.0 * 1e-3 + 2e-3)).abs() < 1e-6);
+        assert_eq!(d.temperature_max, 300.0);
         let tmean = (9.0 * 290.0 + 280.0 + 0.5 * 300.0) / 10.5;
-        assert!((d["temperature_mean"] - tmean).abs() < 1e-4);
+        assert!((d.temperature_mean - tmean).abs() < 1e-4);
         // Deterministic.
         assert_eq!(d, cloud_diagnostics(&state(&pts), &cfg));
     }
@@ -380,9 +426,9 @@ mod tests {
             .map(|&x| ([x, 50.0, 50.0], 290.0, 1e-3, 0))
             .collect();
         let d = cloud_diagnostics(&state(&pts), &cfg);
-        assert_eq!(d["isolation"], 0.0);
+        assert_eq!(d.isolation, 0.0);
         let empty = cloud_diagnostics(&state(&[]), &cfg);
-        assert_eq!(empty["isolation"], 0.0);
-        assert_eq!(empty["cloud_mass"], 0.0);
+        assert_eq!(empty.isolation, 0.0);
+        assert_eq!(empty.cloud_mass, 0.0);
     }
 }

@@ -102,7 +102,7 @@ pub struct Footprint {
     pub largest_buffer: u64,
     /// Device bytes of every buffer the simulation allocates, and the read-back staging.
     pub device_bytes: u64,
-    /// Most workgroups one dispatch runs (they fold into x * y rows: `gpu::stage::groups_for`).
+    /// Most workgroups one dispatch runs (they fold into x * y rows: `gpu::program::groups_for`).
     pub max_groups: u64,
 }
 

@@ -7,17 +7,17 @@
 use crate::error::Result;
 use crate::gpu::buffers::{range, storage_zeroed, Span};
 use crate::gpu::live::LiveBuffer;
+use crate::gpu::program::{Dispatch, Program};
 use crate::gpu::scan::{PrefixScan, ScanOf};
-use crate::gpu::stage::{Dispatch, Stage};
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::grid_params::GridParams;
 use crate::sim::phase::{Phase, Recorder};
 
 pub struct GridStage {
-    keys: Stage,
-    perm4: Stage,
-    perm2: Stage,
+    keys: Program,
+    perm4: Program,
+    perm2: Program,
     /// counts -> cell_start
     scan: PrefixScan,
     keys_bind: wgpu::BindGroup,
@@ -31,13 +31,13 @@ pub struct GridStage {
 
 impl GridStage {
     pub fn new(ctx: &Context, grid: &GridParams, b: &ParticleBuffers) -> Result<Self> {
-        let keys = Stage::new(
+        let keys = Program::new(
             ctx,
             "grid.wgsl",
             &["cell_clear", "cell_keys", "cell_scatter", "cell_order"],
         )?;
-        let perm4 = Stage::new(ctx, "permute4.wgsl", &["permute4", "copy4"])?;
-        let perm2 = Stage::new(ctx, "permute2.wgsl", &["permute2", "copy2"])?;
+        let perm4 = Program::new(ctx, "permute4.wgsl", &["permute4", "copy4"])?;
+        let perm2 = Program::new(ctx, "permute2.wgsl", &["permute2", "copy2"])?;
         let table_len = grid.table_len() as u32;
         // the pairs buffer (dead outside the solve): keys, order, the counts where the table
         // fits one of its arrays (every filled box: ~0.25 entries per particle), the scatter
@@ -68,7 +68,7 @@ impl GridStage {
             ("scattered", range(&b.pairs, 3 * arr, arr)),
         ];
         let keys_bind = keys.bind(ctx, &[&own, b])?;
-        let perm = |stage: &Stage, src: &wgpu::Buffer, dst: &wgpu::Buffer| {
+        let perm = |stage: &Program, src: &wgpu::Buffer, dst: &wgpu::Buffer| {
             let own = [
                 ("order", order()),
                 ("src", src.as_entire_binding()),

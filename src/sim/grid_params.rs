@@ -55,7 +55,7 @@ impl GridParams {
     /// (cells and search radius 1.1 h0) changed neither the momentum drift nor the at-rest
     /// behaviour measurably and cost 15% of the PBF time (docs/PERFORMANCE.md "PBF").
     pub fn for_shot(cfg: &ShotConfig) -> Self {
-        let h0 = cfg.domain.spacing * cfg.domain.kernel_ratio;
+        let h0 = cfg.domain.kernel_radius();
         Self::new(
             cfg.domain.size,
             h0,
@@ -93,11 +93,6 @@ impl GridParams {
             }
         }
         Some(((n[2] * d[1] + n[1]) * d[0] + n[0]) as u32)
-    }
-
-    pub fn cell_index(&self, p: DVec3) -> u32 {
-        self.neighbor_cell(self.cell_coord(p), [0, 0, 0])
-            .expect("clamped cell is inside")
     }
 
     /// Entries of a cell table: one per slice, plus the end.

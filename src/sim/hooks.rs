@@ -3,9 +3,12 @@
 //! arrays, so that tests can compare a stage with its f64 mirror on fresh random inputs.
 use crate::error::Result;
 use crate::gpu::buffers::read_back;
+use crate::gpu::live::LiveBuffer;
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::phase::{Phase, Recorder};
+use crate::sim::smoothing::{SmoothParams, SmoothingStage};
+use crate::sim::thermo::{ThermoParams, ThermoStage};
 use crate::sim::Simulation;
 use std::sync::Arc;
 
@@ -110,5 +113,31 @@ impl Simulation {
 
     pub fn context(&self) -> &Arc<Context> {
         &self.ctx
+    }
+}
+
+impl SmoothingStage {
+    /// `smooth` with explicit parameters and iteration count (the tests share them with the
+    /// mirror).
+    pub fn smooth_with(
+        &self,
+        rec: &mut Recorder,
+        live: &LiveBuffer,
+        params: &SmoothParams,
+        iterations: u32,
+    ) -> Result<()> {
+        self.smooth_params(rec, live, params, iterations)
+    }
+}
+
+impl ThermoStage {
+    /// `step` with explicit parameters (the tests share them with the mirror).
+    pub fn step_with(
+        &self,
+        rec: &mut Recorder,
+        live: &LiveBuffer,
+        params: &ThermoParams,
+    ) -> Result<()> {
+        self.step_params(rec, live, params)
     }
 }

@@ -6,10 +6,10 @@
 //! random velocities come from a stateless hash of (seed, particle index), so there is no RNG
 //! state either.
 use crate::config::ShotConfig;
+use crate::ground::ParticleState;
 use crate::sim::grid_params::GridParams;
-use crate::sim::reference::common::poly6;
+use crate::sim::kernels::poly6;
 use crate::sim::thermo::{environment_temperature, initial_thermo};
-use crate::sim::ParticleState;
 use glam::DVec3;
 
 /// Particles per axis of the initial lattice and its spacing per axis: `round(size / d)` cells
@@ -23,17 +23,12 @@ pub fn lattice(cfg: &ShotConfig) -> ([usize; 3], [f64; 3]) {
     (n, d)
 }
 
-/// Level-0 kernel radius h0 = kernel_ratio * spacing.
-pub fn kernel_radius(cfg: &ShotConfig) -> f64 {
-    cfg.domain.spacing * cfg.domain.kernel_ratio
-}
-
 /// Level-0 mass m0: rho0 divided by the poly6 sum over the initial lattice, so that the lattice
 /// (and a fluid particle next to the wall particles, which continue the lattice) is exactly at
 /// rest density. With h0 = 2d this differs from rho0 d^3 by the kernel's discretisation error.
 pub fn particle_mass(cfg: &ShotConfig) -> f64 {
     let (_, d) = lattice(cfg);
-    let h = kernel_radius(cfg);
+    let h = cfg.domain.kernel_radius();
     let r = [0, 1, 2].map(|a| (h / d[a]).ceil() as i64);
     let mut sum = 0.0;
     for k in -r[2]..=r[2] {
@@ -104,7 +99,7 @@ pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
 /// Layers of wall particles at the floor and at the ceiling: spaced d, down to depth h0.
 fn wall_layers(cfg: &ShotConfig) -> usize {
     let (_, d) = lattice(cfg);
-    ((kernel_radius(cfg) / d[1] - 0.5).ceil() as usize).max(1)
+    ((cfg.domain.kernel_radius() / d[1] - 0.5).ceil() as usize).max(1)
 }
 
 /// How many wall particles [`boundary_particles`] makes (without making them).
@@ -136,7 +131,7 @@ pub fn boundary_particles(cfg: &ShotConfig, grid: &GridParams) -> (Vec<[f32; 4]>
         }
     }
     let p3: Vec<[f64; 3]> = pts.iter().map(|p| [p[0], p[1], p[2]]).collect();
-    let (order, cell_start) = crate::sim::reference::grid::build_wall_table(grid, &p3);
+    let (order, cell_start) = crate::sim::cell_table::build_wall_table(grid, &p3);
     let sorted = order
         .iter()
         .map(|&o| pts[o as usize].map(|v| v as f32))

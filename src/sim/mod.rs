@@ -1,5 +1,5 @@
 //! Particle state and the simulation step. Each GPU stage is a module (`pbf`, `grid`,
-//! `smoothing`, `thermo`, `adaptive`) declared with `gpu::stage::Stage` and bound once to the
+//! `smoothing`, `thermo`, `adaptive`) declared with `gpu::program::Program` and bound once to the
 //! particle buffers (`buffers`); `step` holds the order of a substep, `simulation` the frame loop
 //! and its one read-back, `phase` the phases and their timings; `reference` the f64 mirror of
 //! every shader, file for file.
@@ -13,51 +13,32 @@
 //! - boundary particles (floor and ceiling walls) live in their own static arrays.
 pub mod adaptive;
 pub mod buffers;
+pub mod cell_table;
 pub mod control;
 pub mod diagnostics;
 pub mod footprint;
+pub mod frame_report;
 pub mod grid;
 pub mod grid_params;
 #[cfg(feature = "test-hooks")]
 pub mod hooks;
 pub mod init;
-pub mod noise;
+pub mod kernels;
 pub mod pbf;
 pub mod phase;
 pub mod reference;
 pub mod rest;
 mod simulation;
 pub mod smoothing;
+pub mod source_field;
 pub mod sources;
 mod step;
 pub mod target_volume;
 pub mod thermo;
 pub mod wind;
 
+pub use frame_report::{FrameReport, StepDiagnostics};
 pub use phase::{Phase, PhaseTimes, Timing};
 pub use simulation::{
-    compression_error, density_error, iterations_per_substep, speed_ratio, FrameReport, SimClock,
-    Simulation,
+    compression_error, density_error, iterations_per_substep, speed_ratio, Simulation,
 };
-
-/// Host copy of all per-particle state: what checkpoints store and what the splat reads.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct ParticleState {
-    pub pos: Vec<[f32; 4]>,
-    pub vel: Vec<[f32; 4]>,
-    /// (temperature, vapor, cloud, shape energy)
-    pub thermo: Vec<[f32; 4]>,
-    /// (id, level)
-    pub info: Vec<[u32; 2]>,
-    /// SPH density of the last solve (kg/m^3), used by the splat's m/rho weights.
-    pub density: Vec<f32>,
-}
-
-impl ParticleState {
-    pub fn len(&self) -> usize {
-        self.pos.len()
-    }
-    pub fn is_empty(&self) -> bool {
-        self.pos.is_empty()
-    }
-}

@@ -4,7 +4,7 @@ use crate::config::ShotConfig;
 use crate::error::Result;
 use crate::gpu::buffers::ParamSlots;
 use crate::gpu::live::LiveBuffer;
-use crate::gpu::stage::{Dispatch, Stage};
+use crate::gpu::program::{Dispatch, Program};
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::phase::{Phase, Recorder};
@@ -33,7 +33,7 @@ pub struct PbfParams {
     /// The share of that correction split particles get (`solver.split_expansion_weight`).
     pub split_expansion_weight: f32,
     /// Per level l (0..8): (h_l, 315 / (64 pi h_l^9), -45 / (pi h_l^6), m_l).
-    pub levels: [[f32; 4]; 8],
+    pub levels: [[f32; 4]; crate::gpu::shaders::MAX_LEVEL as usize + 1],
 }
 
 impl PbfParams {
@@ -41,7 +41,7 @@ impl PbfParams {
     /// changes the substep.
     pub fn for_shot(cfg: &ShotConfig) -> Self {
         let s = &cfg.solver;
-        let h0 = crate::sim::init::kernel_radius(cfg);
+        let h0 = cfg.domain.kernel_radius();
         let dt = cfg.output.frame_seconds / cfg.output.substeps as f64;
         let mut p = Self {
             dt: dt as f32,
@@ -95,7 +95,7 @@ impl PbfParams {
 /// prediction, the density iterations and the velocity update, bound once to the particle
 /// buffers. The neighbour grid between prediction and solve is [`crate::sim::grid`].
 pub struct PbfStage {
-    stage: Stage,
+    program: Program,
     params: ParamSlots<PbfParams>,
     bind: wgpu::BindGroup,
     /// The s_corr exponent the pipelines were compiled with (`SCORR_N` in the WGSL).
@@ -118,15 +118,15 @@ impl PbfStage {
     pub fn new(ctx: &Context, params: &PbfParams, b: &ParticleBuffers) -> Result<Self> {
         let scorr_n = params.scorr_n;
         let constants = [("SCORR_N", scorr_n as f64)];
-        let stage = Stage::with_constants(ctx, "pbf.wgsl", &ENTRIES, &constants)?;
+        let program = Program::with_constants(ctx, "pbf.wgsl", &ENTRIES, &constants)?;
         let params = ParamSlots::single(ctx, "pbf params", params);
         let own = [
             ("prm", params.slot(0)),
             ("scratch", b.pairs.as_entire_binding()),
         ];
-        let bind = stage.bind(ctx, &[&own, b])?;
+        let bind = program.bind(ctx, &[&own, b])?;
         Ok(Self {
-            stage,
+            program,
             params,
             bind,
             scorr_n,
@@ -140,7 +140,7 @@ impl PbfStage {
     }
 
     fn run(&self, pass: &mut wgpu::ComputePass, entry: &str, live: &LiveBuffer) {
-        self.stage
+        self.program
             .dispatch(pass, entry, &[(&self.bind, 0)], Dispatch::Live(live));
     }
 
@@ -196,6 +196,7 @@ impl PbfStage {
     }
 
     /// Runs one entry point alone (test hooks compare it with the f64 mirror).
+    #[cfg(feature = "test-hooks")]
     pub fn dispatch_entry(&self, pass: &mut wgpu::ComputePass, entry: &str, live: &LiveBuffer) {
         self.run(pass, entry, live);
     }

@@ -105,10 +105,6 @@ impl PhaseTimes {
         self.ms[phase as usize]
     }
 
-    pub fn is_timed(&self) -> bool {
-        self.ran.iter().any(|&r| r)
-    }
-
     pub fn total(&self) -> f64 {
         self.ms.iter().sum()
     }

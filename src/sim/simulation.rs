@@ -12,34 +12,18 @@ use crate::gpu::buffers::Readback;
 use crate::gpu::live::Live;
 use crate::gpu::timing::GpuTimer;
 use crate::gpu::Context;
+use crate::ground::{ParticleState, SimClock};
 use crate::sim::adaptive::{self, AdaptiveStage};
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::control::Target;
+use crate::sim::frame_report::{FrameReport, Levels, SplitMerge};
 use crate::sim::grid::GridStage;
 use crate::sim::grid_params::GridParams;
 use crate::sim::pbf::{PbfParams, PbfStage};
 use crate::sim::phase::{Phase, PhaseTimes, Recorder, Timing};
-use crate::sim::smoothing::{SmoothParams, SmoothingStage};
+use crate::sim::smoothing::SmoothingStage;
 use crate::sim::thermo::{LayerBuoyancy, ThermoStage};
-use crate::sim::ParticleState;
-use std::collections::BTreeMap;
 use std::sync::Arc;
-
-/// Where the simulation stands; checkpoints store it next to the particles.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct SimClock {
-    pub frame: u32,
-    pub step: u64,
-    pub time: f64,
-    pub next_id: u32,
-}
-
-/// What one `step_frame` measured.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct FrameReport {
-    pub phases: PhaseTimes,
-    pub diagnostics: BTreeMap<String, f64>,
-}
 
 /// The stages of a substep, each bound once to the particle buffers.
 pub(super) struct Stages {
@@ -147,7 +131,7 @@ impl Simulation {
             thermo.set_supply(&ctx, &t.update(state).0);
         }
         let adaptive = if cfg.adaptive.enabled {
-            let h0 = cfg.domain.spacing * cfg.domain.kernel_ratio;
+            let h0 = cfg.domain.kernel_radius();
             Some(AdaptiveStage::new(&ctx, &cfg.adaptive, &grid, h0, &b)?)
         } else {
             None
@@ -310,13 +294,11 @@ impl Simulation {
                 .map_or(u32::MAX, |a| a.loop_budget());
             adaptive::load_error(load, budget)?;
             let totals = AdaptiveStage::frame_totals(counters);
-            for (key, v) in [
-                ("splits", totals.splits),
-                ("merges", totals.merges),
-                ("skipped_splits", totals.skipped_splits),
-            ] {
-                report.diagnostics.insert(key.into(), v as f64);
-            }
+            report.diagnostics.split_merge = Some(SplitMerge {
+                splits: totals.splits,
+                merges: totals.merges,
+                skipped_splits: totals.skipped_splits,
+            });
         }
         self.count = live.count;
         self.clock.next_id = live.next_id;
@@ -328,19 +310,15 @@ impl Simulation {
         if let Some(t) = &self.target {
             let (supply, iou) = t.update(&end);
             self.s.thermo.set_supply(&ctx, &supply);
-            report.diagnostics.insert("target_iou".into(), iou);
+            report.diagnostics.target_iou = Some(iou);
         }
         let rho0 = self.params.rest_density as f64;
         let d = &mut report.diagnostics;
-        d.insert("substeps".into(), substeps as f64);
-        d.insert("cfl_max".into(), self.speed_ratio * dt);
-        let (mean, max) = density_error(&density, rho0);
-        d.insert("density_error_mean".into(), mean);
-        d.insert("density_error_max".into(), max);
-        let (mean, max) = compression_error(&density, rho0);
-        d.insert("density_compression_mean".into(), mean);
-        d.insert("density_compression_max".into(), max);
-        d.insert("particles".into(), self.count as f64);
+        d.substeps = substeps;
+        d.cfl_max = self.speed_ratio * dt;
+        (d.density_error_mean, d.density_error_max) = density_error(&density, rho0);
+        (d.density_compression_mean, d.density_compression_max) = compression_error(&density, rho0);
+        d.particles = self.count;
         let single_level = if self.s.adaptive.is_some() {
             self.level_diagnostics(&mut report, &end.info)
         } else {
@@ -352,9 +330,7 @@ impl Simulation {
         if next != live {
             self.b.live.write(&ctx, &next);
         }
-        report
-            .diagnostics
-            .insert("host_waits".into(), (ctx.waits() - waits_before) as f64);
+        report.diagnostics.host_waits = ctx.waits() - waits_before;
         Ok((report, end))
     }
 
@@ -459,13 +435,12 @@ impl Simulation {
             per_level[(level.min(max_level)) as usize] += 1;
             units += crate::sim::adaptive::level_mass_units(level, max_level);
         }
-        for (l, n) in per_level.iter().enumerate() {
-            report
-                .diagnostics
-                .insert(format!("particles_level_{l}"), *n as f64);
-        }
-        report.diagnostics.insert("mass_units".into(), units as f64);
-        per_level.iter().skip(1).all(|&n| n == 0)
+        let single_level = per_level.iter().skip(1).all(|&n| n == 0);
+        report.diagnostics.levels = Some(Levels {
+            per_level,
+            mass_units: units,
+        });
+        single_level
     }
 
     /// Read-back of the live particles (in the device's current cell order); one wait (two
@@ -490,11 +465,6 @@ impl Simulation {
             info: data.get(parts.info),
             density,
         })
-    }
-
-    /// The smoothing parameters of a substep of `dt` (as the step records them).
-    pub fn smoothing_params(&self, dt: f64) -> SmoothParams {
-        SmoothParams::new(&self.cfg, dt)
     }
 }
 

@@ -16,7 +16,7 @@ use crate::config::ShotConfig;
 use crate::error::Result;
 use crate::gpu::buffers::ParamSlots;
 use crate::gpu::live::LiveBuffer;
-use crate::gpu::stage::{Dispatch, Stage};
+use crate::gpu::program::{Dispatch, Program};
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::phase::{Phase, Recorder};
@@ -58,7 +58,7 @@ impl SmoothParams {
         let share = dt / (cfg.solver.reference_step * iterations);
         Self {
             _pad0: 0,
-            h0: (cfg.domain.spacing * cfg.domain.kernel_ratio) as f32,
+            h0: cfg.domain.kernel_radius() as f32,
             // Temperature smoothing off while vapor mixing is on: the pass runs for the vapor.
             kappa: if s.enabled {
                 rate_share(s.kappa, share) as f32
@@ -78,7 +78,7 @@ impl SmoothParams {
 /// dead after the PBF substep: the smoothed thermo goes to `pairs` and is copied back, the
 /// vapor-mixing limiter lives in a quarter of `pred`. It allocates nothing per particle.
 pub struct SmoothingStage {
-    stage: Stage,
+    program: Program,
     params: ParamSlots<SmoothParams>,
     bind: wgpu::BindGroup,
     cfg: ShotConfig,
@@ -91,7 +91,7 @@ pub struct SmoothingStage {
 
 impl SmoothingStage {
     pub fn new(ctx: &Context, cfg: &ShotConfig, b: &ParticleBuffers) -> Result<Self> {
-        let stage = Stage::new(ctx, SHADER, &[LIMIT_ENTRY, ENTRY])?;
+        let program = Program::new(ctx, SHADER, &[LIMIT_ENTRY, ENTRY])?;
         let params = ParamSlots::single(ctx, "smoothing params", &SmoothParams::new(cfg, 1.0));
         let limiter = b.quarter(&b.pred, 0);
         let own = [
@@ -100,9 +100,9 @@ impl SmoothingStage {
             ("thermo_out", b.pairs.as_entire_binding()),
             ("vapor_limit_of", limiter.binding()),
         ];
-        let bind = stage.bind(ctx, &[&own, b])?;
+        let bind = program.bind(ctx, &[&own, b])?;
         Ok(Self {
-            stage,
+            program,
             params,
             bind,
             cfg: cfg.clone(),
@@ -126,12 +126,12 @@ impl SmoothingStage {
     /// Records the configured iterations for a substep of `dt` seconds.
     pub fn smooth(&self, rec: &mut Recorder, live: &LiveBuffer, dt: f64) -> Result<()> {
         let params = SmoothParams::new(&self.cfg, dt);
-        self.smooth_with(rec, live, &params, self.iterations())
+        self.smooth_params(rec, live, &params, self.iterations())
     }
 
     /// As [`Self::smooth`] with explicit parameters and iteration count (tests share them with
     /// the mirror).
-    pub fn smooth_with(
+    pub(crate) fn smooth_params(
         &self,
         rec: &mut Recorder,
         live: &LiveBuffer,
@@ -148,10 +148,10 @@ impl SmoothingStage {
                 let mut pass = rec.pass(Phase::Smoothing);
                 let group = [(&self.bind, 0)];
                 if mixing {
-                    self.stage
+                    self.program
                         .dispatch(&mut pass, LIMIT_ENTRY, &group, Dispatch::Live(live));
                 }
-                self.stage
+                self.program
                     .dispatch(&mut pass, ENTRY, &group, Dispatch::Live(live));
             }
             // the whole array: the live count is on the GPU; slots past it are dead

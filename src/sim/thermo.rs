@@ -4,7 +4,7 @@
 //! Per particle, in the paper's order (shaders/thermo.wgsl, entry `thermo_step`; f64 mirror
 //! `sim::reference::thermo::thermo_step`):
 //! 1. ground heating, eq. 5: `T += dt Se n(x, z, t)` for particles below `heat_height`, where
-//!    `n` in [0, 1] is the hash value noise of [`crate::sim::noise`] over the ground, drifting in
+//!    `n` in [0, 1] is the hash value noise of [`crate::ground::noise`] over the ground, drifting in
 //!    time at `heat_noise_speed` lattice cells per second and stretched by `heat_noise_contrast`;
 //!    plus every `physics.sources` entry's heating and vapor ([`crate::sim::sources`]: shapes
 //!    on the ground and in the air, heat maps in a storage buffer at binding 4);
@@ -28,10 +28,10 @@ use crate::config::{PhysicsConfig, ShotConfig};
 use crate::error::Result;
 use crate::gpu::buffers::ParamSlots;
 use crate::gpu::live::LiveBuffer;
-use crate::gpu::stage::{Dispatch, Stage};
+use crate::gpu::program::{Dispatch, Program};
 use crate::gpu::Context;
+use crate::ground::noise;
 use crate::sim::buffers::ParticleBuffers;
-use crate::sim::noise;
 use crate::sim::phase::{Phase, Recorder};
 
 const SHADER: &str = "thermo.wgsl";
@@ -213,12 +213,12 @@ pub struct LayerBuoyancy {
 
 impl LayerBuoyancy {
     /// The profile of a state, or none when `physics.buoyancy_reference` is `environment`.
-    pub fn of_state(cfg: &ShotConfig, state: &crate::sim::ParticleState) -> Self {
+    pub fn of_state(cfg: &ShotConfig, state: &crate::ground::ParticleState) -> Self {
         if cfg.physics.buoyancy_reference != crate::config::BuoyancyReference::LayerMean {
             return Self::default();
         }
         let height = cfg.domain.size[1];
-        let h0 = crate::sim::init::kernel_radius(cfg);
+        let h0 = cfg.domain.kernel_radius();
         let n = ((height / h0).floor() as usize).clamp(1, MAX_LAYERS);
         let layer_height = height / n as f64;
         let p = &cfg.physics;
@@ -228,7 +228,7 @@ impl LayerBuoyancy {
             let th = state.thermo[i];
             let t0 = environment_temperature(p, y);
             let force = p.buoyancy * (th[0] as f64 - t0) / t0 - p.cloud_weight * th[2] as f64;
-            let m = (-(state.info[i][1].min(7) as f64)).exp2();
+            let m = (-(state.info[i][1].min(crate::gpu::shaders::MAX_LEVEL) as f64)).exp2();
             let (k0, k1, f) = layer_weights(y, layer_height, n);
             for (k, w) in [(k0, 1.0 - f), (k1, f)] {
                 sum[k] += w * m * force;
@@ -281,7 +281,7 @@ pub fn initial_thermo(p: &PhysicsConfig, y: f64) -> [f32; 4] {
 /// The thermodynamics pass (eqs. 5-11), bound once to the particle buffers; its parameters
 /// are rewritten before every substep (time, each source's schedule).
 pub struct ThermoStage {
-    stage: Stage,
+    program: Program,
     params: ParamSlots<ThermoParams>,
     bind: wgpu::BindGroup,
     cfg: ShotConfig,
@@ -301,7 +301,7 @@ impl ThermoStage {
         b: &ParticleBuffers,
         target: Option<&crate::sim::control::Target>,
     ) -> Result<Self> {
-        let stage = Stage::new(ctx, SHADER, &[ENTRY])?;
+        let program = Program::new(ctx, SHADER, &[ENTRY])?;
         let params = ParamSlots::single(ctx, "thermo params", &ThermoParams::new(cfg, 0.0, 0.0));
         let maps = HeatMaps::load(cfg)?.with_target(target);
         let map_buffer = crate::gpu::buffers::storage_init(&ctx.device, "heat maps", &maps.values);
@@ -309,9 +309,9 @@ impl ThermoStage {
             ("P", params.slot(0)),
             ("heat_maps", map_buffer.as_entire_binding()),
         ];
-        let bind = stage.bind(ctx, &[&own, b])?;
+        let bind = program.bind(ctx, &[&own, b])?;
         Ok(Self {
-            stage,
+            program,
             params,
             bind,
             cfg: cfg.clone(),
@@ -348,11 +348,11 @@ impl ThermoStage {
         let params = ThermoParams::new(&self.cfg, dt, time)
             .with_layers(&self.layers)
             .with_maps(&self.maps);
-        self.step_with(rec, live, &params)
+        self.step_params(rec, live, &params)
     }
 
     /// As [`Self::step`] with explicit parameters (tests share them with the mirror).
-    pub fn step_with(
+    pub(crate) fn step_params(
         &self,
         rec: &mut Recorder,
         live: &LiveBuffer,
@@ -360,7 +360,7 @@ impl ThermoStage {
     ) -> Result<()> {
         // written before the submit that carries this substep, after the previous one's
         self.params.write(rec.ctx(), 0, params);
-        self.stage.dispatch(
+        self.program.dispatch(
             &mut rec.pass(Phase::Cloud),
             ENTRY,
             &[(&self.bind, 0)],
@@ -394,7 +394,7 @@ mod tests {
         )
         .unwrap();
         cfg.physics.cloud_weight = 0.0;
-        let mut s = crate::sim::ParticleState::default();
+        let mut s = crate::ground::ParticleState::default();
         for (k, y) in [10.0f32, 260.0, 480.0, 730.0, 990.0].iter().enumerate() {
             for x in 0..4 {
                 let t0 = environment_temperature(&cfg.physics, *y as f64);

@@ -2,7 +2,7 @@
 //! the surface. Noise displaces the cloud's boundary (billows that bulge out, creases that eat
 //! in, several octaves for the cauliflower look), the boundary is made as sharp as the voxels
 //! allow, and the core keeps its density. The noise is evaluated where each voxel's air was at
-//! the last rest reset (`sim::rest`), so it moves with the flow instead of the cloud moving
+//! the last rest reset (`ground::rest`), so it moves with the flow instead of the cloud moving
 //! through a fixed noise.
 //!
 //! Per voxel of the splat, from sums over the particles (the density kernel W, volumes V_j):
@@ -28,8 +28,8 @@
 //!   phi) (1 at the surface and outside, 0 in the core), k such that the total is the
 //!   undetailed one: the core (c = 1, phi = h_c) keeps its density exactly.
 use crate::config::{DetailCharacter, ShotConfig};
-use crate::sim::noise::{fold_seed, lattice_for_extent, pcg_hash, value_noise3};
-use crate::sim::rest::{RestCodec, RestFrame};
+use crate::ground::noise::{fold_seed, lattice_for_extent, pcg_hash, value_noise3};
+use crate::ground::rest::{RestCodec, RestFrame};
 
 /// Cloud water (kg/kg) from which a particle counts fully as cloud in the cloud fraction; a
 /// thinner one counts in proportion (so a particle condensing joins the cloud smoothly). 0.05
@@ -85,7 +85,7 @@ pub struct RestInput<'a> {
     /// One entry per particle of the splatted state, same order.
     pub rest: &'a RestFrame,
     pub codec: RestCodec,
-    /// Blend weights of field A and B (`sim::rest::RestClock::weights`).
+    /// Blend weights of field A and B (`ground::rest::RestClock::weights`).
     pub weights: [f64; 2],
     /// Field B is in use (`RestClock::dual`): its grid is written.
     pub dual: bool,

@@ -24,14 +24,13 @@
 //! (`rest_smooth`) and then interpolated like `vel` (active where `vel` is), and `export.detail` modulates the density by noise at that rest coordinate
 //! (`detail`), renormalised to the undetailed total once per frame.
 pub mod detail;
-pub mod grid;
 pub mod rest_smooth;
+use crate::ground::{GridTransform, Leaf, SparseGrid, LEAF_DIM, LEAF_VOXELS};
 pub use detail::{DetailParams, RestInput};
-pub use grid::{GridTransform, Leaf, SparseGrid, LEAF_DIM, LEAF_VOXELS};
 
 use crate::config::{Axis, ShotConfig};
 use crate::error::{Error, Result};
-use crate::sim::ParticleState;
+use crate::ground::ParticleState;
 use rayon::prelude::*;
 
 /// Which grids to produce.

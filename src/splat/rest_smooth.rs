@@ -14,7 +14,7 @@
 //! particles of a cell in index order, whatever the number of threads.
 use super::detail::RestInput;
 use super::{SplatParams, MIN_DENSITY_RATIO};
-use crate::sim::ParticleState;
+use crate::ground::ParticleState;
 use rayon::prelude::*;
 use std::collections::HashMap;
 
@@ -92,7 +92,7 @@ pub fn smoothed_displacements(
         .collect()
 }
 
-fn wrap(x: f64, axis: usize, codec: &crate::sim::rest::RestCodec) -> f64 {
+fn wrap(x: f64, axis: usize, codec: &crate::ground::rest::RestCodec) -> f64 {
     if codec.periodic[axis] {
         x.rem_euclid(codec.size[axis])
     } else {
@@ -109,7 +109,11 @@ struct Cells {
 }
 
 impl Cells {
-    fn new(parts: &[Option<Particle>], radius: f64, codec: &crate::sim::rest::RestCodec) -> Self {
+    fn new(
+        parts: &[Option<Particle>],
+        radius: f64,
+        codec: &crate::ground::rest::RestCodec,
+    ) -> Self {
         let radius = radius.max(1e-6);
         let dims = [0, 1, 2].map(|a| {
             if codec.periodic[a] {
@@ -183,7 +187,7 @@ impl Cells {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::rest::RestCodec;
+    use crate::ground::rest::RestCodec;
 
     fn lattice(n: usize, spacing: f32) -> ParticleState {
         let mut s = ParticleState::default();

@@ -8,11 +8,11 @@ use nimbus::config::GpuConfig;
 use nimbus::error::Result;
 use nimbus::gpu::live::{Live, LiveBuffer};
 use nimbus::gpu::Context;
+use nimbus::ground::ParticleState;
 use nimbus::sim::buffers::ParticleBuffers;
 use nimbus::sim::grid_params::GridParams;
 use nimbus::sim::phase::Recorder;
 use nimbus::sim::reference::grid::{build_cell_table, build_wall_table};
-use nimbus::sim::ParticleState;
 use std::sync::Arc;
 
 /// The adapter the tests run on (lavapipe is enough).

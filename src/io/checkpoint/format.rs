@@ -46,7 +46,7 @@
 //! file size, so a corrupt file can neither panic the reader nor make it allocate more than the
 //! file holds.
 use crate::error::{Error, Result};
-use crate::sim::ParticleState;
+use crate::ground::ParticleState;
 use sha2::{Digest, Sha256};
 use std::borrow::Cow;
 use std::collections::BTreeMap;

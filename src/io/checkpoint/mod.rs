@@ -22,7 +22,8 @@ pub use format::{
 pub use resume::{
     find_resumable, newest_config, scan_resumable, Found, ResumeScan, SkipReason, Skipped,
 };
+#[cfg(feature = "test-hooks")]
+pub use store::write_checkpoint_failing_after;
 pub use store::{
-    file_name, frame_of_name, list_checkpoints, prune, write_and_prune, write_checkpoint,
-    write_checkpoint_failing_after, EXTENSION,
+    file_name, frame_of_name, list_checkpoints, prune, write_and_prune, write_checkpoint, EXTENSION,
 };

@@ -50,7 +50,7 @@ pub fn write_and_prune(dir: &Path, ck: &Checkpoint, keep: usize) -> Result<PathB
 
 /// Test hook: like [`write_checkpoint`], but the temporary file fails with "no space left on
 /// device" once `fail_after` bytes have gone into it (a disk filling up at any point).
-#[doc(hidden)]
+#[cfg(feature = "test-hooks")]
 pub fn write_checkpoint_failing_after(
     dir: &Path,
     ck: &Checkpoint,

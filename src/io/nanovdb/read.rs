@@ -5,7 +5,7 @@ use super::layout::{self as l, Value};
 use super::write::code_at;
 use super::{GridType, MAGIC, VERSION};
 use crate::error::{Error, Result};
-use crate::splat::{Leaf, LEAF_VOXELS};
+use crate::ground::{Leaf, LEAF_VOXELS};
 use std::path::Path;
 
 /// One grid of a file, decoded.

@@ -1,5 +1,5 @@
 use super::*;
-use crate::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
+use crate::ground::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 
 /// A small cloud-like grid spanning two upper nodes (negative and positive coordinates) with
 /// partly filled leaves.

@@ -10,9 +10,9 @@
 use super::layout::{self as l, Value};
 use super::{GridClass, GridType, Quantise, MAGIC, MAX_NAME_BYTES, VERSION};
 use crate::error::{Error, Result};
+use crate::ground::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use crate::io::atomic::write_atomic_buffered;
 use crate::io::vdb::write::{tree_key, tree_order};
-use crate::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use rayon::prelude::*;
 use std::io::Write;
 use std::path::Path;

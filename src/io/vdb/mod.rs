@@ -11,7 +11,7 @@ pub use crate::config::Compression;
 pub use read::{read_bytes, read_file};
 pub use write::{encode, write_file};
 
-use crate::splat::SparseGrid;
+use crate::ground::SparseGrid;
 
 /// File format version written (OpenVDB 10; readers before OpenVDB 13 reject 225).
 pub const FILE_VERSION: u32 = 224;
@@ -72,10 +72,6 @@ impl VdbGrid {
     }
     pub fn with_class(mut self, class: &'static str) -> Self {
         self.class = class;
-        self
-    }
-    pub fn with_metadata(mut self, key: impl Into<String>, value: MetaValue) -> Self {
-        self.metadata.push((key.into(), value));
         self
     }
     pub fn with_alias(mut self, alias: impl Into<String>) -> Self {

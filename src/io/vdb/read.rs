@@ -11,7 +11,7 @@ use super::{
     blosc, GridData, MetaValue, COMPRESS_ACTIVE_MASK, COMPRESS_BLOSC, COMPRESS_ZIP, MAGIC,
 };
 use crate::error::{Error, Result};
-use crate::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
+use crate::ground::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use std::io::Read;
 use std::path::Path;
 

@@ -4,7 +4,7 @@
 //! nodes, 4096^3 root tiles), else the background.
 use super::read::ReadGrid;
 use super::GridData;
-use crate::splat::{GridTransform, Leaf, LEAF_VOXELS};
+use crate::ground::{GridTransform, Leaf, LEAF_VOXELS};
 use std::collections::HashMap;
 
 /// Tile edges from the smallest (internal node of 16^3 leaves) to the root's.

@@ -11,8 +11,8 @@ use super::{
     COMPRESS_BLOSC, COMPRESS_ZIP, FILE_VERSION, LIBRARY_VERSION, MAGIC,
 };
 use crate::error::{Error, Result};
+use crate::ground::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use crate::io::atomic::write_atomic_buffered;
-use crate::splat::{GridTransform, Leaf, SparseGrid, LEAF_VOXELS};
 use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 use std::io::Write;

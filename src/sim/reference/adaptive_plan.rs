@@ -26,7 +26,7 @@ pub struct Marks<'a> {
     pub flags: &'a [u32],
     pub level: &'a [u32],
     pub pos: &'a [[f64; 3]],
-    /// Kernel radius of level 0.
+    /// Program radius of level 0.
     pub h0: f64,
 }
 
@@ -120,7 +120,7 @@ pub fn merge_dispatch(cells: &MergeCells, max_groups_x: u32) -> Vec<[u32; 4]> {
         .cells
         .iter()
         .map(|list| {
-            let [x, y, z] = crate::gpu::stage::groups_for(list.len() as u32, 1, max_groups_x);
+            let [x, y, z] = crate::gpu::program::groups_for(list.len() as u32, 1, max_groups_x);
             [x, y, z, 0]
         })
         .collect()

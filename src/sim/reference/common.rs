@@ -7,16 +7,9 @@ use glam::DVec3;
 use std::f64::consts::PI;
 
 /// The shaders' `pcg_hash` (shared/common.wgsl); one mirror for noise and split directions.
-pub use crate::sim::noise::pcg_hash;
-
-pub fn poly6(r2: f64, h: f64) -> f64 {
-    let h2 = h * h;
-    if r2 >= h2 {
-        return 0.0;
-    }
-    let d = h2 - r2;
-    315.0 / (64.0 * PI * h.powi(9)) * d * d * d
-}
+pub use crate::ground::noise::pcg_hash;
+/// The host's kernel and minimum image, which the mirrors share with the diagnostics.
+pub use crate::sim::kernels::{domain_size, min_image, poly6};
 
 pub fn spiky_grad(xij: DVec3, r: f64, h: f64) -> DVec3 {
     if r >= h || r <= 1e-9 * h {
@@ -32,23 +25,6 @@ pub fn poly6_sym(r2: f64, hi: f64, hj: f64) -> f64 {
 
 pub fn spiky_grad_sym(xij: DVec3, r: f64, hi: f64, hj: f64) -> DVec3 {
     0.5 * (spiky_grad(xij, r, hi) + spiky_grad(xij, r, hj))
-}
-
-/// Minimum-image displacement; `periodic` = [x, z].
-pub fn min_image(d: impl Into<DVec3>, size: impl Into<DVec3>, periodic: [bool; 2]) -> DVec3 {
-    let (mut r, size) = (d.into(), size.into());
-    if periodic[0] {
-        r.x -= size.x * (r.x / size.x).round();
-    }
-    if periodic[1] {
-        r.z -= size.z * (r.z / size.z).round();
-    }
-    r
-}
-
-/// The grid's domain size, widened.
-pub fn domain_size(g: &GridParams) -> DVec3 {
-    DVec3::from(g.domain_size.map(f64::from))
 }
 
 /// [`min_image`] across the grid's periodic faces (the shaders' `min_image(d, grid)`).

@@ -1,22 +1,23 @@
-//! The one way to declare and run a compute stage.
+//! The one way to declare and run a compute program: one WGSL file and the entry points the Rust
+//! side dispatches. (A *stage* is a part of the substep, `sim::step`; it runs one or more programs.)
 //!
-//! A stage is one WGSL file (`shaders/<name>.wgsl`) and the entry points the Rust side uses. Its
-//! bindings are not written down twice: naga reflects them from the WGSL when the stage is built
+//! A program is one WGSL file (`shaders/<name>.wgsl`) and the entry points the Rust side uses. Its
+//! bindings are not written down twice: naga reflects them from the WGSL when the program is built
 //! (name, group, uniform / read-only storage / read-write storage), the bind-group layouts come
 //! from that, and bind groups are made by binding *name* from [`Resources`] (the particle
-//! buffers, a stage's own buffers), so a binding no source provides fails when the bind group is
-//! made (in every test that builds the stage), never at dispatch. Workgroup sizes are reflected too (the WGSL writes them with the prelude's
+//! buffers, a program's own buffers), so a binding no source provides fails when the bind group is
+//! made (in every test that builds the program), never at dispatch. Workgroup sizes are reflected too (the WGSL writes them with the prelude's
 //! constants, `gpu::shaders::Prelude`), so a dispatch is sized in threads.
 //!
 //! Conventions:
-//! - group 0 holds the stage's buffers; one bind group per buffer set, made once;
+//! - group 0 holds the program's buffers; one bind group per buffer set, made once;
 //! - groups 1.. hold per-dispatch parameters: one uniform each, bound with a dynamic offset into
 //!   a [`crate::gpu::buffers::ParamSlots`] buffer (a merge colour, a scan level);
 //! - every entry point of a file shares the file's layouts, so one bind group serves them all.
 //!
-//! Declaring a stage: `Stage::new(ctx, "thermo.wgsl", &["thermo_step"])?`; binding:
-//! `stage.bind(ctx, &[&[("P", params.slot(0))], &particle_buffers])?`; dispatching:
-//! `stage.dispatch(pass, "thermo_step", &[(&group, 0)], Dispatch::Live(&live))`.
+//! Declaring a program: `Program::new(ctx, "thermo.wgsl", &["thermo_step"])?`; binding:
+//! `program.bind(ctx, &[&[("P", params.slot(0))], &particle_buffers])?`; dispatching:
+//! `program.dispatch(pass, "thermo_step", &[(&group, 0)], Dispatch::Live(&live))`.
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 
@@ -25,7 +26,7 @@ pub trait Resources {
     fn resource(&self, name: &str) -> Option<wgpu::BindingResource<'_>>;
 }
 
-/// A stage's own buffers, by name.
+/// A program's own buffers, by name.
 impl Resources for [(&str, wgpu::BindingResource<'_>)] {
     fn resource(&self, name: &str) -> Option<wgpu::BindingResource<'_>> {
         self.iter()
@@ -50,7 +51,7 @@ pub enum BindingKind {
     Storage,
 }
 
-/// One reflected binding of a stage.
+/// One reflected binding of a program.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Binding {
     pub name: String,
@@ -79,8 +80,8 @@ struct Entry {
     pipeline: wgpu::ComputePipeline,
 }
 
-/// A compute stage: pipelines of its entry points and the layouts reflected from its WGSL.
-pub struct Stage {
+/// A compute program: pipelines of its entry points and the layouts reflected from its WGSL.
+pub struct Program {
     shader: &'static str,
     bindings: Vec<Binding>,
     layouts: Vec<wgpu::BindGroupLayout>,
@@ -88,7 +89,7 @@ pub struct Stage {
     max_groups_x: u32,
 }
 
-/// The bindings of a stage and the workgroup size of each entry point, read from its WGSL.
+/// The bindings of a program and the workgroup size of each entry point, read from its WGSL.
 pub fn reflect(
     shader: &str,
     module: &naga::Module,
@@ -149,14 +150,14 @@ pub fn reflect(
     Ok((bindings, sizes))
 }
 
-impl Stage {
+impl Program {
     /// Builds the pipelines of `entries` of `shader` with layouts reflected from its WGSL.
     pub fn new(ctx: &Context, shader: &'static str, entries: &[&'static str]) -> Result<Self> {
         Self::with_constants(ctx, shader, entries, &[])
     }
 
     /// [`Self::new`] with values for the shader's pipeline-overridable constants (WGSL
-    /// `override`), by name: a value fixed for the stage's life that the compiler can fold.
+    /// `override`), by name: a value fixed for the program's life that the compiler can fold.
     pub fn with_constants(
         ctx: &Context,
         shader: &'static str,
@@ -239,7 +240,7 @@ impl Stage {
     }
 
     /// A group-0 bind group: every binding the WGSL declares in group 0, looked up by name in
-    /// `sources`, first source first (so a stage's own buffers can stand in for a particle
+    /// `sources`, first source first (so a program's own buffers can stand in for a particle
     /// array of the same name).
     pub fn bind(&self, ctx: &Context, sources: &[&dyn Resources]) -> Result<wgpu::BindGroup> {
         self.bind_group(ctx, 0, sources)
@@ -286,14 +287,14 @@ impl Stage {
 
     fn entry(&self, name: &str) -> &Entry {
         // Entry names are fixed in the code and checked against the WGSL in `new`: a miss is a
-        // programming error that every test building the stage would hit.
+        // programming error that every test building the program would hit.
         self.entries
             .iter()
             .find(|e| e.name == name)
             .unwrap_or_else(|| panic!("{}: entry '{name}' was not declared", self.shader))
     }
 
-    /// Threads per workgroup of an entry point (x; the stages use 1-D workgroups).
+    /// Threads per workgroup of an entry point (x; the programs use 1-D workgroups).
     pub fn workgroup_size(&self, entry: &str) -> u32 {
         self.entry(entry).workgroup[0]
     }
@@ -383,7 +384,7 @@ mod tests {
         }
     }
 
-    /// Every stage file reflects: buffers only, groups 1.. uniforms, no empty group.
+    /// Every program file reflects: buffers only, groups 1.. uniforms, no empty group.
     #[test]
     fn every_stage_reflects() {
         let prelude = crate::gpu::shaders::Prelude::default();
