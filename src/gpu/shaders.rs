@@ -231,6 +231,15 @@ const WALKS: &[Walk] = &[
         wall: Some("visc_wall(a, me, $)"),
         reach: "me.lv.x",
     },
+    Walk {
+        name: "vort_scan",
+        template: "scan",
+        acc: ("w", "vec3<f32>"),
+        me: "Vo",
+        pair: "vort_pair(w, me, $)",
+        wall: None,
+        reach: "me.lv.x",
+    },
 ];
 
 /// The WGSL of the walk `name` ([`WALKS`]).
