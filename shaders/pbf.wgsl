@@ -671,39 +671,34 @@ fn pair_g(k: K, xij: vec3<f32>, r2: f32, lvi: vec4<f32>, lvj: vec4<f32>) -> vec3
 }
 
 // omega_i = sum_j V_j (v_i - v_j) x grad_i W_ij, V_j = m_j / rho_j; written over pos (x is dead).
+// The particle: its predicted position, velocity (the scratch's, update_velocity) and level row.
+struct Vo {
+    p: vec3<f32>,
+    v: vec3<f32>,
+    lv: vec4<f32>,
+    k: K,
+}
+fn vort_pair(w: ptr<function, vec3<f32>>, me: Vo, j: u32) {
+    let k = me.k;
+    let xij = min_image_by_reciprocal(me.p - pred[j].xyz, k.image);
+    let r2 = dot(xij, xij);
+    // every radius is <= h0: pairs beyond it are rejected before their level is loaded
+    if (r2 >= k.h0sq) { return; }
+    let pk = pair_of(k, r2, me.lv.x, j);
+    if (!pk.inside) { return; }
+    let lvj = pk.lvj;
+    let sj = scratch[j];
+    let vj = lvj.w / sj.w;
+    *w += vj * cross(me.v - sj.xyz, pair_g(k, xij, r2, me.lv, pk.lvj));
+}
+//!walk vort_scan
 @compute @workgroup_size(WG_PARTICLES)
 fn vorticity(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= live.count) { return; }
-    let p = pred[i].xyz;
-    let vi = scratch[i].xyz;
-    let lvi = lv_of(level_of(i));
-    let hi = lvi.x;
+    let me = Vo(pred[i].xyz, scratch[i].xyz, lv_of(level_of(i)), pass_consts());
     var w = vec3<f32>(0.0);
-    let c = cell_coord(p, grid);
-    let k = pass_consts();
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            let rows = row_entries(p, c, dy, dz, grid);
-            for (var s = 0u; s < 2u; s++) {
-                let e = select(rows.xy, rows.zw, s == 1u);
-                if (e.x == e.y) { continue; }
-                let j_end = cell_start[e.y];
-                for (var j = cell_start[e.x]; j < j_end; j++) {
-                    let xij = min_image_by_reciprocal(p - pred[j].xyz, k.image);
-                    let r2 = dot(xij, xij);
-                    // every radius is <= h0: pairs beyond it are rejected before their level is loaded
-                    if (r2 >= k.h0sq) { continue; }
-                    let pk = pair_of(k, r2, hi, j);
-                    if (!pk.inside) { continue; }
-                    let lvj = pk.lvj;
-                    let sj = scratch[j];
-                    let vj = lvj.w / sj.w;
-                    w += vj * cross(vi - sj.xyz, pair_g(k, xij, r2, lvi, pk.lvj));
-                }
-            }
-        }
-    }
+    vort_scan(&w, me);
     pos[i] = vec4<f32>(w, length(w));
 }
 

@@ -106,34 +106,32 @@ fn laplacian_coefficient(r2: f32, hi: f32, fi: f32, hj: f32, fj: f32, volume: f3
 }
 
 // sum_j e_ij |a_ij| of particle i over its fluid neighbours (the vapor-mixing pairs).
+struct Dm {
+    i: u32,
+    p: vec3<f32>,
+    hi: f32,
+    fi: f32,
+    cloudy: bool,
+    pc: Pc,
+}
+fn demand_pair(sum: ptr<function, f32>, me: Dm, j: u32) {
+    let pc = me.pc;
+    let xij = min_image_by_reciprocal(me.p - pos[j].xyz, pc.image);
+    let r2 = dot(xij, xij);
+    if (j == me.i || r2 >= pc.h02 || !(me.cloudy || thermo_in[j].z > 0.0)) { return; }
+    let lvj = level_row(pc, info[j].y);
+    let hm = max(me.hi, lvj.x);
+    if (r2 >= hm * hm) { return; }
+    *sum += abs(laplacian_coefficient(r2, me.hi, me.fi, lvj.x, lvj.y, lvj.z, pc.eps));
+}
+//!walk demand_scan
 fn vapor_demand(i: u32) -> f32 {
     let xi = pos[i].xyz;
     let pc = pair_consts();
     let lvi = level_row(pc, info[i].y);
-    let hi = lvi.x;
-    let fi = lvi.y;
-    let cloudy_i = thermo_in[i].z > 0.0;
-    let ci = cell_coord(xi, grid);
+    let me = Dm(i, xi, lvi.x, lvi.y, thermo_in[i].z > 0.0, pc);
     var sum = 0.0;
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            let rows = row_entries(xi, ci, dy, dz, grid);
-            for (var s = 0u; s < 2u; s++) {
-                let e = select(rows.xy, rows.zw, s == 1u);
-                if (e.x == e.y) { continue; }
-                let j_end = cell_start[e.y];
-                for (var j = cell_start[e.x]; j < j_end; j++) {
-                    let xij = min_image_by_reciprocal(xi - pos[j].xyz, pc.image);
-                    let r2 = dot(xij, xij);
-                    if (j == i || r2 >= pc.h02 || !(cloudy_i || thermo_in[j].z > 0.0)) { continue; }
-                    let lvj = level_row(pc, info[j].y);
-                    let hm = max(hi, lvj.x);
-                    if (r2 >= hm * hm) { continue; }
-                    sum += abs(laplacian_coefficient(r2, hi, fi, lvj.x, lvj.y, lvj.z, pc.eps));
-                }
-            }
-        }
-    }
+    demand_scan(&sum, me);
     return sum;
 }
 
@@ -145,6 +143,58 @@ fn vapor_limit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     vapor_limit_of[i] = select(1.0, min(1.0, 0.5 / demand), demand > 0.0);
 }
 
+// The particle a smoothing pass is about, and its sums: sum_j a_ij, sum_j a_ij^2, the
+// constraint sum_j a_ij (T_i - T_j), and the vapor mixing sum_j e_ij a_ij (v_i - v_j).
+struct Sm {
+    i: u32,
+    p: vec3<f32>,
+    hi: f32,
+    fi: f32,
+    ti: f32,
+    vi: f32,
+    cloudy: bool,
+    mixing: bool,
+    limit: f32,
+    pc: Pc,
+}
+struct SmAcc {
+    sum_a: f32,
+    sum_a2: f32,
+    c: f32,
+    cv: f32,
+}
+fn smooth_pair(a: ptr<function, SmAcc>, me: Sm, j: u32) {
+    let pc = me.pc;
+    let xij = min_image_by_reciprocal(me.p - pos[j].xyz, pc.image);
+    let r2 = dot(xij, xij);
+    // every radius is <= h0: farther pairs are rejected before the level load
+    if (j == me.i || r2 >= pc.h02) { return; }
+    let lvj = level_row(pc, info[j].y);
+    let hm = max(me.hi, lvj.x);
+    if (r2 >= hm * hm) { return; }
+    let aij = laplacian_coefficient(r2, me.hi, me.fi, lvj.x, lvj.y, lvj.z, pc.eps);
+    (*a).sum_a += aij;
+    (*a).sum_a2 += aij * aij;
+    let tj = thermo_in[j];
+    (*a).c += aij * (me.ti - tj.x);
+    if (me.mixing && (me.cloudy || tj.z > 0.0)) {
+        (*a).cv += min(me.limit, vapor_limit_of[j]) * aij * (me.vi - tj.y);
+    }
+}
+fn smooth_wall(a: ptr<function, SmAcc>, me: Sm, k: u32) {
+    let pc = me.pc;
+    let b = bpos[k];
+    let xik = min_image_by_reciprocal(me.p - b.xyz, pc.image);
+    let r2 = dot(xik, xik);
+    if (r2 >= pc.h02) { return; }
+    // wall particles continue the level-0 lattice
+    let aik = laplacian_coefficient(r2, me.hi, me.fi, pc.lv[0].x, pc.lv[0].y, pc.lv[0].z, pc.eps);
+    (*a).sum_a += aik;
+    (*a).sum_a2 += aik * aik;
+    (*a).c += aik * (me.ti - b.w);
+}
+//!walk smooth_scan
+
 @compute @workgroup_size(WG_PARTICLES)
 fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
@@ -153,61 +203,18 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
     let xi = pos[i].xyz;
     let pc = pair_consts();
     let lvi = level_row(pc, info[i].y);
-    let hi = lvi.x;
-    let fi = lvi.y;
-    let ti = th.x;
-    let vi = th.y;
-    let cloudy_i = th.z > 0.0;
     let mixing = S.vapor_rate > 0.0;
     var limit_i = 1.0;
     if (mixing) { limit_i = vapor_limit_of[i]; }
-    var cv = 0.0;
-    var sum_a = 0.0;
-    var sum_a2 = 0.0;
-    var c = 0.0;
-    let ci = cell_coord(xi, grid);
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            let rows = row_entries(xi, ci, dy, dz, grid);
-            for (var s = 0u; s < 2u; s++) {
-                let e = select(rows.xy, rows.zw, s == 1u);
-                if (e.x == e.y) { continue; }
-                let j_end = cell_start[e.y];
-                for (var j = cell_start[e.x]; j < j_end; j++) {
-                    let xij = min_image_by_reciprocal(xi - pos[j].xyz, pc.image);
-                    let r2 = dot(xij, xij);
-                    // every radius is <= h0: farther pairs are rejected before the level load
-                    if (j == i || r2 >= pc.h02) { continue; }
-                    let lvj = level_row(pc, info[j].y);
-                    let hm = max(hi, lvj.x);
-                    if (r2 >= hm * hm) { continue; }
-                    let a = laplacian_coefficient(r2, hi, fi, lvj.x, lvj.y, lvj.z, pc.eps);
-                    sum_a += a;
-                    sum_a2 += a * a;
-                    let tj = thermo_in[j];
-                    c += a * (ti - tj.x);
-                    if (mixing && (cloudy_i || tj.z > 0.0)) {
-                        cv += min(limit_i, vapor_limit_of[j]) * a * (vi - tj.y);
-                    }
-                }
-                let ny = ci.y + dy;
-                if (S.fixed_walls == 0u || !wall_reach(ny, xi.y, S.h0, grid)) { continue; }
-                let we = e - vec2<u32>(wall_shift(ny, ci.z + dz, grid));
-                let k_end = bcell_start[we.y];
-                for (var k = bcell_start[we.x]; k < k_end; k++) {
-                    let b = bpos[k];
-                    let xik = min_image_by_reciprocal(xi - b.xyz, pc.image);
-                    let r2 = dot(xik, xik);
-                    if (r2 >= pc.h02) { continue; }
-                    // wall particles continue the level-0 lattice
-                    let a = laplacian_coefficient(r2, hi, fi, pc.lv[0].x, pc.lv[0].y, pc.lv[0].z, pc.eps);
-                    sum_a += a;
-                    sum_a2 += a * a;
-                    c += a * (ti - b.w);
-                }
-            }
-        }
-    }
+    let me = Sm(i, xi, lvi.x, lvi.y, th.x, th.y, th.z > 0.0, mixing, limit_i, pc);
+    var acc = SmAcc(0.0, 0.0, 0.0, 0.0);
+    smooth_scan(&acc, me);
+    let sum_a = acc.sum_a;
+    let sum_a2 = acc.sum_a2;
+    let c = acc.c;
+    let cv = acc.cv;
+    let ti = th.x;
+    let vi = th.y;
     var out = th;
     let g = sum_a * sum_a + sum_a2;
     if (g > 0.0) {

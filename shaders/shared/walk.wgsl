@@ -1,9 +1,9 @@
 // The 27-cell neighbour walks, one template for every pair function (src/gpu/shaders.rs
 // `WALKS` names each use; a stage's line `//!walk NAME` becomes the function NAME). Words:
 // WALK_NAME the function, WALK_A and WALK_ACC the accumulator's name and type, WALK_ME the
-// particle's type and any further parameters, WALK_REACH the particle's radius (the walls are
-// walked where max(WALK_REACH, h0) reaches them); PAIR[[j]] and WALL[[k]] the calls for a fluid
-// candidate j and a wall particle k. A use without walls leaves the //!walls block out.
+// particle's type and any further parameters; PAIR[[j]] and WALL[[k]] the calls for a fluid
+// candidate j and a wall particle k, SKIP_WALLS[[y]] whether the walls' row at cell row y is out
+// of the particle's reach. A use without walls leaves the //!walls block out.
 //!template scan
 // The search around the particle's position (no mask): the candidates of the 9 rows of slices
 // around its cell, then the walls' rows.
@@ -18,7 +18,7 @@ fn WALK_NAME(WALK_A: ptr<function, WALK_ACC>, me: WALK_ME) {
                 let j_end = cell_start[e.y];
                 for (var j = cell_start[e.x]; j < j_end; j++) { PAIR[[j]]; }
 //!walls
-                if (!wall_reach(c.y + dy, me.p.y, max(WALK_REACH, me.k.h0), grid)) { continue; }
+                if (SKIP_WALLS[[c.y + dy]]) { continue; }
                 let we = e - vec2<u32>(wall_shift(c.y + dy, c.z + dz, grid));
                 let k_end = bcell_start[we.y];
                 for (var k = bcell_start[we.x]; k < k_end; k++) { WALL[[k]]; }
@@ -52,7 +52,7 @@ fn WALK_NAME(WALK_A: ptr<function, WALK_ACC>, me: WALK_ME, an: Anchor, m: Mask) 
                 }
                 for (var j = j0 + nb; j < j1; j++) { PAIR[[j]]; }
 //!walls
-                if (!wall_reach(an.c.y + dy, me.p.y, max(WALK_REACH, me.k.h0), grid)) { continue; }
+                if (SKIP_WALLS[[an.c.y + dy]]) { continue; }
                 let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
                 let k_end = bcell_start[we.y];
                 for (var k = bcell_start[we.x]; k < k_end; k++) { WALL[[k]]; }

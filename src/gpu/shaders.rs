@@ -170,9 +170,13 @@ struct Walk {
     pair: &'static str,
     /// The call for a wall particle, `$` its index; `None`: the walk leaves the walls out.
     wall: Option<&'static str>,
-    /// The particle's kernel radius (the walls are walked within max(it, h0)).
-    reach: &'static str,
+    /// Whether the walls' row at cell row `$` is out of the particle's reach (skipped).
+    skip_walls: &'static str,
 }
+
+/// The PBF passes reach the walls within max(h_i, h0) (the wall particles are level 0).
+const PBF_SKIP_WALLS: &str = "!wall_reach($, me.p.y, max(me.hi, me.k.h0), grid)";
+const VISC_SKIP_WALLS: &str = "!wall_reach($, me.p.y, max(me.lv.x, me.k.h0), grid)";
 
 /// Every walk the stages generate. The masked and the scan walk of one pass share its pair
 /// function, so the mask changes which candidates are visited, never what a pair adds.
@@ -184,7 +188,7 @@ const WALKS: &[Walk] = &[
         me: "Me, packed: bool",
         pair: "_ = lam_fluid(a, me, $, packed)",
         wall: Some("lam_wall(a, me, $)"),
-        reach: "me.hi",
+        skip_walls: PBF_SKIP_WALLS,
     },
     Walk {
         name: "lam_masked",
@@ -193,7 +197,7 @@ const WALKS: &[Walk] = &[
         me: "Me",
         pair: "_ = lam_fluid(a, me, $, true)",
         wall: Some("lam_wall(a, me, $)"),
-        reach: "me.hi",
+        skip_walls: PBF_SKIP_WALLS,
     },
     Walk {
         name: "delta_scan",
@@ -202,7 +206,7 @@ const WALKS: &[Walk] = &[
         me: "Me",
         pair: "delta_fluid(dp, me, $)",
         wall: Some("delta_wall(dp, me, $)"),
-        reach: "me.hi",
+        skip_walls: PBF_SKIP_WALLS,
     },
     Walk {
         name: "delta_masked",
@@ -211,7 +215,7 @@ const WALKS: &[Walk] = &[
         me: "Me",
         pair: "delta_fluid(dp, me, $)",
         wall: Some("delta_wall(dp, me, $)"),
-        reach: "me.hi",
+        skip_walls: PBF_SKIP_WALLS,
     },
     Walk {
         name: "visc_scan",
@@ -220,7 +224,7 @@ const WALKS: &[Walk] = &[
         me: "Vi",
         pair: "visc_pair(a, me, $)",
         wall: Some("visc_wall(a, me, $)"),
-        reach: "me.lv.x",
+        skip_walls: VISC_SKIP_WALLS,
     },
     Walk {
         name: "visc_masked",
@@ -229,7 +233,34 @@ const WALKS: &[Walk] = &[
         me: "Vi",
         pair: "visc_pair(a, me, $)",
         wall: Some("visc_wall(a, me, $)"),
-        reach: "me.lv.x",
+        skip_walls: VISC_SKIP_WALLS,
+    },
+    Walk {
+        name: "vort_scan",
+        template: "scan",
+        acc: ("w", "vec3<f32>"),
+        me: "Vo",
+        pair: "vort_pair(w, me, $)",
+        wall: None,
+        skip_walls: "",
+    },
+    Walk {
+        name: "demand_scan",
+        template: "scan",
+        acc: ("sum", "f32"),
+        me: "Dm",
+        pair: "demand_pair(sum, me, $)",
+        wall: None,
+        skip_walls: "",
+    },
+    Walk {
+        name: "smooth_scan",
+        template: "scan",
+        acc: ("a", "SmAcc"),
+        me: "Sm",
+        pair: "smooth_pair(a, me, $)",
+        wall: Some("smooth_wall(a, me, $)"),
+        skip_walls: "S.fixed_walls == 0u || !wall_reach($, me.p.y, S.h0, grid)",
     },
 ];
 
@@ -265,9 +296,9 @@ fn walk_source(name: &str) -> Result<String> {
         .replace("WALK_NAME", w.name)
         .replace("WALK_ACC", w.acc.1)
         .replace("WALK_A", w.acc.0)
-        .replace("WALK_ME", w.me)
-        .replace("WALK_REACH", w.reach);
+        .replace("WALK_ME", w.me);
     let out = calls(&out, "PAIR", w.pair)?;
+    let out = calls(&out, "SKIP_WALLS", w.skip_walls)?;
     calls(&out, "WALL", w.wall.unwrap_or(""))
 }
 
@@ -410,7 +441,7 @@ mod tests {
                     used.push(w.trim().to_string());
                     let src =
                         super::walk_source(w.trim()).unwrap_or_else(|e| panic!("{name}: {e}"));
-                    for word in ["WALK_", "PAIR[[", "WALL[[", "//!"] {
+                    for word in ["WALK_", "PAIR[[", "WALL[[", "SKIP_WALLS", "//!"] {
                         assert!(!src.contains(word), "{name}: {w} keeps {word}:\n{src}");
                     }
                     assert!(src.contains(&format!("fn {}(", w.trim())), "{w}");
