@@ -21,7 +21,7 @@
 //! - time: `FrameWriter::write` of the frame with the run's grids at that voxel size and VDB only
 //!   (no EXR, preview or cache): splat + detail, and the VDB write, against the simulation's own
 //!   milliseconds per frame from the run's stats.jsonl.
-use super::surface::{self, fft};
+use super::surface;
 use crate::config::ShotConfig;
 use crate::error::{Error, Result};
 use crate::export::ExportSpace;
@@ -452,34 +452,7 @@ fn high_energy(g: &SparseGrid<f32>, spacing: f64) -> f64 {
             }
         }
     }
-    // along z, y, x
-    let mut line_re = Vec::new();
-    let mut line_im = Vec::new();
-    for axis in 0..3 {
-        let n = dims[axis];
-        for i in 0..dims[(axis + 1) % 3] {
-            for j in 0..dims[(axis + 2) % 3] {
-                let at = |k: usize| {
-                    let mut c = [0usize; 3];
-                    c[axis] = k;
-                    c[(axis + 1) % 3] = i;
-                    c[(axis + 2) % 3] = j;
-                    idx(c[0], c[1], c[2])
-                };
-                line_re.clear();
-                line_im.clear();
-                for k in 0..n {
-                    line_re.push(re[at(k)]);
-                    line_im.push(im[at(k)]);
-                }
-                fft(&mut line_re, &mut line_im);
-                for k in 0..n {
-                    re[at(k)] = line_re[k];
-                    im[at(k)] = line_im[k];
-                }
-            }
-        }
-    }
+    surface::fft3(&mut re, &mut im, dims, false);
     let v = g.transform.voxel_size;
     let kmin = 1.0 / spacing;
     let freq = |k: usize, n: usize| {
@@ -967,7 +940,7 @@ mod tests {
             .map(|k| (2.0 * std::f64::consts::PI * 3.0 * k as f64 / n as f64).cos())
             .collect();
         let mut im = vec![0.0; n];
-        fft(&mut re, &mut im);
+        surface::fft(&mut re, &mut im);
         for k in 0..n {
             let p = (re[k] * re[k] + im[k] * im[k]).sqrt();
             let want = if k == 3 || k == 13 { 8.0 } else { 0.0 };
