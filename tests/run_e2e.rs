@@ -1,6 +1,7 @@
 //! `nimbus run` end to end on the real GPU path (lavapipe here): run records, files, determinism.
 mod common;
 use common::*;
+use std::path::Path;
 
 #[test]
 fn run_writes_frames_manifest_and_stats() {
@@ -176,4 +177,52 @@ fn an_opengl_fallback_warns_with_the_remedy() {
     assert!(o.status.success(), "{}", text(&o));
     assert!(String::from_utf8_lossy(&o.stdout).contains("(Vulkan)\""));
     assert!(!String::from_utf8_lossy(&o.stderr).contains("no Vulkan adapter"));
+}
+
+/// What is wrong with `--out` is said (exit 2) before the device is opened: on a machine without
+/// a GPU too, where opening the device ends the run with exit 4. Nothing is written.
+#[test]
+fn a_bad_out_is_invalid_input_even_without_a_gpu() {
+    let dir = tempfile::tempdir().unwrap();
+    let no_icd = "/nonexistent/nimbus-test-no-icd.json";
+    let run = |out: &Path| {
+        nimbus()
+            .arg("run")
+            .arg(sample("tiny.yaml"))
+            .arg("--out")
+            .arg(out)
+            .args(["--set", "gpu.backend=vulkan"])
+            .env("VK_ICD_FILENAMES", no_icd)
+            .env("VK_DRIVER_FILES", no_icd)
+            .output()
+            .unwrap()
+    };
+    // no device at all: a good --out gets exit 4, and nothing is made
+    let fresh = dir.path().join("fresh");
+    let o = run(&fresh);
+    assert_eq!(o.status.code(), Some(4), "{}", text(&o));
+    assert!(!fresh.exists());
+    // a file as --out
+    let file = dir.path().join("a_file");
+    std::fs::write(&file, b"x").unwrap();
+    let o = run(&file);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(
+        text(&o).contains("is a file, not a run directory"),
+        "{}",
+        text(&o)
+    );
+    assert_eq!(std::fs::read(&file).unwrap(), b"x");
+    // a directory holding files nimbus did not write
+    let foreign = dir.path().join("foreign");
+    std::fs::create_dir(&foreign).unwrap();
+    std::fs::write(foreign.join("notes.txt"), b"mine").unwrap();
+    let o = run(&foreign);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("nimbus did not write"), "{}", text(&o));
+    let names: Vec<_> = std::fs::read_dir(&foreign)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(names, ["notes.txt"]);
 }

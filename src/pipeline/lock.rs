@@ -210,6 +210,24 @@ pub fn parse_holder(text: &str) -> Holder {
 }
 
 /// Opens (creating) `dir`'s lock file for reading the holder and locking.
+/// Read only (no lock taken, nothing written): `dir` in use by a nimbus process on this host, as
+/// its lock file records, is refused as [`RunLock::acquire`] would refuse it. A holder on
+/// another host, or none, passes: the lock itself decides then.
+pub fn check_not_in_use(dir: &Path) -> Result<()> {
+    let Ok(text) = std::fs::read_to_string(dir.join(LOCK_FILE)) else {
+        return Ok(());
+    };
+    let holder = parse_holder(&text);
+    match holder.pid {
+        Some(pid)
+            if holder.host == host_name() && pid != std::process::id() && runs_nimbus(pid) =>
+        {
+            Err(in_use(dir, &holder, ""))
+        }
+        _ => Ok(()),
+    }
+}
+
 fn open_lock_file(dir: &Path) -> Result<(PathBuf, File)> {
     let path = dir.join(LOCK_FILE);
     let file = OpenOptions::new()

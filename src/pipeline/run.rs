@@ -40,8 +40,10 @@ pub struct RunOptions {
 /// `nimbus run CONFIG`: a new run of `cfg` into `out_dir` (created if missing; refused when it
 /// holds an earlier run, unless `force`: see `run_dir`). Resuming is `super::resume`.
 pub fn run_fresh(cfg: &ShotConfig, out_dir: &Path, log: LogFormat, force: bool) -> Result<()> {
-    // The device first, and whether it holds the shot: a shot it cannot hold is refused (exit
-    // 4, the limit and the largest particle count that fits) before anything is written.
+    // What can be checked of --out without writing comes first (exit 2, with or without a
+    // GPU); then the device, and whether it holds the shot: a shot it cannot hold is refused
+    // (exit 4, the limit and the largest particle count that fits) before anything is written.
+    super::run_dir::check_fresh_out(out_dir, force)?;
     let ctx = Arc::new(gpu::Context::new(&cfg.gpu)?);
     crate::sim::footprint::check_shot(&ctx, cfg, config::lattice_count(&cfg.domain) as u64)?;
     let lock = RunLock::acquire(out_dir, Create::IfMissing, "run")?;

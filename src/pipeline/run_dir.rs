@@ -103,6 +103,46 @@ pub fn survey(dir: &Path) -> Result<Contents> {
 /// files; refused when it holds a run (unless `force`: then that run's files are removed) or
 /// any foreign file.
 pub fn prepare_fresh(dir: &Path, force: bool) -> Result<()> {
+    let c = check_fresh(dir, force)?;
+    let mut removed = 0;
+    for rel in &c.own {
+        if rel == LOCK_FILE {
+            continue;
+        }
+        let p = dir.join(rel);
+        std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+        removed += 1;
+    }
+    if removed > 0 {
+        eprintln!(
+            "note: removed {removed} file(s) of an earlier run in {}",
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
+/// Whether `out` can take a fresh run, read only: a file there, a directory another nimbus
+/// process holds, files nimbus did not write, or an earlier run without `force` are refused
+/// (exit 2). `run` asks it before it opens the
+/// device, so that bad input is exit 2 on a machine without a GPU too, and `prepare_fresh`
+/// again under the lock. A missing `out` passes (the lock creates it).
+pub fn check_fresh_out(out: &Path, force: bool) -> Result<()> {
+    match std::fs::metadata(out) {
+        Ok(m) if m.is_dir() => {
+            super::lock::check_not_in_use(out)?;
+            check_fresh(out, force).map(|_| ())
+        }
+        Ok(_) => Err(Error::InvalidInput(format!(
+            "{}: is a file, not a run directory",
+            out.display()
+        ))),
+        Err(_) => Ok(()),
+    }
+}
+
+/// The survey of `dir` when it may take a fresh run (see [`prepare_fresh`]).
+fn check_fresh(dir: &Path, force: bool) -> Result<Contents> {
     let c = survey(dir)?;
     if !c.foreign.is_empty() {
         let shown: Vec<&str> = c.foreign.iter().take(3).map(String::as_str).collect();
@@ -144,22 +184,7 @@ pub fn prepare_fresh(dir: &Path, force: bool) -> Result<()> {
             resume = resume_command(dir)
         )));
     }
-    let mut removed = 0;
-    for rel in &c.own {
-        if rel == LOCK_FILE {
-            continue;
-        }
-        let p = dir.join(rel);
-        std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
-        removed += 1;
-    }
-    if removed > 0 {
-        eprintln!(
-            "note: removed {removed} file(s) of an earlier run in {}",
-            dir.display()
-        );
-    }
-    Ok(())
+    Ok(c)
 }
 
 /// `kind/<shot>.<digits>.<ext>` with the extensions nimbus writes there, or the contact sheet.
