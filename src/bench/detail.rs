@@ -480,17 +480,9 @@ fn high_energy(g: &SparseGrid<f32>, spacing: f64) -> f64 {
 
 /// Trilinear value at a world position (background 0 outside the active voxels).
 fn sample(g: &SparseGrid<f32>, p: [f64; 3]) -> f64 {
-    let x = g.transform.world_to_index(p);
-    let b = x.map(|v| v.floor());
-    let t = [0, 1, 2].map(|a| x[a] - b[a]);
     let mut s = 0.0;
-    for c in 0..8 {
-        let o = [c >> 2 & 1, c >> 1 & 1, c & 1];
-        let w: f64 = (0..3)
-            .map(|a| if o[a] == 1 { t[a] } else { 1.0 - t[a] })
-            .product();
-        let i = [0, 1, 2].map(|a| b[a] as i32 + o[a]);
-        s += w * g.get(i) as f64;
+    for (i, w) in surface::trilinear_corners(g.transform.world_to_index(p)) {
+        s += w * g.get(i.map(|v| v as i32)) as f64;
     }
     s
 }
@@ -843,16 +835,9 @@ fn normalisation(ps: &PointSplat, noise: &DetailNoise, d0: &SparseGrid<f32>) -> 
 
 /// Trilinear value of a vec3 grid; `None` where a corner is inactive.
 fn sample3(g: &SparseGrid<[f32; 3]>, p: [f64; 3]) -> Option<[f64; 3]> {
-    let x = g.transform.world_to_index(p);
-    let b = x.map(|v| v.floor());
-    let t = [0, 1, 2].map(|a| x[a] - b[a]);
     let mut s = [0.0; 3];
-    for c in 0..8 {
-        let o = [c >> 2 & 1, c >> 1 & 1, c & 1];
-        let w: f64 = (0..3)
-            .map(|a| if o[a] == 1 { t[a] } else { 1.0 - t[a] })
-            .product();
-        let i = [0, 1, 2].map(|a| b[a] as i32 + o[a]);
+    for (i, w) in surface::trilinear_corners(g.transform.world_to_index(p)) {
+        let i = i.map(|v| v as i32);
         let o = i.map(|v| v & !7);
         let leaf = g.leaves.binary_search_by(|l| l.origin.cmp(&o)).ok()?;
         let n = crate::ground::Leaf::<[f32; 3]>::offset(i[0], i[1], i[2]);

@@ -85,16 +85,10 @@ impl Dense {
 
     /// Trilinear value at box coordinates `q` (voxel units).
     pub fn sample(&self, q: [f64; 3]) -> f64 {
-        let b = q.map(|v| v.floor());
-        let t = [0, 1, 2].map(|a| q[a] - b[a]);
         let mut s = 0.0;
-        for c in 0..8 {
-            let o = [c >> 2 & 1, c >> 1 & 1, c & 1];
-            let w: f64 = (0..3)
-                .map(|a| if o[a] == 1 { t[a] } else { 1.0 - t[a] })
-                .product();
+        for (i, w) in trilinear_corners(q) {
             if w > 0.0 {
-                s += w * self.at([0, 1, 2].map(|a| b[a] as i64 + o[a] as i64));
+                s += w * self.at(i);
             }
         }
         s
@@ -249,6 +243,20 @@ pub fn high_pass(g: &Dense, wavelength: f64) -> Vec<f64> {
         }
     }
     out
+}
+
+/// The 8 corners of the voxel cell holding `q` (index units) and their trilinear weights, corner
+/// c = (c >> 2 & 1, c >> 1 & 1, c & 1) from the floor of `q`, in that order.
+pub fn trilinear_corners(q: [f64; 3]) -> impl Iterator<Item = ([i64; 3], f64)> {
+    let b = q.map(|v| v.floor());
+    let t = [0, 1, 2].map(|a| q[a] - b[a]);
+    (0..8).map(move |c: usize| {
+        let o = [c >> 2 & 1, c >> 1 & 1, c & 1];
+        let w: f64 = (0..3)
+            .map(|a| if o[a] == 1 { t[a] } else { 1.0 - t[a] })
+            .product();
+        ([0, 1, 2].map(|a| b[a] as i64 + o[a] as i64), w)
+    })
 }
 
 /// 3-D FFT (or its inverse, normalised) of a box whose sides are powers of two.
