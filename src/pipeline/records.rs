@@ -280,4 +280,15 @@ mod tests {
         std::fs::write(&p, b"abd").unwrap();
         assert!(!frame_intact(dir.path(), &rec));
     }
+
+    /// A resumed run writes the earlier frames' stats lines again from what it read: every f64
+    /// must come back to the same bits (both values came back one ulp off before
+    /// serde_json's float_roundtrip).
+    #[test]
+    fn stats_values_read_back_to_the_same_bits() {
+        for v in [0.018552541732788086_f64, 0.23666460213703086] {
+            let back: f64 = serde_json::from_str(&serde_json::to_string(&v).unwrap()).unwrap();
+            assert_eq!(back.to_bits(), v.to_bits(), "{v}");
+        }
+    }
 }
