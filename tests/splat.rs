@@ -394,6 +394,31 @@ mod detail {
             .sum()
     }
 
+    /// With the density alone, the clear air whose kernels reach no leaf of the cloud is left
+    /// out of the rest smoothing and the binning; the density grid is the same bytes as when
+    /// every particle is splatted (the rest grids ask for all of them).
+    #[test]
+    fn the_density_alone_skips_the_clear_air_and_gives_the_same_grid() {
+        let st = ball([0.0; 3]);
+        let rest = rest();
+        let every = run(&st, &rest, &params(Some(NoiseSpace::Rest)));
+        let mut p = params(Some(NoiseSpace::Rest));
+        p.fields.rest = false;
+        let alone = run(&st, &rest, &p);
+        assert!(alone.rest.is_none());
+        assert_eq!(
+            grid_bytes(alone.density.as_ref().unwrap()),
+            grid_bytes(every.density.as_ref().unwrap())
+        );
+        // a ball of radius 5 in a 24 x 16 x 24 box: most of the air is far from it
+        assert!(
+            alone.stats.sources * 2 < every.stats.sources,
+            "{} of {} sources",
+            alone.stats.sources,
+            every.stats.sources
+        );
+    }
+
     #[test]
     fn detail_keeps_the_mass_adds_structure_and_moves_with_the_rest_frame() {
         let st = ball([0.0; 3]);

@@ -618,7 +618,9 @@ impl PointSplat {
             weights: [0.5; 2],
             dual: true,
         };
-        let smoothed = crate::splat::rest_smooth::smoothed_displacements(&fr.state, &input, p);
+        let all = vec![true; fr.state.len()];
+        let smoothed =
+            crate::splat::rest_smooth::smoothed_displacements(&fr.state, &input, p, &all);
         let mut parts = Vec::new();
         let mut bins: std::collections::HashMap<[i64; 3], Vec<usize>> = Default::default();
         let rho_min = crate::splat::MIN_DENSITY_RATIO * p.rest_density;

@@ -232,7 +232,8 @@ pub struct SplatGrids {
 pub struct SplatStats {
     /// Particles that contributed (finite position, inside the walled extent).
     pub particles: u64,
-    /// Particles plus periodic images.
+    /// Particles plus periodic images that reach a written leaf (with the density alone, those
+    /// near cloud).
     pub sources: u64,
     /// Leaves allocated (touched by some kernel support).
     pub leaves: u64,
@@ -318,11 +319,8 @@ pub fn splat_with_rest(
     // normalised field needs every particle.
     let all = f.temperature || f.velocity || rest.is_some();
     let rho_min = MIN_DENSITY_RATIO * params.rest_density;
-    let smoothed = rest
-        .as_ref()
-        .map(|r| rest_smooth::smoothed_displacements(state, r, params));
 
-    let per_particle: Vec<Vec<Source>> = (0..n)
+    let mut per_particle: Vec<Vec<Source>> = (0..n)
         .into_par_iter()
         .map(|j| {
             let th = state.thermo[j];
@@ -359,10 +357,6 @@ pub fn splat_with_rest(
             } else {
                 [0.0; 3]
             };
-            let disp = smoothed
-                .as_ref()
-                .and_then(|d| d[j])
-                .unwrap_or([[0.0; 3]; 2]);
             // Shifts (in voxels) of the images whose support meets the output range.
             let mut shifts: [Vec<f64>; 3] = Default::default();
             for a in 0..3 {
@@ -397,7 +391,7 @@ pub fn splat_with_rest(
                             vapor: th[1] as f64,
                             temp: th[0] as f64,
                             vel,
-                            disp,
+                            disp: [[0.0; 3]; 2],
                         });
                     }
                 }
@@ -406,9 +400,6 @@ pub fn splat_with_rest(
         })
         .collect();
     let particles = per_particle.iter().filter(|s| !s.is_empty()).count() as u64;
-    let mut sources: Vec<Source> = per_particle.into_iter().flatten().collect();
-    // Stable: within a bin, sources stay in (particle index, image) order.
-    sources.par_sort_by_key(|s| s.key);
 
     // Leaves touched by some support, clipped to the output range. When the density is the
     // only grid, only the supports of particles with cloud water can give a leaf a value (the
@@ -416,14 +407,19 @@ pub fn splat_with_rest(
     // rest coordinate).
     let leaf_lo = lo.map(|x| leaf_of(x as f64));
     let leaf_hi = hi.map(|x| leaf_of(x as f64));
+    // Leaves of the voxels within a support (a voxel exactly at distance h gets 0).
+    let leaf_box = |s: &Source| {
+        let a = [0, 1, 2].map(|k| leaf_of((s.p[k] - s.r).ceil()).max(leaf_lo[k]));
+        let b = [0, 1, 2].map(|k| leaf_of((s.p[k] + s.r).floor()).min(leaf_hi[k]));
+        (a, b)
+    };
     let density_only = !(f.temperature || f.vapor || f.velocity || f.rest);
-    let mut touched: Vec<[i32; 3]> = sources
+    let mut touched: Vec<[i32; 3]> = per_particle
         .par_iter()
+        .flatten()
         .filter(|s| !density_only || s.cloud > 0.0)
         .flat_map_iter(|s| {
-            // Leaves of the voxels within the support (a voxel exactly at distance h gets 0).
-            let a = [0, 1, 2].map(|k| leaf_of((s.p[k] - s.r).ceil()).max(leaf_lo[k]));
-            let b = [0, 1, 2].map(|k| leaf_of((s.p[k] + s.r).floor()).min(leaf_hi[k]));
+            let (a, b) = leaf_box(s);
             (a[0]..=b[0]).flat_map(move |x| {
                 (a[1]..=b[1]).flat_map(move |y| (a[2]..=b[2]).map(move |z| [x, y, z]))
             })
@@ -431,6 +427,38 @@ pub fn splat_with_rest(
         .collect();
     touched.par_sort_unstable();
     touched.dedup();
+
+    // With the density alone, a particle whose support meets no touched leaf adds nothing to
+    // any voxel that is written: drop it before the rest smoothing and the binning, which
+    // otherwise cost as much for the clear air as for the cloud.
+    if density_only {
+        per_particle.par_iter_mut().for_each(|list| {
+            let reaches = list.iter().any(|s| {
+                let (a, b) = leaf_box(s);
+                (a[0]..=b[0]).any(|x| {
+                    (a[1]..=b[1])
+                        .any(|y| (a[2]..=b[2]).any(|z| touched.binary_search(&[x, y, z]).is_ok()))
+                })
+            });
+            if !reaches {
+                list.clear();
+            }
+        });
+    }
+    if let Some(r) = &rest {
+        let wanted: Vec<bool> = per_particle.iter().map(|l| !l.is_empty()).collect();
+        let smoothed = rest_smooth::smoothed_displacements(state, r, params, &wanted);
+        per_particle
+            .par_iter_mut()
+            .zip(smoothed)
+            .for_each(|(list, d)| {
+                let disp = d.unwrap_or([[0.0; 3]; 2]);
+                list.iter_mut().for_each(|s| s.disp = disp);
+            });
+    }
+    let mut sources: Vec<Source> = per_particle.into_iter().flatten().collect();
+    // Stable: within a bin, sources stay in (particle index, image) order.
+    sources.par_sort_by_key(|s| s.key);
 
     // Bins: unique keys and their ranges in `sources`.
     let mut bin_keys: Vec<[i32; 3]> = Vec::new();

@@ -30,12 +30,13 @@ struct Particle {
     disp: Displacement,
 }
 
-/// D~ for every particle of `state`; `None` for particles the splat skips (non-finite position,
-/// level beyond 60).
+/// D~ for every particle of `state` that is `wanted`; `None` for the others and for particles
+/// the splat skips (non-finite position, level beyond 60). Every particle is a neighbour.
 pub fn smoothed_displacements(
     state: &ParticleState,
     rest: &RestInput,
     params: &SplatParams,
+    wanted: &[bool],
 ) -> Vec<Option<Displacement>> {
     let codec = rest.codec;
     let s = params.rest_smoothing.max(1.0);
@@ -68,8 +69,9 @@ pub fn smoothed_displacements(
     let cells = Cells::new(&parts, params.h0 * s, &codec);
     parts
         .par_iter()
-        .map(|p| {
-            let p = p.as_ref()?;
+        .zip(wanted)
+        .map(|(p, &wanted)| {
+            let p = p.as_ref().filter(|_| wanted)?;
             let mut cov = 0.0;
             let mut d = [[0.0f64; 3]; 2];
             cells.visit(p.x, |i| {
@@ -244,7 +246,8 @@ mod tests {
             weights: [0.5, 0.5],
             dual: true,
         };
-        let out = smoothed_displacements(&state, &input, &params(size));
+        let all = vec![true; state.len()];
+        let out = smoothed_displacements(&state, &input, &params(size), &all);
         let q = 1.5 * size / 65535.0;
         for d in out.iter().map(|d| d.expect("valid particle")) {
             assert!((d[0][0] - 0.5).abs() < q, "{d:?}");
@@ -253,13 +256,19 @@ mod tests {
             assert!((d[0][1] - 0.25).abs() < 0.1, "{d:?}");
             assert_eq!(d[0], d[1]);
         }
+        // a particle not wanted gets none; the others the same, their neighbours unchanged
+        let some: Vec<bool> = (0..state.len()).map(|j| j % 3 == 0).collect();
+        let part = smoothed_displacements(&state, &input, &params(size), &some);
+        for (j, d) in part.iter().enumerate() {
+            assert_eq!(*d, if some[j] { out[j] } else { None }, "particle {j}");
+        }
         // and the same with one thread
         let one = rayon::ThreadPoolBuilder::new()
             .num_threads(1)
             .build()
             .unwrap();
         assert_eq!(
-            one.install(|| smoothed_displacements(&state, &input, &params(size))),
+            one.install(|| smoothed_displacements(&state, &input, &params(size), &all)),
             out
         );
     }
