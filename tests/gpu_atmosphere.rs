@@ -37,7 +37,8 @@ fn a_stratified_column_at_rest_stays_at_rest() {
          domain: {size: [400, 600, 400], spacing: 25}\n\
          physics: {heat_source: 0.0, heat_noise: false, initial_vapor: 0.0, initial_speed: 0.5}\n",
     );
-    let mut sim = Simulation::new(ctx(), &cfg).unwrap();
+    let mut sim =
+        Simulation::new(ctx(), &nimbus::shot::Shot::prepare(cfg.clone()).unwrap()).unwrap();
     let layers0 = initial_layer_mass(&cfg);
     let y0 = centre_y(&sim.state().unwrap(), |_| true);
     let (mut drift, mut lo, mut hi) = (0.0f64, 1.0f64, 1.0f64);
@@ -87,7 +88,13 @@ fn a_heated_parcel_rises_to_its_level_of_neutral_buoyancy() {
     }
     let y_start = centre_y(&state, |i| ids.contains(&state.info[i][0]));
     let lnb = 1.65 / (cfg.physics.adiabatic_lapse_rate - cfg.physics.environment.lapse_rate);
-    let mut sim = Simulation::from_state(ctx(), &cfg, &state, SimClock::default()).unwrap();
+    let mut sim = Simulation::from_state(
+        ctx(),
+        &nimbus::shot::Shot::prepare(cfg.clone()).unwrap(),
+        &state,
+        SimClock::default(),
+    )
+    .unwrap();
     let (mut top, mut sum, mut n) = (0.0f64, 0.0, 0);
     for frame in 1..=113 {
         sim.step_frame().unwrap();
@@ -162,7 +169,13 @@ fn walls_hold_split_particles_at_rest_density() {
             push(q, 3, i);
         }
     }
-    let mut sim = Simulation::from_state(ctx(), &cfg, &s, SimClock::default()).unwrap();
+    let mut sim = Simulation::from_state(
+        ctx(),
+        &nimbus::shot::Shot::prepare(cfg.clone()).unwrap(),
+        &s,
+        SimClock::default(),
+    )
+    .unwrap();
     for _ in 0..10 {
         sim.step_frame().unwrap();
     }

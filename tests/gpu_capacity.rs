@@ -21,7 +21,9 @@ fn context() -> Arc<Context> {
 }
 
 fn tiny() -> ShotConfig {
-    nimbus::config::load(&common::sample("tiny.yaml"), &[]).unwrap()
+    nimbus::shot::load(&common::sample("tiny.yaml"), &[])
+        .unwrap()
+        .into_config()
 }
 
 /// The footprint's device bytes (less the read-back) bound what the simulation allocates: the
@@ -35,8 +37,15 @@ fn the_footprint_bounds_what_a_simulation_allocates() {
         cfg.adaptive.enabled = adaptive;
         cfg.domain.spacing = spacing;
         let n = nimbus::config::lattice_count(&cfg.domain) as u64;
-        let fp = Footprint::of(&ShotSize::of(&cfg, n).unwrap(), wg);
-        let sim = Simulation::new(ctx.clone(), &cfg).unwrap();
+        let fp = Footprint::of(
+            &ShotSize::of(&nimbus::shot::Shot::prepare(cfg.clone()).unwrap(), n),
+            wg,
+        );
+        let sim = Simulation::new(
+            ctx.clone(),
+            &nimbus::shot::Shot::prepare(cfg.clone()).unwrap(),
+        )
+        .unwrap();
         let actual = sim.device_bytes();
         let model = fp.device_bytes - READBACK_PER_PARTICLE * fp.capacity;
         eprintln!("adaptive {adaptive}, {n} particles: model {model} B, allocated {actual} B");
@@ -50,7 +59,7 @@ fn the_footprint_bounds_what_a_simulation_allocates() {
 fn tiny_footprint(ctx: &Context) -> (ShotSize, Footprint) {
     let cfg = tiny();
     let n = nimbus::config::lattice_count(&cfg.domain) as u64;
-    let shot = ShotSize::of(&cfg, n).unwrap();
+    let shot = ShotSize::of(&nimbus::shot::Shot::prepare(cfg.clone()).unwrap(), n);
     let fp = Footprint::of(&shot, smallest_workgroup(&ctx.prelude));
     (shot, fp)
 }

@@ -75,7 +75,11 @@ fn folded_dispatches_give_the_same_frames() {
     cfg.adaptive.split_threshold = 0.3;
     cfg.adaptive.merge_threshold = 0.25;
     let run = |ctx: Context| {
-        let mut sim = Simulation::new(Arc::new(ctx), &cfg).unwrap();
+        let mut sim = Simulation::new(
+            Arc::new(ctx),
+            &nimbus::shot::Shot::prepare(cfg.clone()).unwrap(),
+        )
+        .unwrap();
         sim.step_frame().unwrap();
         sim.state().unwrap()
     };

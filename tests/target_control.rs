@@ -156,7 +156,9 @@ fn shot(mesh: &Path, enabled: bool) -> ShotConfig {
          control:\n  target: {{enabled: {enabled}, mesh: {}, scale: [300, 450, 300], translate: [250, 300, 250], heat: 0.5}}\n",
         mesh.display()
     );
-    nimbus::config::load_str(&yaml, "tc.yaml", &[]).unwrap()
+    nimbus::shot::load_str(&yaml, "tc.yaml", &[])
+        .unwrap()
+        .into_config()
 }
 
 /// Highest cloud (cloud water above 1e-5) over the target's footprint (m), and the number of
@@ -185,7 +187,11 @@ fn control_raises_the_cloud_inside_the_target() {
     let mut result = Vec::new();
     for enabled in [false, true] {
         let cfg = shot(&mesh, enabled);
-        let mut sim = Simulation::new(ctx.clone(), &cfg).unwrap();
+        let mut sim = Simulation::new(
+            ctx.clone(),
+            &nimbus::shot::Shot::prepare(cfg.clone()).unwrap(),
+        )
+        .unwrap();
         let mut iou = 0.0;
         for _ in 0..40 {
             let (report, _) = sim.step_frame_with_state().unwrap();

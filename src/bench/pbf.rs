@@ -6,6 +6,7 @@
 use crate::config::{GpuConfig, ShotConfig};
 use crate::error::{Error, Result};
 use crate::ground::{ParticleState, SimClock};
+use crate::shot::Shot;
 use crate::sim::Simulation;
 use std::sync::Arc;
 
@@ -157,21 +158,23 @@ fn scene_count(cfg: &ShotConfig, b: &PbfBench) -> u64 {
 /// Whether the device holds the scene on `cfg` (exit 4 with the limit and the largest count
 /// that fits when it does not), before any particle is made.
 fn check_scene(ctx: &crate::gpu::Context, cfg: &ShotConfig, b: &PbfBench) -> Result<()> {
-    let shot = crate::sim::footprint::ShotSize::of(cfg, scene_count(cfg, b))?;
-    crate::sim::footprint::check(ctx, &shot, || None).map(|_| ())
+    let shot = Shot::prepare(cfg.clone())?;
+    let size = crate::sim::footprint::ShotSize::of(&shot, scene_count(cfg, b));
+    crate::sim::footprint::check(ctx, &size, || None).map(|_| ())
 }
 
 /// The scene's simulation on `cfg` (the periodic box's lattice, or the block at rest).
 fn scene_sim(ctx: &Arc<crate::gpu::Context>, cfg: &ShotConfig, b: &PbfBench) -> Result<Simulation> {
+    let shot = Shot::prepare(cfg.clone())?;
     match b.scene {
-        PbfScene::Periodic => Simulation::new(ctx.clone(), cfg),
+        PbfScene::Periodic => Simulation::new(ctx.clone(), &shot),
         PbfScene::Block => {
             let state = block_state(cfg, b.particles);
             let clock = SimClock {
                 next_id: state.len() as u32,
                 ..Default::default()
             };
-            Simulation::from_state(ctx.clone(), cfg, &state, clock)
+            Simulation::from_state(ctx.clone(), &shot, &state, clock)
         }
     }
 }

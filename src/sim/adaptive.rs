@@ -32,9 +32,8 @@ use crate::sim::phase::{Phase, Recorder};
 
 /// Levels the counters buffer has room for (`MAX_LEVELS` in shaders/shared/adaptive.wgsl).
 pub const MAX_LEVELS: u32 = 24;
-/// Largest `min_distance` for which the 27 cells around a merging cell hold every particle the
-/// room check needs: |midpoint - x_i| < h_l / 2 <= 2^(-1/3) L / 2 and h_new <= L.
-pub const MAX_MIN_DISTANCE: f64 = 0.6;
+/// Largest `min_distance` the room check's 27 cells allow (a limit of the config's range).
+pub use crate::config::MAX_MIN_DISTANCE;
 
 // Flags of one run (shaders/shared/adaptive.wgsl).
 pub const FLAG_MERGE: u32 = 1;
@@ -69,40 +68,10 @@ pub struct AdaptiveParams {
 }
 
 impl AdaptiveParams {
-    /// Validated parameters of a shot (count and next_id are set per run).
-    pub fn new(cfg: &AdaptiveConfig, h0: f64, capacity: u32) -> Result<Self> {
-        let bad = |key: &str, msg: String| Err(Error::Config(format!("adaptive.{key}: {msg}")));
-        let ordered = cfg.merge_threshold < cfg.split_threshold;
-        if !ordered {
-            return bad(
-                "merge_threshold",
-                format!(
-                    "must be below split_threshold ({} >= {})",
-                    cfg.merge_threshold, cfg.split_threshold
-                ),
-            );
-        }
-        if !(0.0..=MAX_MIN_DISTANCE).contains(&cfg.min_distance) {
-            return bad(
-                "min_distance",
-                format!("{} is outside [0, {MAX_MIN_DISTANCE}]", cfg.min_distance),
-            );
-        }
-        if cfg.split_offset.is_nan() || cfg.split_offset <= 0.0 || cfg.split_offset > 0.5 {
-            return bad(
-                "split_offset",
-                format!("{} is outside (0, 0.5]", cfg.split_offset),
-            );
-        }
-        if !(cfg.kp.is_finite() && cfg.kc.is_finite()) {
-            return bad("kp", "kp and kc must be finite".into());
-        }
-        if !h0.is_finite() || h0 <= 0.0 {
-            return Err(Error::Config(format!(
-                "domain: kernel radius {h0} must be positive"
-            )));
-        }
-        Ok(Self {
+    /// The parameters of a prepared shot's `adaptive` section (its ranges and order checked
+    /// there, `shot::Shot`); count and next_id are set per run.
+    pub fn new(cfg: &AdaptiveConfig, h0: f64, capacity: u32) -> Self {
+        Self {
             count: 0,
             capacity,
             max_level: cfg.max_level,
@@ -115,7 +84,7 @@ impl AdaptiveParams {
             min_distance: cfg.min_distance as f32,
             split_offset: cfg.split_offset as f32,
             pad0: 0,
-        })
+        }
     }
 }
 
@@ -323,7 +292,7 @@ struct Binds {
 
 impl AdaptiveStage {
     /// Builds the stage over the particle buffers `b` on `grid` (its host copy: the merge
-    /// colours follow its dims), kernel radius `h0` of level 0.
+    /// colours follow its dims), kernel radius `h0` of level 0, of a prepared shot (`shot`).
     pub fn new(
         ctx: &Context,
         cfg: &AdaptiveConfig,
@@ -332,21 +301,8 @@ impl AdaptiveStage {
         b: &ParticleBuffers,
     ) -> Result<Self> {
         let capacity = b.capacity;
-        let params = AdaptiveParams::new(cfg, h0, capacity)?;
-        if let Some(edge) = grid
-            .cell_size
-            .iter()
-            .find(|&&e| e < h0 as f32 * (1.0 - 1e-6))
-        {
-            return Err(Error::Config(format!(
-                "domain: grid cells ({edge}) are smaller than the kernel radius {h0}"
-            )));
-        }
-        if (grid.periodic_x() && grid.dims[0] < 3) || (grid.periodic_z() && grid.dims[2] < 3) {
-            return Err(Error::Config(
-                "domain: a periodic axis needs at least 3 grid cells".into(),
-            ));
-        }
+        let params = AdaptiveParams::new(cfg, h0, capacity);
+        // the grid of a prepared shot: cells of at least h0, 3 or more along a periodic axis
         let d = &ctx.device;
         let mark = Program::new(ctx, "adaptive_mark.wgsl", &["adaptive_mark"])?;
         let merge = Program::new(ctx, "adaptive_merge.wgsl", &["adaptive_merge"])?;
@@ -676,27 +632,6 @@ mod tests {
         }
         // A multiple of 3 needs exactly the 27 colours of Fig. 4.
         assert_eq!(colour_passes(&grid([6, 9, 3], true, true)).len(), 27);
-    }
-
-    #[test]
-    fn params_validation_rejects_bad_config() {
-        let ok = AdaptiveConfig::default();
-        assert!(AdaptiveParams::new(&ok, 0.1, 10).is_ok());
-        // (max_level's range is the config's alone: config::validate, tests/config_limits.rs)
-        let breakers: [fn(&mut AdaptiveConfig); 4] = [
-            |c: &mut AdaptiveConfig| c.merge_threshold = c.split_threshold,
-            |c: &mut AdaptiveConfig| c.min_distance = 0.9,
-            |c: &mut AdaptiveConfig| c.split_offset = 0.0,
-            |c: &mut AdaptiveConfig| c.kc = f64::NAN,
-        ];
-        for f in breakers {
-            let mut c = ok.clone();
-            f(&mut c);
-            assert!(matches!(
-                AdaptiveParams::new(&c, 0.1, 10),
-                Err(Error::Config(_))
-            ));
-        }
     }
 
     /// The shader's colour of every cell is the colour pass that holds it.

@@ -33,7 +33,6 @@ pub mod smoothing;
 pub mod source_field;
 pub mod sources;
 mod step;
-pub mod target_volume;
 pub mod thermo;
 pub mod wind;
 

@@ -293,17 +293,17 @@ pub struct ThermoStage {
 }
 
 impl ThermoStage {
-    /// The stage, with the heat maps of the image sources and, when `target` is given and its
-    /// control is on, room for the controller's supply map and its footprint mask.
+    /// The stage, with the heat maps of the image sources and, when the shot's target control
+    /// is on, room for the controller's supply map and its footprint mask
+    /// ([`HeatMaps::with_target`]).
     pub fn new(
         ctx: &Context,
         cfg: &ShotConfig,
         b: &ParticleBuffers,
-        target: Option<&crate::sim::control::Target>,
+        maps: HeatMaps,
     ) -> Result<Self> {
         let program = Program::new(ctx, SHADER, &[ENTRY])?;
         let params = ParamSlots::single(ctx, "thermo params", &ThermoParams::new(cfg, 0.0, 0.0));
-        let maps = HeatMaps::load(cfg)?.with_target(target);
         let map_buffer = crate::gpu::buffers::storage_init(&ctx.device, "heat maps", &maps.values);
         let own = [
             ("P", params.slot(0)),
