@@ -84,8 +84,11 @@ pub fn bench_config(b: &PbfBench) -> Result<ShotConfig> {
     let d = b.spacing();
     let dt = b.dt();
     let (kr, it) = (b.kernel_ratio, b.iterations);
+    // the export's voxels are the spacing (it writes nothing, but the shot is a valid one: a
+    // voxel that divides the periodic extent)
     let output = format!(
-        "output: {{frames: {{start: 0, end: 1}}, substeps: 1, max_substeps: 1, frame_seconds: {dt}}}"
+        "output: {{frames: {{start: 0, end: 1}}, substeps: 1, max_substeps: 1, frame_seconds: {dt}}}\n\
+         export: {{voxel_size: {d}}}"
     );
     let yaml = match b.scene {
         PbfScene::Periodic => {
