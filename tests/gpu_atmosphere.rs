@@ -133,6 +133,7 @@ fn walls_hold_split_particles_at_rest_density() {
     let cfg = shot(
         "shot: walls\noutput: {frames: {start: 1, end: 10}, frame_seconds: 0.4, substeps: 5}\n\
          domain: {size: [12, 8, 12], spacing: 1.0}\n\
+         export: {voxel_size: 1.0}\n\
          solver: {reference_step: 0.08, scorr_k: 0.002}\n\
          physics: {heat_source: 0.0, heat_noise: false, buoyancy: 0.0, initial_speed: 0.0}\n",
     );

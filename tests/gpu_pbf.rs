@@ -25,7 +25,7 @@ fn config(size: [f64; 3], extra: &str) -> ShotConfig {
         OUTPUT
     };
     let yaml = format!(
-        "shot: t\n{out}domain: {{size: [{}, {}, {}], spacing: 1.0}}\n{extra}",
+        "shot: t\n{out}domain: {{size: [{}, {}, {}], spacing: 1.0}}\nexport: {{voxel_size: 1.0}}\n{extra}",
         size[0], size[1], size[2]
     );
     serde_saphyr::from_str(&yaml).unwrap()
@@ -300,6 +300,7 @@ fn later_passes_keep_the_first_lambdas_neighbours() {
     const TOL: f64 = 1e-4;
     let cfg: ShotConfig = serde_saphyr::from_str(&format!(
         "shot: t\n{OUTPUT}domain: {{size: [8, 8, 16], spacing: 1.0, kernel_ratio: 1.6}}\n\
+         export: {{voxel_size: 1.0}}\n\
          solver: {{gravity: 9.81, scorr_k: 0.001, xsph: 0.1}}\n"
     ))
     .unwrap();
