@@ -19,6 +19,11 @@ use nimbus::sim::Simulation;
 use std::path::Path;
 use std::sync::Arc;
 
+/// The prepared shot of a config built here (`nimbus::shot::Shot::prepare`).
+fn prepared(cfg: &nimbus::config::ShotConfig) -> nimbus::shot::Shot {
+    nimbus::shot::Shot::prepare(cfg.clone()).expect("a valid shot")
+}
+
 fn ctx() -> Arc<Context> {
     if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
         std::env::set_var("XDG_RUNTIME_DIR", "/tmp/xdg");
@@ -53,8 +58,7 @@ fn wind_changes_momentum_only_by_its_nudging_term() {
          physics:\n  heat_noise: off\n  buoyancy: 0\n  cloud_weight: 0\n  initial_vapor: 0.5\n  initial_speed: 0.5\n\
          \x20 wind: {time_constant: 20, profile: [{height: 50, speed: 2, direction: 0}, {height: 250, speed: 8, direction: 60}]}\n",
     );
-    let mut sim =
-        Simulation::new(ctx(), &nimbus::shot::Shot::prepare(cfg.clone()).unwrap()).unwrap();
+    let mut sim = Simulation::new(ctx(), &prepared(&cfg)).unwrap();
     let s0 = sim.state().unwrap();
     let n = s0.len();
     let mut ids0: Vec<u32> = s0.info.iter().map(|i| i[0]).collect();
@@ -128,13 +132,8 @@ fn a_parcel_in_uniform_wind_crosses_the_periodic_faces_intact() {
     let tag = state.thermo[k];
     let start = state.pos[k];
     let size = cfg.domain.size[0] as f32;
-    let mut sim = Simulation::from_state(
-        ctx(),
-        &nimbus::shot::Shot::prepare(cfg.clone()).unwrap(),
-        &state,
-        SimClock::default(),
-    )
-    .unwrap();
+    let mut sim =
+        Simulation::from_state(ctx(), &prepared(&cfg), &state, SimClock::default()).unwrap();
     let (mut x, mut travelled, mut exits) = (start[0], 0.0f64, 0);
     for frame in 0..30 {
         sim.step_frame().unwrap();

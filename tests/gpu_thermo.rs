@@ -21,6 +21,11 @@ use nimbus::sim::thermo::{initial_thermo, LayerBuoyancy, ThermoParams, ThermoSta
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+/// The prepared shot of a config built here (`nimbus::shot::Shot::prepare`).
+fn prepared(cfg: &nimbus::config::ShotConfig) -> nimbus::shot::Shot {
+    nimbus::shot::Shot::prepare(cfg.clone()).expect("a valid shot")
+}
+
 fn context() -> std::sync::Arc<Context> {
     harness::context()
 }
@@ -740,7 +745,7 @@ fn target_control_matches_mirror() {
         &[],
     )
     .unwrap().into_config();
-    let target = Target::of_shot(&nimbus::shot::Shot::prepare(cfg.clone()).unwrap()).unwrap();
+    let target = Target::of_shot(&prepared(&cfg)).unwrap();
     let supply: Vec<f32> = (0..target.grid.columns())
         .map(|c| {
             if target.top[c] > 0.0 {

@@ -14,6 +14,11 @@ use nimbus::sim::control::Target;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+/// The prepared shot of a config built here (`nimbus::shot::Shot::prepare`).
+fn prepared(cfg: &nimbus::config::ShotConfig) -> nimbus::shot::Shot {
+    nimbus::shot::Shot::prepare(cfg.clone()).expect("a valid shot")
+}
+
 fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/data/vdb")
@@ -318,7 +323,7 @@ fn sphere_targets_match_the_analytic_sphere() {
         let cfg = nimbus::shot::load(&cfg_path, &[]).unwrap().into_config();
         let t = cfg.control.target.as_ref().unwrap();
         assert!(t.vdb_sha256.as_ref().is_some_and(|s| s.len() == 64));
-        let target = Target::of_shot(&nimbus::shot::Shot::prepare(cfg.clone()).unwrap()).unwrap();
+        let target = Target::of_shot(&prepared(&cfg)).unwrap();
         assert_eq!(target.grid.n, [50, 50, 50]);
         let iou = sphere_iou(&target, &at, centre, radius);
         let n = target.inside.iter().filter(|x| **x).count();
