@@ -1,5 +1,6 @@
 //! `Simulation`: the particle set on the device, its stages, and the frame loop that records the
-//! substeps (the order of one substep is in `sim/step.rs`) and reads the state back once.
+//! substeps (the stages and the order of one substep are in `sim/step.rs`) and reads the state
+//! back once.
 //!
 //! A frame records its substeps without waiting for the GPU: one submit per substep, the count
 //! that split and merge change stays on the GPU (`gpu::live`), and the host reads the state,
@@ -18,24 +19,14 @@ use crate::sim::adaptive::{self, AdaptiveStage};
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::control::Target;
 use crate::sim::frame_report::{FrameReport, Levels, SplitMerge};
-use crate::sim::grid::GridStage;
 use crate::sim::grid_params::GridParams;
-use crate::sim::pbf::{PbfParams, PbfStage};
+use crate::sim::pbf::PbfParams;
 use crate::sim::phase::{Phase, PhaseTimes, Recorder, Timing};
-use crate::sim::smoothing::SmoothingStage;
 use crate::sim::sources::HeatMaps;
-use crate::sim::thermo::{LayerBuoyancy, ThermoStage};
+use crate::sim::stage::Setup;
+use crate::sim::step::Stages;
+use crate::sim::thermo::LayerBuoyancy;
 use std::sync::Arc;
-
-/// The stages of a substep, each bound once to the particle buffers.
-pub(super) struct Stages {
-    pub pbf: PbfStage,
-    pub grid: GridStage,
-    pub smoothing: SmoothingStage,
-    pub thermo: ThermoStage,
-    /// Split and merge (paper 5.2); `None` when `adaptive.enabled` is false.
-    pub adaptive: Option<AdaptiveStage>,
-}
 
 pub struct Simulation {
     pub(super) ctx: Arc<Context>,
@@ -116,31 +107,19 @@ impl Simulation {
         grid.n_boundary = boundary.0.len() as u32;
         let params = PbfParams::for_shot(cfg);
         let b = ParticleBuffers::new(&ctx, state, capacity, &grid, &boundary, clock.next_id)?;
-        let mut thermo = ThermoStage::new(&ctx, cfg, &b, maps)?;
-        thermo.set_layers(LayerBuoyancy::of_state(cfg, state));
+        let mut s = Stages::new(&Setup {
+            ctx: &ctx,
+            shot,
+            buffers: &b,
+            grid: &grid,
+            maps: &maps,
+        })?;
+        s.thermo.set_layers(LayerBuoyancy::of_state(cfg, state));
         // the controller's state is a function of the particles: a resume from a checkpoint
         // sets the same supply as the uninterrupted run did at that frame's end
         if let Some(t) = &target {
-            thermo.set_supply(&ctx, &t.update(state).0);
+            s.thermo.set_supply(&ctx, &t.update(state).0);
         }
-        let adaptive = if cfg.adaptive.enabled {
-            Some(AdaptiveStage::new(
-                &ctx,
-                &cfg.adaptive,
-                &grid,
-                shot.h0(),
-                &b,
-            )?)
-        } else {
-            None
-        };
-        let s = Stages {
-            pbf: PbfStage::new(&ctx, &params, &b)?,
-            grid: GridStage::new(&ctx, &grid, &b)?,
-            smoothing: SmoothingStage::new(&ctx, cfg, &b)?,
-            thermo,
-            adaptive,
-        };
         let timer = ctx
             .timestamps
             .then(|| GpuTimer::new(&ctx.device, &ctx.queue));
@@ -205,14 +184,9 @@ impl Simulation {
     /// Bytes of every device buffer this simulation and its stages allocated (the frame's
     /// read-back staging, host memory that lives for one wait, not counted).
     pub fn device_bytes(&self) -> u64 {
-        let s = &self.s;
         self.b.device_bytes()
             + self.timer.as_ref().map_or(0, |t| t.buffer().size())
-            + s.pbf.device_bytes()
-            + s.grid.device_bytes()
-            + s.smoothing.device_bytes()
-            + s.thermo.device_bytes()
-            + s.adaptive.as_ref().map_or(0, |a| a.device_bytes())
+            + self.s.device_bytes()
     }
 
     /// Substeps for the next frame: the fewest (`output.substeps`) or as many as keep the
