@@ -11,8 +11,8 @@
 //! A new force is a stage of its own (`sim::stage::Stage`): its WGSL (`shaders/<force>.wgsl`),
 //! its f64 mirror (`sim/reference/<force>.rs`), its module (`sim/forces/<force>.rs`: parameters,
 //! program, `Stage`, and a `pub fn stage(&Setup) -> Result<Option<Box<dyn Stage>>>` giving
-//! `None` when the shot leaves it off), and one line in [`FORCES`] (with the module's `mod`
-//! line). Forces of their own run after the thermodynamics, in list order, timed under
+//! `None` when the shot leaves it off), and one line in [`FORCES`],
+//! `Force::own("drag", &["physics.drag"], drag::stage),` (with the module's `mod` line). Forces of their own run after the thermodynamics, in list order, timed under
 //! `Phase::Forces` (stats.jsonl `phase_ms.forces`, absent while none runs).
 use crate::error::Result;
 use crate::gpu::program::Entry;
@@ -27,6 +27,17 @@ pub struct Force {
     /// The config keys that set it.
     pub keys: &'static [&'static str],
     pub acts: Acts,
+}
+
+impl Force {
+    /// A force that is a stage of its own: its line in [`FORCES`].
+    pub const fn own(name: &'static str, keys: &'static [&'static str], stage: BuildForce) -> Self {
+        Self {
+            name,
+            keys,
+            acts: Acts::Own(stage),
+        }
+    }
 }
 
 /// Where a force acts.
