@@ -28,9 +28,8 @@ fn main() {
             .expect("a checkpoint");
         let ck = read_checkpoint(&ck.1).expect("a readable checkpoint");
         let cfg = config_of(&ck).expect("the run's config");
-        let target = Target::load(&cfg)
-            .expect("its target")
-            .expect("control.target");
+        let shot = nimbus::shot::Shot::prepare(cfg.clone()).expect("its target");
+        let target = Target::of_shot(&shot).expect("control.target");
         let cloud = target.cloud_voxels(&ck.state);
         let g = target.grid;
         let kind = |v: usize| match (target.inside[v], cloud[v]) {

@@ -12,6 +12,7 @@ pub mod ground;
 pub mod io;
 pub mod pipeline;
 pub mod preview;
+pub mod shot;
 pub mod sim;
 pub mod splat;
 pub mod stdout;

@@ -25,12 +25,12 @@ fn main() {
             resume,
             force,
             log_format,
-        } => nimbus::config::load(&config, &set).and_then(|cfg| {
-            let out_dir = out.unwrap_or_else(|| PathBuf::from(&cfg.output.dir));
+        } => nimbus::shot::load(&config, &set).and_then(|shot| {
+            let out_dir = out.unwrap_or_else(|| PathBuf::from(&shot.config().output.dir));
             if resume {
-                pipeline::resume::resume_with(&cfg, &out_dir, log_format)
+                pipeline::resume::resume_with(&shot, &out_dir, log_format)
             } else {
-                pipeline::run_fresh(&cfg, &out_dir, log_format, force)
+                pipeline::run_fresh(&shot, &out_dir, log_format, force)
             }
         }),
         Command::Resume {
@@ -69,8 +69,8 @@ fn validate(configs: &[PathBuf], set: &[String], gpu: bool) -> i32 {
     // one device per distinct `gpu` section (opening one takes a while)
     let mut devices: Vec<(nimbus::config::GpuConfig, Arc<nimbus::gpu::Context>)> = Vec::new();
     for path in configs {
-        let cfg = match nimbus::config::load(path, set) {
-            Ok(cfg) => cfg,
+        let shot = match nimbus::shot::load(path, set) {
+            Ok(shot) => shot,
             Err(e) => {
                 // Already `FILE:LINE:COL: KEY: message`, one line, editor-clickable.
                 eprintln!("{e}");
@@ -78,8 +78,9 @@ fn validate(configs: &[PathBuf], set: &[String], gpu: bool) -> i32 {
                 continue;
             }
         };
+        let cfg = shot.config();
         let fit = if gpu {
-            match device_fit(&cfg, &mut devices) {
+            match device_fit(&shot, &mut devices) {
                 Ok(fit) => fit,
                 Err(e) => {
                     eprintln!("{}: {e}", path.display());
@@ -97,7 +98,7 @@ fn validate(configs: &[PathBuf], set: &[String], gpu: bool) -> i32 {
             cfg.output.frames.start,
             cfg.output.frames.end,
             nimbus::config::lattice_count(&cfg.domain),
-            &nimbus::config::sim_hash(&cfg)[..12]
+            &nimbus::config::sim_hash(cfg)[..12]
         );
     }
     code
@@ -106,9 +107,10 @@ fn validate(configs: &[PathBuf], set: &[String], gpu: bool) -> i32 {
 /// `validate --gpu`: whether the adapter of `cfg.gpu` holds the shot; `devices` keeps the
 /// adapters opened so far.
 fn device_fit(
-    cfg: &nimbus::config::ShotConfig,
+    shot: &nimbus::shot::Shot,
     devices: &mut Vec<(nimbus::config::GpuConfig, Arc<nimbus::gpu::Context>)>,
 ) -> Result<String> {
+    let cfg = shot.config();
     let ctx = match devices.iter().find(|(g, _)| *g == cfg.gpu) {
         Some((_, ctx)) => ctx.clone(),
         None => {
@@ -117,7 +119,7 @@ fn device_fit(
             ctx
         }
     };
-    let (_, largest) = nimbus::sim::footprint::check_config(&ctx, cfg)?;
+    let (_, largest) = nimbus::sim::footprint::check_config(&ctx, shot)?;
     Ok(format!(
         "; adapter {} holds up to {largest} particles of this shot",
         ctx.adapter_name()

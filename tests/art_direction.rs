@@ -19,6 +19,11 @@ use nimbus::sim::Simulation;
 use std::path::Path;
 use std::sync::Arc;
 
+/// The prepared shot of a config built here (`nimbus::shot::Shot::prepare`).
+fn prepared(cfg: &nimbus::config::ShotConfig) -> nimbus::shot::Shot {
+    nimbus::shot::Shot::prepare(cfg.clone()).expect("a valid shot")
+}
+
 fn ctx() -> Arc<Context> {
     if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
         std::env::set_var("XDG_RUNTIME_DIR", "/tmp/xdg");
@@ -27,7 +32,9 @@ fn ctx() -> Arc<Context> {
 }
 
 fn shot(yaml: &str) -> ShotConfig {
-    nimbus::config::load_str(yaml, "test.yaml", &[]).unwrap()
+    nimbus::shot::load_str(yaml, "test.yaml", &[])
+        .unwrap()
+        .into_config()
 }
 
 /// Horizontal momentum (x, z) in units of m0 (every particle on level 0 here).
@@ -51,7 +58,7 @@ fn wind_changes_momentum_only_by_its_nudging_term() {
          physics:\n  heat_noise: off\n  buoyancy: 0\n  cloud_weight: 0\n  initial_vapor: 0.5\n  initial_speed: 0.5\n\
          \x20 wind: {time_constant: 20, profile: [{height: 50, speed: 2, direction: 0}, {height: 250, speed: 8, direction: 60}]}\n",
     );
-    let mut sim = Simulation::new(ctx(), &cfg).unwrap();
+    let mut sim = Simulation::new(ctx(), &prepared(&cfg)).unwrap();
     let s0 = sim.state().unwrap();
     let n = s0.len();
     let mut ids0: Vec<u32> = s0.info.iter().map(|i| i[0]).collect();
@@ -125,7 +132,8 @@ fn a_parcel_in_uniform_wind_crosses_the_periodic_faces_intact() {
     let tag = state.thermo[k];
     let start = state.pos[k];
     let size = cfg.domain.size[0] as f32;
-    let mut sim = Simulation::from_state(ctx(), &cfg, &state, SimClock::default()).unwrap();
+    let mut sim =
+        Simulation::from_state(ctx(), &prepared(&cfg), &state, SimClock::default()).unwrap();
     let (mut x, mut travelled, mut exits) = (start[0], 0.0f64, 0);
     for frame in 0..30 {
         sim.step_frame().unwrap();
@@ -376,7 +384,7 @@ fn every_shape_validates_and_images_resolve_next_to_the_config() {
     // from another working directory: the image is found next to the config
     let o = nimbus().arg("validate").arg(&path).output().unwrap();
     assert!(o.status.success(), "{}", text(&o));
-    let cfg = nimbus::config::load(&path, &[]).unwrap();
+    let cfg = nimbus::shot::load(&path, &[]).unwrap().into_config();
     assert!(!cfg.physics.heat_noise);
     let img = &cfg.physics.sources[5];
     assert_eq!(
@@ -387,11 +395,11 @@ fn every_shape_validates_and_images_resolve_next_to_the_config() {
     assert_eq!(img.image_sha256.as_deref(), Some(sha.as_str()));
     // The resolved config (what the manifest holds) refuses a changed image.
     let resolved = serde_json::to_string(&cfg).unwrap();
-    assert!(nimbus::config::load_str(&resolved, "manifest.json", &[]).is_ok());
+    assert!(nimbus::shot::load_str(&resolved, "manifest.json", &[]).is_ok());
     image::GrayImage::from_pixel(16, 16, image::Luma([10]))
         .save(d.join("heat.png"))
         .unwrap();
-    let e = nimbus::config::load_str(&resolved, "manifest.json", &[])
+    let e = nimbus::shot::load_str(&resolved, "manifest.json", &[])
         .unwrap_err()
         .to_string();
     assert!(

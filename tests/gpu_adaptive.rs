@@ -91,7 +91,7 @@ struct Setup {
 
 impl Setup {
     fn params(&self, count: u32, next_id: u32) -> AdaptiveParams {
-        let mut p = AdaptiveParams::new(&self.cfg, H0, self.capacity).unwrap();
+        let mut p = AdaptiveParams::new(&self.cfg, H0, self.capacity);
         p.count = count;
         p.next_id = next_id;
         p

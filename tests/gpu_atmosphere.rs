@@ -8,6 +8,11 @@ use nimbus::sim::diagnostics::{initial_layer_mass, layer_mass_ratios};
 use nimbus::sim::Simulation;
 use std::sync::Arc;
 
+/// The prepared shot of a config built here (`nimbus::shot::Shot::prepare`).
+fn prepared(cfg: &nimbus::config::ShotConfig) -> nimbus::shot::Shot {
+    nimbus::shot::Shot::prepare(cfg.clone()).expect("a valid shot")
+}
+
 fn ctx() -> Arc<Context> {
     Arc::new(Context::new(&GpuConfig::default()).expect("a GPU adapter (lavapipe in CI)"))
 }
@@ -37,7 +42,7 @@ fn a_stratified_column_at_rest_stays_at_rest() {
          domain: {size: [400, 600, 400], spacing: 25}\n\
          physics: {heat_source: 0.0, heat_noise: false, initial_vapor: 0.0, initial_speed: 0.5}\n",
     );
-    let mut sim = Simulation::new(ctx(), &cfg).unwrap();
+    let mut sim = Simulation::new(ctx(), &prepared(&cfg)).unwrap();
     let layers0 = initial_layer_mass(&cfg);
     let y0 = centre_y(&sim.state().unwrap(), |_| true);
     let (mut drift, mut lo, mut hi) = (0.0f64, 1.0f64, 1.0f64);
@@ -87,7 +92,8 @@ fn a_heated_parcel_rises_to_its_level_of_neutral_buoyancy() {
     }
     let y_start = centre_y(&state, |i| ids.contains(&state.info[i][0]));
     let lnb = 1.65 / (cfg.physics.adiabatic_lapse_rate - cfg.physics.environment.lapse_rate);
-    let mut sim = Simulation::from_state(ctx(), &cfg, &state, SimClock::default()).unwrap();
+    let mut sim =
+        Simulation::from_state(ctx(), &prepared(&cfg), &state, SimClock::default()).unwrap();
     let (mut top, mut sum, mut n) = (0.0f64, 0.0, 0);
     for frame in 1..=113 {
         sim.step_frame().unwrap();
@@ -126,6 +132,7 @@ fn walls_hold_split_particles_at_rest_density() {
     let cfg = shot(
         "shot: walls\noutput: {frames: {start: 1, end: 10}, frame_seconds: 0.4, substeps: 5}\n\
          domain: {size: [12, 8, 12], spacing: 1.0}\n\
+         export: {voxel_size: 1.0}\n\
          solver: {reference_step: 0.08, scorr_k: 0.002}\n\
          physics: {heat_source: 0.0, heat_noise: false, buoyancy: 0.0, initial_speed: 0.0}\n",
     );
@@ -162,7 +169,7 @@ fn walls_hold_split_particles_at_rest_density() {
             push(q, 3, i);
         }
     }
-    let mut sim = Simulation::from_state(ctx(), &cfg, &s, SimClock::default()).unwrap();
+    let mut sim = Simulation::from_state(ctx(), &prepared(&cfg), &s, SimClock::default()).unwrap();
     for _ in 0..10 {
         sim.step_frame().unwrap();
     }

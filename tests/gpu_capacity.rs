@@ -16,12 +16,19 @@ use nimbus::sim::footprint::{
 use nimbus::sim::Simulation;
 use std::sync::Arc;
 
+/// The prepared shot of a config built here (`nimbus::shot::Shot::prepare`).
+fn prepared(cfg: &nimbus::config::ShotConfig) -> nimbus::shot::Shot {
+    nimbus::shot::Shot::prepare(cfg.clone()).expect("a valid shot")
+}
+
 fn context() -> Arc<Context> {
     harness::context()
 }
 
 fn tiny() -> ShotConfig {
-    nimbus::config::load(&common::sample("tiny.yaml"), &[]).unwrap()
+    nimbus::shot::load(&common::sample("tiny.yaml"), &[])
+        .unwrap()
+        .into_config()
 }
 
 /// The footprint's device bytes (less the read-back) bound what the simulation allocates: the
@@ -35,8 +42,8 @@ fn the_footprint_bounds_what_a_simulation_allocates() {
         cfg.adaptive.enabled = adaptive;
         cfg.domain.spacing = spacing;
         let n = nimbus::config::lattice_count(&cfg.domain) as u64;
-        let fp = Footprint::of(&ShotSize::of(&cfg, n).unwrap(), wg);
-        let sim = Simulation::new(ctx.clone(), &cfg).unwrap();
+        let fp = Footprint::of(&ShotSize::of(&prepared(&cfg), n), wg);
+        let sim = Simulation::new(ctx.clone(), &prepared(&cfg)).unwrap();
         let actual = sim.device_bytes();
         let model = fp.device_bytes - READBACK_PER_PARTICLE * fp.capacity;
         eprintln!("adaptive {adaptive}, {n} particles: model {model} B, allocated {actual} B");
@@ -50,7 +57,7 @@ fn the_footprint_bounds_what_a_simulation_allocates() {
 fn tiny_footprint(ctx: &Context) -> (ShotSize, Footprint) {
     let cfg = tiny();
     let n = nimbus::config::lattice_count(&cfg.domain) as u64;
-    let shot = ShotSize::of(&cfg, n).unwrap();
+    let shot = ShotSize::of(&prepared(&cfg), n);
     let fp = Footprint::of(&shot, smallest_workgroup(&ctx.prelude));
     (shot, fp)
 }

@@ -12,6 +12,11 @@ use nimbus::sim::Simulation;
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
 
+/// The prepared shot of a config built here (`nimbus::shot::Shot::prepare`).
+fn prepared(cfg: &nimbus::config::ShotConfig) -> nimbus::shot::Shot {
+    nimbus::shot::Shot::prepare(cfg.clone()).expect("a valid shot")
+}
+
 fn ctx() -> Arc<Context> {
     Arc::new(Context::new(&GpuConfig::default()).expect("a GPU adapter (lavapipe in CI)"))
 }
@@ -25,7 +30,7 @@ fn config(size: [f64; 3], extra: &str) -> ShotConfig {
         OUTPUT
     };
     let yaml = format!(
-        "shot: t\n{out}domain: {{size: [{}, {}, {}], spacing: 1.0}}\n{extra}",
+        "shot: t\n{out}domain: {{size: [{}, {}, {}], spacing: 1.0}}\nexport: {{voxel_size: 1.0}}\n{extra}",
         size[0], size[1], size[2]
     );
     serde_saphyr::from_str(&yaml).unwrap()
@@ -150,7 +155,8 @@ fn kernels_match_the_mirror(levels: u32) {
     );
     let state = random_state(&cfg, fresh_seed(), levels);
     let ctx = ctx();
-    let mut sim = Simulation::from_state(ctx, &cfg, &state, SimClock::default()).unwrap();
+    let mut sim =
+        Simulation::from_state(ctx, &prepared(&cfg), &state, SimClock::default()).unwrap();
     let (grid, prm) = (*sim.grid(), *sim.params());
     assert_eq!(sim.live().unwrap().single_level, (levels == 0) as u32);
     let n = sim.count();
@@ -294,12 +300,14 @@ fn later_passes_keep_the_first_lambdas_neighbours() {
     const TOL: f64 = 1e-4;
     let cfg: ShotConfig = serde_saphyr::from_str(&format!(
         "shot: t\n{OUTPUT}domain: {{size: [8, 8, 16], spacing: 1.0, kernel_ratio: 1.6}}\n\
+         export: {{voxel_size: 1.0}}\n\
          solver: {{gravity: 9.81, scorr_k: 0.001, xsph: 0.1}}\n"
     ))
     .unwrap();
     let seed = fresh_seed();
     let state = random_state(&cfg, seed, 0);
-    let mut sim = Simulation::from_state(ctx(), &cfg, &state, SimClock::default()).unwrap();
+    let mut sim =
+        Simulation::from_state(ctx(), &prepared(&cfg), &state, SimClock::default()).unwrap();
     let (grid, prm) = (*sim.grid(), *sim.params());
     sim.run_step(Step::Predict).unwrap();
     sim.run_step(Step::Grid).unwrap();
@@ -440,7 +448,8 @@ fn masked_passes_read_the_level_packed_with_the_position() {
         "solver: {gravity: 9.81, scorr_k: 0.001, xsph: 0.1}\n",
     );
     let state = random_state(&cfg, fresh_seed(), 2);
-    let mut sim = Simulation::from_state(ctx(), &cfg, &state, SimClock::default()).unwrap();
+    let mut sim =
+        Simulation::from_state(ctx(), &prepared(&cfg), &state, SimClock::default()).unwrap();
     assert_eq!(sim.live().unwrap().single_level, 0);
     let n = sim.count();
     sim.run_step(Step::Predict).unwrap();
@@ -522,7 +531,7 @@ fn a_box_at_rest_under_gravity_settles() {
          solver: {gravity: 9.81, xsph: 0.1, reference_step: 0.005}\n\
          physics: {initial_speed: 0.0, heat_source: 0.0, buoyancy: 0.0}\n",
     );
-    let mut sim = Simulation::new(ctx(), &cfg).unwrap();
+    let mut sim = Simulation::new(ctx(), &prepared(&cfg)).unwrap();
     let (mut worst_mean, mut worst_max) = (0.0f64, 0.0f64);
     for frame in 0..30 {
         let d = sim.step_frame().unwrap().diagnostics;
@@ -576,7 +585,7 @@ fn a_stirred_box_without_gravity_calms_down() {
          solver: {reference_step: 0.005, scorr_k: 0.0001}\n\
          physics: {initial_speed: 0.5, heat_source: 0.0, buoyancy: 0.0}\n",
     );
-    let mut sim = Simulation::new(ctx(), &cfg).unwrap();
+    let mut sim = Simulation::new(ctx(), &prepared(&cfg)).unwrap();
     let v0 = max_speed(&sim);
     for _ in 0..20 {
         sim.step_frame().unwrap();
@@ -601,7 +610,7 @@ fn a_stirred_box_at_the_shots_time_step_stays_calm() {
          solver: {reference_step: 0.08}\n\
          physics: {initial_speed: 0.5, heat_source: 0.0, buoyancy: 0.0}\n",
     );
-    let mut sim = Simulation::new(ctx(), &cfg).unwrap();
+    let mut sim = Simulation::new(ctx(), &prepared(&cfg)).unwrap();
     let v0 = max_speed(&sim);
     let rms0 = rms_speed(&sim);
     let mut worst_error = 0.0f64;
@@ -641,7 +650,7 @@ fn rms_speed(sim: &Simulation) -> f32 {
 #[test]
 fn periodic_faces_have_the_interior_neighbourhood() {
     let cfg = config([8.0, 8.0, 8.0], "physics: {initial_speed: 0.0}\n");
-    let mut sim = Simulation::new(ctx(), &cfg).unwrap();
+    let mut sim = Simulation::new(ctx(), &prepared(&cfg)).unwrap();
     let grid = *sim.grid();
     sim.run_step(Step::Predict).unwrap();
     sim.run_step(Step::Grid).unwrap();
@@ -697,7 +706,8 @@ fn a_particle_crossing_plus_x_reappears_at_minus_x() {
         info: vec![[0, 0]],
         density: vec![1.0],
     };
-    let mut sim = Simulation::from_state(ctx(), &cfg, &state, SimClock::default()).unwrap();
+    let mut sim =
+        Simulation::from_state(ctx(), &prepared(&cfg), &state, SimClock::default()).unwrap();
     sim.step_frame().unwrap();
     let s = sim.state().unwrap();
     let (p, v) = (s.pos[0], s.vel[0]);
@@ -728,7 +738,7 @@ fn runs_are_deterministic_and_resume_bit_identically() {
     );
     let ctx = ctx();
     let run = |frames: u32| {
-        let mut sim = Simulation::new(ctx.clone(), &cfg).unwrap();
+        let mut sim = Simulation::new(ctx.clone(), &prepared(&cfg)).unwrap();
         for _ in 0..frames {
             sim.step_frame().unwrap();
         }
@@ -738,7 +748,7 @@ fn runs_are_deterministic_and_resume_bit_identically() {
     let (b, _) = run(4);
     assert!(bytes(&a) == bytes(&b), "two runs differ");
     let (half, ch) = run(2);
-    let mut resumed = Simulation::from_state(ctx.clone(), &cfg, &half, ch).unwrap();
+    let mut resumed = Simulation::from_state(ctx.clone(), &prepared(&cfg), &half, ch).unwrap();
     for _ in 0..2 {
         resumed.step_frame().unwrap();
     }
@@ -764,7 +774,7 @@ fn no_momentum_drift_in_a_periodic_box_without_gravity() {
             v[a] -= mean[a];
         }
     }
-    let mut sim = Simulation::from_state(ctx(), &cfg, &s, SimClock::default()).unwrap();
+    let mut sim = Simulation::from_state(ctx(), &prepared(&cfg), &s, SimClock::default()).unwrap();
     let scale: f64 = s
         .vel
         .iter()

@@ -10,6 +10,11 @@ use nimbus::gpu::Context;
 use nimbus::sim::Simulation;
 use std::sync::Arc;
 
+/// The prepared shot of a config built here (`nimbus::shot::Shot::prepare`).
+fn prepared(cfg: &nimbus::config::ShotConfig) -> nimbus::shot::Shot {
+    nimbus::shot::Shot::prepare(cfg.clone()).expect("a valid shot")
+}
+
 /// The suites' device, owned (a test lowers its prelude's dispatch limit).
 fn context() -> Context {
     Arc::into_inner(harness::context()).unwrap()
@@ -75,7 +80,7 @@ fn folded_dispatches_give_the_same_frames() {
     cfg.adaptive.split_threshold = 0.3;
     cfg.adaptive.merge_threshold = 0.25;
     let run = |ctx: Context| {
-        let mut sim = Simulation::new(Arc::new(ctx), &cfg).unwrap();
+        let mut sim = Simulation::new(Arc::new(ctx), &prepared(&cfg)).unwrap();
         sim.step_frame().unwrap();
         sim.state().unwrap()
     };

@@ -11,7 +11,7 @@ use nimbus::gpu::Context;
 use nimbus::ground::ParticleState;
 use nimbus::sim::grid::GridStage;
 use nimbus::sim::grid_params::GridParams;
-use nimbus::sim::phase::{Phase, Recorder};
+use nimbus::sim::phase::Recorder;
 use nimbus::sim::reference::grid::build_cell_table;
 use rand::{Rng, SeedableRng};
 use std::sync::Arc;
@@ -107,7 +107,7 @@ fn scan_matches_mirror(ctx: &Context, rng: &mut impl Rng) {
         let scan = PrefixScan::new(ctx, &Span::whole(&input), None, len, &live, &modes).unwrap();
         for (mode, what) in modes.iter().enumerate() {
             let mut rec = Recorder::new(ctx, None, None);
-            scan.encode(&mut rec.pass(Phase::Grid), mode);
+            scan.encode(&mut rec.pass(), mode);
             rec.submit();
             let got: Vec<u32> = read_back(ctx, &scan.output().buffer, len as usize).unwrap();
             let (n, mask) = match what {

@@ -21,6 +21,11 @@ use nimbus::sim::thermo::{initial_thermo, LayerBuoyancy, ThermoParams, ThermoSta
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+/// The prepared shot of a config built here (`nimbus::shot::Shot::prepare`).
+fn prepared(cfg: &nimbus::config::ShotConfig) -> nimbus::shot::Shot {
+    nimbus::shot::Shot::prepare(cfg.clone()).expect("a valid shot")
+}
+
 fn context() -> std::sync::Arc<Context> {
     harness::context()
 }
@@ -57,6 +62,21 @@ fn gpu_thermo(
 }
 
 /// [`gpu_thermo`] with a target-shape controller and its supply map.
+/// The heat maps of `cfg`'s image sources, read as the prepared shot reads them.
+fn heat_maps(cfg: &ShotConfig) -> nimbus::sim::sources::HeatMaps {
+    let maps: Vec<_> = cfg
+        .physics
+        .sources
+        .iter()
+        .map(|s| {
+            s.image
+                .as_ref()
+                .map(|p| nimbus::io::heat_map::read(std::path::Path::new(p)).unwrap())
+        })
+        .collect();
+    nimbus::sim::sources::HeatMaps::new(&maps)
+}
+
 fn gpu_thermo_with(
     ctx: &Context,
     cfg: &ShotConfig,
@@ -75,7 +95,8 @@ fn gpu_thermo_with(
     };
     let scene = harness::Scene::as_given(GridParams::for_shot(cfg), state, pos.len());
     let b = scene.upload(ctx);
-    let mut stage = ThermoStage::new(ctx, cfg, &b, target.map(|t| t.0)).unwrap();
+    let maps = heat_maps(cfg).with_target(target.map(|t| t.0));
+    let mut stage = ThermoStage::new(ctx, cfg, &b, maps).unwrap();
     if let Some((_, supply)) = target {
         stage.set_supply(ctx, supply);
     }
@@ -313,7 +334,7 @@ fn sources_and_wind_match_mirror() {
             },
         ],
     });
-    let maps = nimbus::sim::sources::HeatMaps::load(&cfg).unwrap();
+    let maps = heat_maps(&cfg);
     assert_eq!(maps.values.len(), 40 * 32);
     let n = 6000;
     let (mut pos, vel, th) = random_thermo_state(n, 43, &cfg);
@@ -712,7 +733,7 @@ fn target_control_matches_mirror() {
          f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n",
     )
     .unwrap();
-    let cfg = nimbus::config::load_str(
+    let cfg = nimbus::shot::load_str(
         &format!(
             "shot: t\noutput: {{frames: {{start: 1, end: 2}}}}\n\
              domain: {{size: [2000.0, 3000.0, 1600.0], spacing: 40.0}}\n\
@@ -723,8 +744,8 @@ fn target_control_matches_mirror() {
         "t.yaml",
         &[],
     )
-    .unwrap();
-    let target = Target::load(&cfg).unwrap().unwrap();
+    .unwrap().into_config();
+    let target = Target::of_shot(&prepared(&cfg)).unwrap();
     let supply: Vec<f32> = (0..target.grid.columns())
         .map(|c| {
             if target.top[c] > 0.0 {
@@ -734,9 +755,7 @@ fn target_control_matches_mirror() {
             }
         })
         .collect();
-    let mut maps = nimbus::sim::sources::HeatMaps::load(&cfg)
-        .unwrap()
-        .with_target(Some(&target));
+    let mut maps = heat_maps(&cfg).with_target(Some(&target));
     assert!(maps.set_supply(&supply).is_some());
     let n = 6000;
     let (mut pos, vel, mut th) = random_thermo_state(n, 44, &cfg);

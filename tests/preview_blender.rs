@@ -180,7 +180,9 @@ fn last_preview(run_dir: &Path) -> PathBuf {
 
 /// The preview's sky alone, for the run's preview settings, as its previews show it.
 fn preview_sky(run_dir: &Path) -> image::RgbImage {
-    let cfg = nimbus::pipeline::resume::config_of_run(run_dir, &[]).expect("the run's config");
+    let cfg = nimbus::pipeline::resume::shot_of_run(run_dir, &[])
+        .expect("the run's config")
+        .into_config();
     let params = nimbus::preview::PreviewParams::for_shot(&cfg).expect("preview parameters");
     nimbus::preview::sky_image(&params)
         .expect("sky")

@@ -84,7 +84,7 @@ fn each_view_draws_its_own_folder_and_leaves_the_previews_alone() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", text(&o));
-    let cfg = nimbus::config::load(&cfg_path, &[]).unwrap();
+    let cfg = nimbus::shot::load(&cfg_path, &[]).unwrap().into_config();
     let params = PreviewParams::for_shot(&cfg).unwrap();
     let names: Vec<String> = (1..=3).map(|f| format!("views.{f:04}.png")).collect();
     let run_previews = snapshot(&out.join("preview"));
@@ -238,7 +238,7 @@ fn source_overlay_draws_into_the_run_previews() {
         out
     };
     let (plain, drawn) = (run("plain", false), run("drawn", true));
-    let cfg = nimbus::config::load(&cfg_path, &[]).unwrap();
+    let cfg = nimbus::shot::load(&cfg_path, &[]).unwrap().into_config();
     let params = PreviewParams::for_shot(&cfg).unwrap();
     let name = "preview/views.0001.png";
     let (a, b) = (png(&plain.join(name)), png(&drawn.join(name)));

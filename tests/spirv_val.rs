@@ -138,7 +138,7 @@ fn every_entry_point_passes_spirv_val() {
     let mut constants = naga::back::PipelineConstants::default();
     constants.insert("SCORR_N".to_string(), 4.0);
     let mut jobs = Vec::new();
-    for name in shaders::stage_names() {
+    for name in shaders::program_names() {
         for (tag, prelude) in &preludes {
             let module = shaders::validate_with(name, prelude).unwrap_or_else(|e| panic!("{e}"));
             let info = naga::valid::Validator::new(

@@ -11,6 +11,11 @@ use nimbus::sim::Simulation;
 use std::path::Path;
 use std::sync::Arc;
 
+/// The prepared shot of a config built here (`nimbus::shot::Shot::prepare`).
+fn prepared(cfg: &nimbus::config::ShotConfig) -> nimbus::shot::Shot {
+    nimbus::shot::Shot::prepare(cfg.clone()).expect("a valid shot")
+}
+
 const CUBE: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
     f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n";
 
@@ -156,7 +161,9 @@ fn shot(mesh: &Path, enabled: bool) -> ShotConfig {
          control:\n  target: {{enabled: {enabled}, mesh: {}, scale: [300, 450, 300], translate: [250, 300, 250], heat: 0.5}}\n",
         mesh.display()
     );
-    nimbus::config::load_str(&yaml, "tc.yaml", &[]).unwrap()
+    nimbus::shot::load_str(&yaml, "tc.yaml", &[])
+        .unwrap()
+        .into_config()
 }
 
 /// Highest cloud (cloud water above 1e-5) over the target's footprint (m), and the number of
@@ -185,7 +192,7 @@ fn control_raises_the_cloud_inside_the_target() {
     let mut result = Vec::new();
     for enabled in [false, true] {
         let cfg = shot(&mesh, enabled);
-        let mut sim = Simulation::new(ctx.clone(), &cfg).unwrap();
+        let mut sim = Simulation::new(ctx.clone(), &prepared(&cfg)).unwrap();
         let mut iou = 0.0;
         for _ in 0..40 {
             let (report, _) = sim.step_frame_with_state().unwrap();

@@ -14,6 +14,11 @@ use nimbus::sim::control::Target;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+/// The prepared shot of a config built here (`nimbus::shot::Shot::prepare`).
+fn prepared(cfg: &nimbus::config::ShotConfig) -> nimbus::shot::Shot {
+    nimbus::shot::Shot::prepare(cfg.clone()).expect("a valid shot")
+}
+
 fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/data/vdb")
@@ -315,10 +320,10 @@ fn sphere_targets_match_the_analytic_sphere() {
         );
         let cfg_path = dir.path().join("vt.yaml");
         std::fs::write(&cfg_path, &yaml).unwrap();
-        let cfg = nimbus::config::load(&cfg_path, &[]).unwrap();
+        let cfg = nimbus::shot::load(&cfg_path, &[]).unwrap().into_config();
         let t = cfg.control.target.as_ref().unwrap();
         assert!(t.vdb_sha256.as_ref().is_some_and(|s| s.len() == 64));
-        let target = Target::load(&cfg).unwrap().unwrap();
+        let target = Target::of_shot(&prepared(&cfg)).unwrap();
         assert_eq!(target.grid.n, [50, 50, 50]);
         let iou = sphere_iou(&target, &at, centre, radius);
         let n = target.inside.iter().filter(|x| **x).count();
@@ -496,15 +501,15 @@ fn a_run_with_a_vdb_target_pins_the_file() {
         let iou = s["diagnostics"]["target_iou"].as_f64();
         assert!(iou.is_some_and(|x| (0.0..=1.0).contains(&x)), "{s}");
     }
-    let loaded = nimbus::config::load(&cfg, &[]).unwrap();
+    let loaded = nimbus::shot::load(&cfg, &[]).unwrap().into_config();
     let sha = nimbus::io::heat_map::file_sha256(&d.join("t.vdb")).unwrap();
     let t = loaded.control.target.as_ref().unwrap();
     assert_eq!(t.vdb_sha256.as_deref(), Some(sha.as_str()));
     assert!(Path::new(t.vdb.as_deref().unwrap()).is_absolute());
     let resolved = serde_json::to_string(&loaded).unwrap();
-    assert!(nimbus::config::load_str(&resolved, "manifest.json", &[]).is_ok());
+    assert!(nimbus::shot::load_str(&resolved, "manifest.json", &[]).is_ok());
     std::fs::copy(fixture("sphere_fog.vdb"), d.join("t.vdb")).unwrap();
-    let e = nimbus::config::load_str(&resolved, "manifest.json", &[])
+    let e = nimbus::shot::load_str(&resolved, "manifest.json", &[])
         .unwrap_err()
         .to_string();
     assert!(

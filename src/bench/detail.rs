@@ -65,7 +65,7 @@ pub fn bench_detail(
     let manifest = Manifest::load(run_dir)?;
     let text =
         serde_json::to_string(&manifest.config).map_err(|e| Error::Runtime(e.to_string()))?;
-    let mut cfg: ShotConfig = crate::config::load_str(&text, "manifest.json", sets)?;
+    let mut cfg: ShotConfig = crate::shot::load_str(&text, "manifest.json", sets)?.into_config();
     if !cfg.export.particles || !cfg.export.tracks_rest() {
         return Err(Error::InvalidInput(format!(
             "{}: needs a run with export.particles and export.detail.enabled (or export.grids.rest): its caches hold the rest positions",
@@ -144,11 +144,12 @@ pub fn bench_detail(
     for d in crate::pipeline::naming::DIRS {
         std::fs::create_dir_all(scratch.join(d)).map_err(|e| Error::io(scratch.join(d), e))?;
     }
-    let writer = FrameWriter::new(&wcfg, &scratch)?;
+    // previews are off: no source overlay, so no heat maps
+    let writer = FrameWriter::new(&wcfg, &[], &scratch)?;
     let mut plain_cfg = wcfg.clone();
     plain_cfg.export.detail.enabled = false;
     plain_cfg.export.grids.rest = String::new();
-    let plain_writer = FrameWriter::new(&plain_cfg, &scratch)?;
+    let plain_writer = FrameWriter::new(&plain_cfg, &[], &scratch)?;
 
     let sim_ms = sim_ms_per_frame(run_dir);
     let mut rows = Vec::new();

@@ -6,6 +6,7 @@
 use crate::config::{GpuConfig, ShotConfig};
 use crate::error::{Error, Result};
 use crate::ground::{ParticleState, SimClock};
+use crate::shot::Shot;
 use crate::sim::Simulation;
 use std::sync::Arc;
 
@@ -83,8 +84,11 @@ pub fn bench_config(b: &PbfBench) -> Result<ShotConfig> {
     let d = b.spacing();
     let dt = b.dt();
     let (kr, it) = (b.kernel_ratio, b.iterations);
+    // the export's voxels are the spacing (it writes nothing, but the shot is a valid one: a
+    // voxel that divides the periodic extent)
     let output = format!(
-        "output: {{frames: {{start: 0, end: 1}}, substeps: 1, max_substeps: 1, frame_seconds: {dt}}}"
+        "output: {{frames: {{start: 0, end: 1}}, substeps: 1, max_substeps: 1, frame_seconds: {dt}}}\n\
+         export: {{voxel_size: {d}}}"
     );
     let yaml = match b.scene {
         PbfScene::Periodic => {
@@ -157,21 +161,23 @@ fn scene_count(cfg: &ShotConfig, b: &PbfBench) -> u64 {
 /// Whether the device holds the scene on `cfg` (exit 4 with the limit and the largest count
 /// that fits when it does not), before any particle is made.
 fn check_scene(ctx: &crate::gpu::Context, cfg: &ShotConfig, b: &PbfBench) -> Result<()> {
-    let shot = crate::sim::footprint::ShotSize::of(cfg, scene_count(cfg, b))?;
-    crate::sim::footprint::check(ctx, &shot, || None).map(|_| ())
+    let shot = Shot::prepare(cfg.clone())?;
+    let size = crate::sim::footprint::ShotSize::of(&shot, scene_count(cfg, b));
+    crate::sim::footprint::check(ctx, &size, || None).map(|_| ())
 }
 
 /// The scene's simulation on `cfg` (the periodic box's lattice, or the block at rest).
 fn scene_sim(ctx: &Arc<crate::gpu::Context>, cfg: &ShotConfig, b: &PbfBench) -> Result<Simulation> {
+    let shot = Shot::prepare(cfg.clone())?;
     match b.scene {
-        PbfScene::Periodic => Simulation::new(ctx.clone(), cfg),
+        PbfScene::Periodic => Simulation::new(ctx.clone(), &shot),
         PbfScene::Block => {
             let state = block_state(cfg, b.particles);
             let clock = SimClock {
                 next_id: state.len() as u32,
                 ..Default::default()
             };
-            Simulation::from_state(ctx.clone(), cfg, &state, clock)
+            Simulation::from_state(ctx.clone(), &shot, &state, clock)
         }
     }
 }

@@ -35,7 +35,7 @@ pub fn bench_step(
     let n = crate::config::lattice_count(&cfg.domain) as u64;
     let ctx = Arc::new(Context::new(&cfg.gpu)?);
     // refused before anything is computed when the device cannot hold it
-    crate::sim::footprint::check_shot(&ctx, &cfg, n)?;
+    crate::sim::footprint::check_shot(&ctx, &crate::shot::Shot::prepare(cfg.clone())?, n)?;
     let until = max_seconds.map(|t| started + std::time::Duration::from_secs_f64(0.8 * t.max(0.0)));
     let (r, used) = table1::run(&ctx, &cfg, (warmup, frames), true, until, name)?;
     let mut out = r.to_json(&cfg, used, frames);

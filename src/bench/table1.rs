@@ -46,7 +46,7 @@ const WARMUP_EXTENSION: u32 = 4;
 /// The scenario's adaptive config with x and z scaled (to whole multiples of the spacing, never
 /// below 3 kernel radii, the periodic minimum); the non-adaptive one derives from it.
 pub(super) fn scaled_config(origin: &str, text: &str, scale: f64) -> Result<ShotConfig> {
-    let full = crate::config::load_str(text, origin, &[])?;
+    let full = crate::shot::load_str(text, origin, &[])?.into_config();
     let d = &full.domain;
     let h0 = d.kernel_radius();
     let side = |s: f64| {
@@ -82,7 +82,7 @@ pub(super) fn scaled_config(origin: &str, text: &str, scale: f64) -> Result<Shot
     }
     // The voxel size only matters for validation (the bench exports nothing); the spacing is a
     // multiple of it in the shots, so every scaled extent stays a whole number of voxels.
-    crate::config::load_str(text, origin, &overrides)
+    Ok(crate::shot::load_str(text, origin, &overrides)?.into_config())
 }
 
 fn non_adaptive(cfg: &ShotConfig) -> Result<ShotConfig> {
@@ -166,7 +166,7 @@ pub(super) fn run(
     warmup_until: Option<std::time::Instant>,
     label: &str,
 ) -> Result<(Run, u32)> {
-    let mut sim = Simulation::new(ctx.clone(), cfg)?;
+    let mut sim = Simulation::new(ctx.clone(), &crate::shot::Shot::prepare(cfg.clone())?)?;
     if !ctx.timestamps {
         sim.set_timing(crate::sim::Timing::HostWaits);
     }

@@ -1,15 +1,13 @@
 //! Checks of the art-direction keys: `physics.sources` (which keys each shape takes, where it
-//! sits, its heat map) and `physics.wind` (levels, and no wind into a wall). Ranges are in
-//! `validate::FLOAT_RANGES`; these are the rules between keys. Each issue names its key.
+//! sits), `physics.wind` (levels, and no wind into a wall) and `control.target` (one shape, the
+//! scale's form). Ranges are in `validate::FLOAT_RANGES`; these are the rules between keys. Each
+//! issue names its key. The files these keys name (heat maps, the target's mesh or VDB) are read
+//! and checked by the prepared shot (`shot`).
 use super::schema::*;
 use super::validate::Issue;
 
 /// Most levels of `physics.wind.profile` (the uniform's table, `sim::thermo::MAX_WIND_LEVELS`).
 pub const MAX_WIND_LEVELS: usize = 16;
-/// Most triangle-column tests of a target's voxelisation (a few seconds).
-pub const MAX_TARGET_WORK: u64 = 1 << 31;
-/// How far a heat map's pixel aspect may be from square (fraction).
-pub const MAP_ASPECT_TOLERANCE: f64 = 0.01;
 
 fn num(x: f64) -> String {
     super::node::fmt_float(x)
@@ -197,52 +195,6 @@ fn check_source(out: &mut Out, i: usize, src: &HeatSource, c: &ShotConfig) {
             );
         }
     }
-    if let Some(path) = &src.image {
-        check_image(out, &key, path, src.image_sha256.as_deref(), c);
-    }
-}
-
-fn check_image(
-    out: &mut Out,
-    key: &dyn Fn(&str) -> String,
-    path: &str,
-    sha: Option<&str>,
-    c: &ShotConfig,
-) {
-    let map = match crate::io::heat_map::read(std::path::Path::new(path)) {
-        Ok(m) => m,
-        Err(why) => {
-            out.fail(&[&key("image")], format!("{path}: {why}"));
-            return;
-        }
-    };
-    if let Some(sha) = sha {
-        if sha != map.sha256 {
-            out.fail(
-                &[&key("image_sha256"), &key("image")],
-                format!(
-                    "{path} has changed since this config was resolved (SHA-256 {}, recorded {sha}); restore the image or start a new run",
-                    map.sha256
-                ),
-            );
-        }
-    }
-    let (sx, sz) = (c.domain.size[0], c.domain.size[2]);
-    let px = (sx / map.width as f64) / (sz / map.height as f64);
-    if (px - 1.0).abs() > MAP_ASPECT_TOLERANCE {
-        out.fail(
-            &[&key("image")],
-            format!(
-                "{path}: {} x {} pixels over a {} x {} m ground makes pixels of {} x {} m; the map must have the ground's aspect (square pixels within 1%)",
-                map.width,
-                map.height,
-                num(sx),
-                num(sz),
-                num(sx / map.width as f64),
-                num(sz / map.height as f64)
-            ),
-        );
-    }
 }
 
 fn check_wind(out: &mut Out, w: &WindConfig, c: &ShotConfig) {
@@ -303,9 +255,8 @@ fn check_wind(out: &mut Out, w: &WindConfig, c: &ShotConfig) {
     }
 }
 
-/// `control.target`: the scale's form, the voxel grid's size, the shape (a mesh read, closed
-/// and pinned by SHA-256, or a VDB read, pinned, its grid found and holding an inside) and where
-/// it lands (inside the domain, covering at least one voxel).
+/// `control.target`: one shape (a mesh or a VDB), the keys that shape takes and the scale's form.
+/// The voxel grid's size, the file and where it lands are the prepared shot's (`shot::target`).
 pub(crate) fn target_issues(c: &ShotConfig) -> Vec<Issue> {
     let mut out = Out(Vec::new());
     let Some(t) = &c.control.target else {
@@ -348,89 +299,6 @@ pub(crate) fn target_issues(c: &ShotConfig) -> Vec<Issue> {
             ),
         );
         return out.0;
-    }
-    let grid = crate::sim::control::VoxelGrid::for_target(c, t);
-    if grid.len() > crate::sim::control::MAX_VOXELS {
-        out.fail(
-            &["control.target.voxel_size", "control.target"],
-            format!(
-                "voxels of {} m make {} x {} x {} voxels over the domain; at most {} (use larger voxels)",
-                num(crate::sim::control::voxel_size(c, t)),
-                grid.n[0],
-                grid.n[1],
-                grid.n[2],
-                crate::sim::control::MAX_VOXELS
-            ),
-        );
-        return out.0;
-    }
-    let (shape_key, bounds, inside) = match crate::sim::target_volume::load(t) {
-        Some(Err(e)) => {
-            out.fail(e.keys, e.msg);
-            return out.0;
-        }
-        Some(Ok(vdb)) => (
-            "control.target.vdb",
-            vdb.placed_bounds(t),
-            vdb.voxelize(t, &grid),
-        ),
-        None => {
-            let mesh = match crate::sim::control::load_mesh(t) {
-                Ok(m) => m,
-                Err(why) => {
-                    out.fail(&["control.target.mesh"], why);
-                    return out.0;
-                }
-            };
-            // the voxelisation tests every triangle against every column
-            let work = (grid.columns() as u64).saturating_mul(mesh.triangles.len() as u64);
-            if work > MAX_TARGET_WORK {
-                out.fail(
-                    &["control.target.voxel_size", "control.target.mesh"],
-                    format!(
-                        "{} triangles over {} x {} columns of voxels is too much to voxelise ({} tests; at most {}): use larger voxels or a coarser mesh",
-                        mesh.triangles.len(),
-                        grid.n[0],
-                        grid.n[2],
-                        work,
-                        MAX_TARGET_WORK
-                    ),
-                );
-                return out.0;
-            }
-            let placed = crate::sim::control::place(&mesh, t);
-            let inside = crate::sim::control::voxelize(&placed, &grid);
-            ("control.target.mesh", placed.bounds(), inside)
-        }
-    };
-    let (lo, hi) = bounds;
-    let size = c.domain.size;
-    for (a, axis) in ["x", "y", "z"].iter().enumerate() {
-        if lo[a] < 0.0 || hi[a] > size[a] {
-            out.fail(
-                &[
-                    "control.target.translate",
-                    "control.target.scale",
-                    shape_key,
-                ],
-                format!(
-                    "the placed target spans {axis} [{}, {}] m, outside the domain [0, {}] (check translate, scale and rotate_y)",
-                    num(lo[a]),
-                    num(hi[a]),
-                    num(size[a])
-                ),
-            );
-            return out.0;
-        }
-    }
-    if !inside.iter().any(|x| *x) {
-        out.fail(
-            &["control.target.scale", shape_key],
-            format!(
-                "the placed target holds no voxel centre of the controller's {} m voxels (scale it up or set a smaller voxel_size)",
-                num(crate::sim::control::voxel_size(c, t))
-            ),
-        );
     }
     out.0
 }

@@ -138,12 +138,12 @@ mod tests {
 
     fn cfg(extra: &[&str]) -> ShotConfig {
         let sets: Vec<String> = extra.iter().map(|s| s.to_string()).collect();
-        super::super::load_str(
+        super::super::read_str(
             "shot: t\noutput: {frames: {start: 1, end: 10}}\ndomain: {size: [100, 50, 100], spacing: 5}\n",
             "t.yaml",
             &sets,
         )
-        .unwrap()
+        .unwrap().config
     }
 
     #[test]
@@ -218,18 +218,18 @@ mod tests {
 
     #[test]
     fn hash_ignores_key_order_in_the_file() {
-        let a = super::super::load_str(
+        let a = super::super::read_str(
             "shot: t\nseed: 3\noutput: {frames: {start: 1, end: 10}}\ndomain: {size: [100, 50, 100], spacing: 5}\n",
             "a.yaml",
             &[],
         )
-        .unwrap();
-        let b = super::super::load_str(
+        .unwrap().config;
+        let b = super::super::read_str(
             "domain: {spacing: 5, size: [100, 50, 100]}\noutput: {frames: {end: 10, start: 1}}\nseed: 3\nshot: t\n",
             "b.yaml",
             &[],
         )
-        .unwrap();
+        .unwrap().config;
         assert_eq!(full_hash(&a), full_hash(&b));
         assert_eq!(sim_hash(&a), sim_hash(&b));
     }

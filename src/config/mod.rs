@@ -1,4 +1,7 @@
-//! Shot configs: schema, loading with precise errors, `--set` overrides, validation, hashing.
+//! Shot configs: schema, reading with precise errors, `--set` overrides, ranges and the rules
+//! between keys, hashing. The files a config names (heat maps, a target) and the limits of the
+//! stages that run it are checked by the prepared shot (`shot`), which places its issues with
+//! [`Checked::error`].
 //!
 //! Every failure is one line: `FILE:LINE:COL: KEY.PATH: what was expected (got what)`. Keys set
 //! by `--set` read `FILE: --set KEY.PATH: ...`; keys left at their default read `FILE: KEY.PATH: ...`.
@@ -9,13 +12,14 @@ mod node;
 mod schema;
 mod validate;
 
-pub use art::{MAP_ASPECT_TOLERANCE, MAX_WIND_LEVELS};
+pub use art::MAX_WIND_LEVELS;
 pub use hash::{full_hash, sim_hash, sim_key_diff, NON_SIM_KEYS};
 pub use node::fmt_float;
 pub use schema::*;
 pub use validate::{
-    float_values, lattice_count, FloatRange, FLOAT_RANGES, MAX_CAPACITY, MAX_FRAME, MAX_LEVEL,
-    MAX_MIN_DISTANCE, MAX_PARTICLES, MAX_SHOT_BYTES, MAX_VOXELS_PER_AXIS,
+    float_values, lattice_count, FloatRange, Issue, FLOAT_RANGES, MAX_CAPACITY, MAX_FRAME,
+    MAX_LEVEL, MAX_MIN_DISTANCE, MAX_NANOVDB_NAME_BYTES, MAX_PARTICLES, MAX_SHOT_BYTES,
+    MAX_SOURCES, MAX_VOXELS_PER_AXIS,
 };
 
 use crate::error::{Error, Result};
@@ -26,15 +30,53 @@ use std::path::Path;
 /// Largest config file accepted (bytes): a shot config is a few kilobytes.
 pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
 
-/// Reads, parses, overrides (`--set key.path=value`, in order), deserializes and validates.
+/// A config read and checked (schema, ranges, the rules between keys), and where each of its
+/// keys was set, to place the issues found later (`shot`) as the config's own are placed.
+#[derive(Debug, Clone)]
+pub struct Checked {
+    pub config: ShotConfig,
+    file: String,
+    sets: Vec<String>,
+    positions: HashMap<String, Pos>,
+}
+
+impl Checked {
+    /// `issue` as a one-line error at the position of its first key the config sets.
+    pub fn error(&self, issue: &Issue) -> Error {
+        let ctx = Ctx {
+            file: &self.file,
+            sets: &self.sets,
+        };
+        let key = issue
+            .keys
+            .iter()
+            .find(|k| self.positions.contains_key(k.as_str()))
+            .unwrap_or(&issue.keys[0]);
+        let pos = self
+            .positions
+            .get(key.as_str())
+            .copied()
+            .unwrap_or(Pos::Unknown);
+        ctx.at(key, pos, &issue.msg)
+    }
+}
+
+impl Issue {
+    /// The issue as a one-line error naming its first key (no file position: see [`read`]).
+    pub fn error(&self) -> Error {
+        Error::Config(format!("{}: {}", self.keys[0], self.msg))
+    }
+}
+
+/// Reads, parses, overrides (`--set key.path=value`, in order), deserializes and checks.
 /// The file must be a regular file of at most [`MAX_CONFIG_BYTES`] (a directory, FIFO or device
 /// is refused at once, without reading it).
-pub fn load(path: &Path, overrides: &[String]) -> Result<ShotConfig> {
+pub fn read(path: &Path, overrides: &[String]) -> Result<Checked> {
     let name = path.display().to_string();
     let bytes = read_bounded(path)
         .map_err(|why| Error::Config(format!("{name}: cannot read config: {why}")))?;
     let text = decode(&name, &bytes)?;
-    load_text(&text, &name, overrides, path.parent())
+    read_text(&text, &name, overrides, path.parent())
 }
 
 /// The bytes of a regular file of at most [`MAX_CONFIG_BYTES`], or why not.
@@ -81,19 +123,19 @@ fn read_bounded(path: &Path) -> std::result::Result<Vec<u8>, String> {
     Ok(bytes)
 }
 
-/// Like [`load`] for text already in memory; `origin` names it in errors. Relative file paths
+/// Like [`read`] for text already in memory; `origin` names it in errors. Relative file paths
 /// in it (heat maps) are taken from the working directory.
-pub fn load_str(text: &str, origin: &str, overrides: &[String]) -> Result<ShotConfig> {
-    load_text(text, origin, overrides, None)
+pub fn read_str(text: &str, origin: &str, overrides: &[String]) -> Result<Checked> {
+    read_text(text, origin, overrides, None)
 }
 
 /// `base`: the directory relative file paths in the config are resolved against.
-fn load_text(
+fn read_text(
     text: &str,
     origin: &str,
     overrides: &[String],
     base: Option<&Path>,
-) -> Result<ShotConfig> {
+) -> Result<Checked> {
     let ctx = Ctx {
         file: origin,
         sets: overrides,
@@ -143,26 +185,31 @@ fn load_text(
         None => ctx.bare(&e.msg),
     })?;
     resolve_paths(&mut cfg, base);
-    if let Some(issue) = validate::issues(&cfg).into_iter().next() {
-        let mut positions = HashMap::new();
-        collect_positions(&root, "", &mut positions);
-        let key = issue
-            .keys
-            .iter()
-            .find(|k| positions.contains_key(k.as_str()))
-            .unwrap_or(&issue.keys[0]);
-        let pos = positions.get(key.as_str()).copied().unwrap_or(Pos::Unknown);
-        return Err(ctx.at(key, pos, &issue.msg));
+    let mut positions = HashMap::new();
+    collect_positions(&root, "", &mut positions);
+    let mut checked = Checked {
+        config: cfg,
+        file: origin.to_string(),
+        sets: overrides.to_vec(),
+        positions,
+    };
+    if let Some(issue) = first_issue(&checked.config) {
+        return Err(checked.error(&issue));
     }
-    normalise(&mut cfg);
-    Ok(cfg)
+    normalise(&mut checked.config);
+    Ok(checked)
 }
 
-/// Range and consistency checks; the error names the key path (no file position: see [`load`]).
+/// The first problem of the range and consistency checks, if any.
+pub fn first_issue(cfg: &ShotConfig) -> Option<Issue> {
+    validate::issues(cfg).into_iter().next()
+}
+
+/// Range and consistency checks; the error names the key path (no file position: see [`read`]).
 pub fn validate(cfg: &ShotConfig) -> Result<()> {
-    match validate::issues(cfg).into_iter().next() {
+    match first_issue(cfg) {
         None => Ok(()),
-        Some(i) => Err(Error::Config(format!("{}: {}", i.keys[0], i.msg))),
+        Some(i) => Err(i.error()),
     }
 }
 
@@ -175,20 +222,7 @@ fn normalise(cfg: &mut ShotConfig) {
     if len > 0.0 && len.is_finite() {
         *d = (v / len).to_array();
     }
-    // Pin each heat map's content, so the manifest and the checkpoints name exactly the map
-    // the run used and a resume refuses a changed one (validation compares it).
-    for src in &mut cfg.physics.sources {
-        if let (Some(path), None) = (&src.image, &src.image_sha256) {
-            src.image_sha256 = crate::io::heat_map::file_sha256(Path::new(path)).ok();
-        }
-    }
-    if let Some(t) = &mut cfg.control.target {
-        for (path, sha) in [(&t.mesh, &mut t.mesh_sha256), (&t.vdb, &mut t.vdb_sha256)] {
-            if let (Some(path), true) = (path, sha.is_none()) {
-                *sha = crate::io::heat_map::file_sha256(Path::new(path)).ok();
-            }
-        }
-    }
+    // (the files' SHA-256 pins are set by the prepared shot, which reads the files)
 }
 
 /// Heat-map paths become absolute: relative ones are taken from `base` (the config file's

@@ -1,5 +1,14 @@
-//! Error wording and positions of `load_str` / `load`.
+//! Error wording and positions of `read_str` / `read`.
 use super::*;
+
+/// The config [`read_str`] gives: the tests here are of the config's own checks.
+fn load_str(text: &str, origin: &str, sets: &[String]) -> Result<ShotConfig> {
+    read_str(text, origin, sets).map(|c| c.config)
+}
+
+fn load(path: &Path, sets: &[String]) -> Result<ShotConfig> {
+    read(path, sets).map(|c| c.config)
+}
 
 const BASE: &str = "\
 shot: test

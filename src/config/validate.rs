@@ -16,8 +16,14 @@ pub const MAX_SHOT_BYTES: usize = 200;
 pub const MAX_VOXELS_PER_AXIS: f64 = 65536.0;
 /// Highest adaptive level (`gpu::shaders::MAX_LEVEL`: the level tables' rows).
 pub const MAX_LEVEL: u32 = crate::gpu::shaders::MAX_LEVEL;
-/// Largest min_distance the adaptive stage accepts (`sim::adaptive::MAX_MIN_DISTANCE`).
-pub const MAX_MIN_DISTANCE: f64 = crate::sim::adaptive::MAX_MIN_DISTANCE;
+/// Largest `min_distance` for which the 27 cells around a merging cell hold every particle the
+/// adaptive stage's room check needs: |midpoint - x_i| < h_l / 2 <= 2^(-1/3) L / 2 and
+/// h_new <= L.
+pub const MAX_MIN_DISTANCE: f64 = 0.6;
+/// Most entries of `physics.sources` (the thermo stage's uniform table, `sim::sources`).
+pub const MAX_SOURCES: usize = 8;
+/// Longest grid name NanoVDB stores in the grid itself (255 bytes and a NUL; `io::nanovdb`).
+pub const MAX_NANOVDB_NAME_BYTES: usize = 255;
 
 /// The documented range of a number key: `lo`..`hi`, each end open or closed.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -418,7 +424,7 @@ fn check_ranges(k: &mut Checks, c: &ShotConfig) {
 /// One problem: the keys it concerns (the first one present in the file is reported) and what
 /// is wrong.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct Issue {
+pub struct Issue {
     pub keys: Vec<String>,
     pub msg: String,
 }
@@ -484,7 +490,8 @@ pub(crate) fn issues(c: &ShotConfig) -> Vec<Issue> {
     check_adaptive(&mut k, &c.adaptive, c);
     check_export(&mut k, &c.export, &c.domain);
     check_handoff(&mut k, &c.export);
-    // control.target: its mesh or VDB read and placed in the domain (config::art)
+    // control.target: one shape and the scale's form (config::art; the shape itself is read
+    // and placed by the prepared shot, shot::target)
     k.issues.extend(super::art::target_issues(c));
     if c.gpu.adapter.trim().is_empty() {
         k.fail(
@@ -498,36 +505,7 @@ pub(crate) fn issues(c: &ShotConfig) -> Vec<Issue> {
             "expected at least 1 (the newest checkpoint is always kept), got 0".into(),
         );
     }
-    if k.issues.is_empty() {
-        check_run_time_params(&mut k, c);
-    }
     k.issues
-}
-
-/// The checks `run` makes when it builds the splat and preview parameters, made here first
-/// (the same functions, so validate and run can never disagree).
-fn check_run_time_params(k: &mut Checks, c: &ShotConfig) {
-    if let Err(e) = crate::splat::SplatParams::from_config(c) {
-        let msg = e.to_string();
-        k.fail(
-            &["export.voxel_size"],
-            msg.strip_prefix("splat: ").unwrap_or(&msg).to_string(),
-        );
-    }
-    if let Err(e) = crate::preview::PreviewParams::for_shot(c) {
-        let msg = e.to_string();
-        let key = if msg.contains("camera") {
-            "output.preview.camera.look_at"
-        } else if msg.contains("sun_direction") {
-            "output.preview.sun_direction"
-        } else {
-            "output.preview"
-        };
-        k.fail(
-            &[key],
-            msg.strip_prefix("preview: ").unwrap_or(&msg).to_string(),
-        );
-    }
 }
 
 fn check_names(k: &mut Checks, c: &ShotConfig) {
@@ -746,17 +724,17 @@ fn check_solver(k: &mut Checks, s: &SolverConfig, c: &ShotConfig) {
 
 fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
     let env = &p.environment;
-    if p.sources.len() > crate::sim::thermo::MAX_SOURCES {
+    if p.sources.len() > MAX_SOURCES {
         k.fail(
             &["physics.sources"],
             format!(
                 "{} sources; at most {} are supported",
                 p.sources.len(),
-                crate::sim::thermo::MAX_SOURCES
+                MAX_SOURCES
             ),
         );
     }
-    // shapes, schedules, heat maps and the wind profile (config::art)
+    // shapes, schedules and the wind profile (config::art; heat maps: shot::assets)
     k.issues.extend(super::art::issues(p, c));
     if p.bowen_ratio.is_some() && p.latent_heat <= 0.0 {
         k.fail(
@@ -1027,13 +1005,12 @@ fn check_handoff(k: &mut Checks, e: &ExportConfig) {
                 ),
             );
         }
-        if g.name.len() > crate::io::nanovdb::MAX_NAME_BYTES {
+        if g.name.len() > MAX_NANOVDB_NAME_BYTES {
             k.fail(
                 &["export.nanovdb.grids"],
                 format!(
                     "grid name {:?} is longer than NanoVDB's {} bytes",
-                    g.name,
-                    crate::io::nanovdb::MAX_NAME_BYTES
+                    g.name, MAX_NANOVDB_NAME_BYTES
                 ),
             );
         }
@@ -1045,12 +1022,13 @@ mod tests {
     use super::*;
 
     fn base() -> ShotConfig {
-        super::super::load_str(
+        super::super::read_str(
             "shot: t\noutput: {frames: {start: 1, end: 10}}\ndomain: {size: [100, 50, 100], spacing: 5}\n",
             "t.yaml",
             &[],
         )
         .unwrap()
+        .config
     }
 
     fn first_key(c: &ShotConfig) -> Option<String> {

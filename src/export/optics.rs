@@ -101,7 +101,7 @@ mod tests {
     fn cfg(set: &[&str]) -> ShotConfig {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny.yaml");
         let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
-        crate::config::load(&path, &set).unwrap()
+        crate::shot::load(&path, &set).unwrap().into_config()
     }
 
     #[test]

@@ -2,12 +2,12 @@ use super::*;
 use crate::config::{Profile, ShotConfig};
 
 fn base() -> ShotConfig {
-    crate::config::load_str(
+    crate::shot::load_str(
         "shot: t\noutput: {frames: {start: 1, end: 10}}\ndomain: {size: [100, 50, 100], spacing: 5}\n",
         "t.yaml",
         &[],
     )
-    .unwrap()
+    .unwrap().into_config()
 }
 
 fn grid() -> SparseGrid<f32> {

@@ -7,7 +7,6 @@ use super::plan::{
 };
 use super::slurm;
 use super::wedge::{self, WedgeAxis};
-use crate::config;
 use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
 use std::path::{Path, PathBuf};
@@ -70,7 +69,7 @@ pub struct Submitted {
 
 pub fn submit(opts: &SubmitOptions) -> Result<Submitted> {
     // Everything that can be refused is refused before the farm directory is written.
-    let cfg = config::load(&opts.config, &[])?;
+    let cfg = crate::shot::load(&opts.config, &[])?.into_config();
     let axes = opts
         .wedges
         .iter()
@@ -506,10 +505,10 @@ fn export_settings(
     }
     for w in wedges {
         let sets = w.sets();
-        let own = config::load(&opts.config, &sets)?;
+        let own = crate::shot::load(&opts.config, &sets)?.into_config();
         let mut with = sets.clone();
         with.extend(opts.export_sets.iter().cloned());
-        let other = config::load(&opts.config, &with)?;
+        let other = crate::shot::load(&opts.config, &with)?.into_config();
         if other.export == own.export {
             return Err(Error::InvalidInput(format!(
                 "--export-set {}: leaves the export settings of wedge {} as they are; the                  simulation writes those files itself",

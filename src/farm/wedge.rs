@@ -163,7 +163,7 @@ pub fn validate_all(config: &Path, wedges: &[Wedge]) -> Result<()> {
     let text = std::fs::read_to_string(config).unwrap_or_default();
     for w in wedges {
         let sets = w.sets();
-        let Err(e) = config::load(config, &sets) else {
+        let Err(e) = crate::shot::load(config, &sets) else {
             continue;
         };
         let Error::Config(msg) = &e else {

@@ -1,7 +1,10 @@
 //! The one way to declare and run a compute program: one WGSL file and the entry points the Rust
-//! side dispatches. (A *stage* is a part of the substep, `sim::step`; it runs one or more programs.)
+//! side dispatches. (A *stage* is a part of the substep, `sim::stage`; it runs one or more
+//! programs.)
 //!
-//! A program is one WGSL file (`shaders/<name>.wgsl`) and the entry points the Rust side uses. Its
+//! A program is one WGSL file (`shaders/<name>.wgsl`) and the entry points the Rust side uses,
+//! an enum per file declared with [`entry_points!`]: the one place an entry's WGSL name is
+//! written, so a dispatch names a variant (`PbfEntry::Predict`), never a string. Its
 //! bindings are not written down twice: naga reflects them from the WGSL when the program is built
 //! (name, group, uniform / read-only storage / read-write storage), the bind-group layouts come
 //! from that, and bind groups are made by binding *name* from [`Resources`] (the particle
@@ -15,11 +18,50 @@
 //!   a [`crate::gpu::buffers::ParamSlots`] buffer (a merge colour, a scan level);
 //! - every entry point of a file shares the file's layouts, so one bind group serves them all.
 //!
-//! Declaring a program: `Program::new(ctx, "thermo.wgsl", &["thermo_step"])?`; binding:
+//! Declaring a program: `entry_points! { pub enum ThermoEntry in "thermo.wgsl" { Step =
+//! "thermo_step" } }` and `Program::<ThermoEntry>::new(ctx)?`; binding:
 //! `program.bind(ctx, &[&[("P", params.slot(0))], &particle_buffers])?`; dispatching:
-//! `program.dispatch(pass, "thermo_step", &[(&group, 0)], Dispatch::Live(&live))`.
+//! `program.dispatch(pass, ThermoEntry::Step, &[(&group, 0)], Dispatch::Live(&live))`.
 use crate::error::{Error, Result};
 use crate::gpu::Context;
+
+/// The entry points of one program's WGSL file that the Rust side dispatches (an enum made by
+/// [`entry_points!`]).
+pub trait Entry: Copy + PartialEq + std::fmt::Debug + 'static {
+    /// The WGSL file, `shaders/<SHADER>`.
+    const SHADER: &'static str;
+    /// Every entry point the program builds a pipeline for.
+    const ALL: &'static [Self];
+    /// The entry point's name in the WGSL.
+    fn name(self) -> &'static str;
+}
+
+/// Declares the entry points of WGSL files, an enum per file implementing [`Entry`]: each
+/// variant with the name the WGSL gives it, written here once.
+macro_rules! entry_points {
+    ($($(#[$meta:meta])* $vis:vis enum $name:ident in $shader:literal {
+        $($(#[$vmeta:meta])* $variant:ident = $wgsl:literal),+ $(,)?
+    })+) => {
+        $(
+            $(#[$meta])*
+            #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+            $vis enum $name {
+                $($(#[$vmeta])* $variant),+
+            }
+
+            impl $crate::gpu::program::Entry for $name {
+                const SHADER: &'static str = $shader;
+                const ALL: &'static [Self] = &[$(Self::$variant),+];
+                fn name(self) -> &'static str {
+                    match self {
+                        $(Self::$variant => $wgsl),+
+                    }
+                }
+            }
+        )+
+    };
+}
+pub(crate) use entry_points;
 
 /// Buffers a bind group can be made from, by the WGSL variable name they bind to.
 pub trait Resources {
@@ -74,19 +116,20 @@ pub enum Dispatch<'a> {
     Live(&'a crate::gpu::live::LiveBuffer),
 }
 
-struct Entry {
-    name: &'static str,
+/// One entry point's pipeline.
+struct Pipeline {
     workgroup: [u32; 3],
     pipeline: wgpu::ComputePipeline,
 }
 
-/// A compute program: pipelines of its entry points and the layouts reflected from its WGSL.
-pub struct Program {
-    shader: &'static str,
+/// A compute program: pipelines of its entry points (`E::ALL`, in that order) and the layouts
+/// reflected from its WGSL.
+pub struct Program<E: Entry> {
     bindings: Vec<Binding>,
     layouts: Vec<wgpu::BindGroupLayout>,
-    entries: Vec<Entry>,
+    pipelines: Vec<Pipeline>,
     max_groups_x: u32,
+    entry: std::marker::PhantomData<E>,
 }
 
 /// The bindings of a program and the workgroup size of each entry point, read from its WGSL.
@@ -110,7 +153,7 @@ pub fn reflect(
             other => {
                 return Err(Error::Runtime(format!(
                     "{shader}: binding @group({}) @binding({}) is in address space {other:?}; \
-                     stages bind buffers only",
+                     programs bind buffers only",
                     rb.group, rb.binding
                 )))
             }
@@ -150,20 +193,18 @@ pub fn reflect(
     Ok((bindings, sizes))
 }
 
-impl Program {
-    /// Builds the pipelines of `entries` of `shader` with layouts reflected from its WGSL.
-    pub fn new(ctx: &Context, shader: &'static str, entries: &[&'static str]) -> Result<Self> {
-        Self::with_constants(ctx, shader, entries, &[])
+impl<E: Entry> Program<E> {
+    /// Builds the pipelines of every entry point of `E` with layouts reflected from its WGSL.
+    pub fn new(ctx: &Context) -> Result<Self> {
+        Self::with_constants(ctx, &[])
     }
 
     /// [`Self::new`] with values for the shader's pipeline-overridable constants (WGSL
     /// `override`), by name: a value fixed for the program's life that the compiler can fold.
-    pub fn with_constants(
-        ctx: &Context,
-        shader: &'static str,
-        entries: &[&'static str],
-        constants: &[(&str, f64)],
-    ) -> Result<Self> {
+    pub fn with_constants(ctx: &Context, constants: &[(&str, f64)]) -> Result<Self> {
+        let shader = E::SHADER;
+        let entries: Vec<&'static str> = E::ALL.iter().map(|e| e.name()).collect();
+        let entries = entries.as_slice();
         let prelude = ctx.prelude;
         let module = crate::gpu::shaders::validate_with(shader, &prelude)?;
         let (bindings, sizes) = reflect(shader, &module, entries)?;
@@ -206,11 +247,10 @@ impl Program {
             immediate_size: 0,
         });
         let shader_module = crate::gpu::shaders::module(ctx, shader)?;
-        let entries = entries
+        let pipelines = entries
             .iter()
             .zip(sizes)
-            .map(|(name, workgroup)| Entry {
-                name,
+            .map(|(name, workgroup)| Pipeline {
                 workgroup,
                 pipeline: device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                     label: Some(&format!("{shader}:{name}")),
@@ -226,11 +266,11 @@ impl Program {
             })
             .collect();
         Ok(Self {
-            shader,
             bindings,
             layouts,
-            entries,
+            pipelines,
             max_groups_x: prelude.max_groups_x,
+            entry: std::marker::PhantomData,
         })
     }
 
@@ -257,7 +297,7 @@ impl Program {
         let layout = self
             .layouts
             .get(group as usize)
-            .ok_or_else(|| Error::Runtime(format!("{}: no bind group {group}", self.shader)))?;
+            .ok_or_else(|| Error::Runtime(format!("{}: no bind group {group}", E::SHADER)))?;
         let entries = self
             .bindings
             .iter()
@@ -269,7 +309,8 @@ impl Program {
                     .ok_or_else(|| {
                         Error::Runtime(format!(
                             "{}: no buffer for binding '{}' (group {group})",
-                            self.shader, b.name
+                            E::SHADER,
+                            b.name
                         ))
                     })?;
                 Ok(wgpu::BindGroupEntry {
@@ -279,40 +320,41 @@ impl Program {
             })
             .collect::<Result<Vec<_>>>()?;
         Ok(ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(self.shader),
+            label: Some(E::SHADER),
             layout,
             entries: &entries,
         }))
     }
 
-    fn entry(&self, name: &str) -> &Entry {
-        // Entry names are fixed in the code and checked against the WGSL in `new`: a miss is a
-        // programming error that every test building the program would hit.
-        self.entries
+    fn pipeline(&self, entry: E) -> &Pipeline {
+        // every variant has a pipeline (built in `E::ALL`'s order in `new`)
+        let k = E::ALL
             .iter()
-            .find(|e| e.name == name)
-            .unwrap_or_else(|| panic!("{}: entry '{name}' was not declared", self.shader))
+            .position(|e| *e == entry)
+            .expect("E::ALL lists every variant");
+        &self.pipelines[k]
     }
 
     /// Threads per workgroup of an entry point (x; the programs use 1-D workgroups).
-    pub fn workgroup_size(&self, entry: &str) -> u32 {
-        self.entry(entry).workgroup[0]
+    pub fn workgroup_size(&self, entry: E) -> u32 {
+        self.pipeline(entry).workgroup[0]
     }
 
     /// Records `entry` with `groups` (group 0 first; groups 1.. with their dynamic offset).
     pub fn dispatch(
         &self,
         pass: &mut wgpu::ComputePass,
-        entry: &str,
+        entry: E,
         groups: &[(&wgpu::BindGroup, u32)],
         size: Dispatch,
     ) {
-        let e = self.entry(entry);
+        let e = self.pipeline(entry);
         assert_eq!(
             groups.len(),
             self.layouts.len(),
-            "{}:{entry} takes {} bind groups",
-            self.shader,
+            "{}:{} takes {} bind groups",
+            E::SHADER,
+            entry.name(),
             self.layouts.len()
         );
         let set = |pass: &mut wgpu::ComputePass| {
@@ -386,9 +428,9 @@ mod tests {
 
     /// Every program file reflects: buffers only, groups 1.. uniforms, no empty group.
     #[test]
-    fn every_stage_reflects() {
+    fn every_program_reflects() {
         let prelude = crate::gpu::shaders::Prelude::default();
-        for name in crate::gpu::shaders::stage_names() {
+        for name in crate::gpu::shaders::program_names() {
             let module = crate::gpu::shaders::validate_with(name, &prelude).unwrap();
             let (bindings, _) = reflect(name, &module, &[]).unwrap_or_else(|e| panic!("{e}"));
             assert!(!bindings.is_empty(), "{name} binds nothing");

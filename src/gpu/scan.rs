@@ -8,10 +8,18 @@
 use crate::error::Result;
 use crate::gpu::buffers::{storage_zeroed, ParamSlots, Span};
 use crate::gpu::live::LiveBuffer;
-use crate::gpu::program::{Dispatch, Program};
+use crate::gpu::program::{entry_points, Dispatch, Program};
 use crate::gpu::Context;
 
-const SHADER: &str = "scan.wgsl";
+entry_points! {
+    /// The entry points of shaders/scan.wgsl.
+    enum ScanEntry in "scan.wgsl" {
+        /// Each block's total, into the next level's input.
+        Reduce = "scan_reduce",
+        /// Each block's exclusive scan, offset by the next level's result.
+        Blocks = "scan_blocks",
+    }
+}
 
 /// Mirror of `ScanParams` in shaders/scan.wgsl.
 #[repr(C)]
@@ -42,7 +50,7 @@ struct Level {
 /// An exclusive scan of the first `max_len` u32 of one input array into an output array (its
 /// own, or a span the caller lends), in one or more modes ([`ScanOf`]) that share the buffers.
 pub struct PrefixScan {
-    program: Program,
+    program: Program<ScanEntry>,
     params: ParamSlots<ScanParams>,
     param_group: wgpu::BindGroup,
     levels: Vec<Level>,
@@ -68,7 +76,7 @@ impl PrefixScan {
         live: &LiveBuffer,
         modes: &[ScanOf],
     ) -> Result<Self> {
-        let program = Program::new(ctx, SHADER, &["scan_reduce", "scan_blocks"])?;
+        let program = Program::new(ctx)?;
         let block = crate::gpu::shaders::SCAN_BLOCK;
         // level k scans lens[k] values; its block totals are level k + 1's values
         let mut lens = vec![max_len.max(1)];
@@ -164,7 +172,7 @@ impl PrefixScan {
         for (k, lv) in self.levels[..last].iter().enumerate() {
             self.program.dispatch(
                 pass,
-                "scan_reduce",
+                ScanEntry::Reduce,
                 &[(&lv.bind, 0), (group, slot(k))],
                 Dispatch::Groups(lv.groups),
             );
@@ -172,7 +180,7 @@ impl PrefixScan {
         for (k, lv) in self.levels.iter().enumerate().rev() {
             self.program.dispatch(
                 pass,
-                "scan_blocks",
+                ScanEntry::Blocks,
                 &[(&lv.bind, 0), (group, slot(k))],
                 Dispatch::Groups(lv.groups),
             );

@@ -1,7 +1,7 @@
-//! Shader sources, embedded at build time. A stage file may pull shared code in with a line
+//! Shader sources, embedded at build time. A program file may pull shared code in with a line
 //! `//!include shared/NAME.wgsl` (WGSL has no includes; this is plain text substitution,
 //! each file included at most once), and generate a neighbour walk with a line `//!walk NAME`
-//! ([`WALKS`]: one template, shared/walk.wgsl, for every pair function). Every stage is preceded by the [`Prelude`]: constants the
+//! ([`WALKS`]: one template, shared/walk.wgsl, for every pair function). Every program is preceded by the [`Prelude`]: constants the
 //! Rust side owns (workgroup sizes, the dispatch limit), so that WGSL and Rust cannot disagree.
 use crate::error::{Error, Result};
 
@@ -41,7 +41,7 @@ pub const WORKGROUP_ENV: &str = "NIMBUS_GPU_WORKGROUP";
 /// neighbour cell; a scan block of 2048 values must split into whole quads per thread).
 pub const FORCEABLE_WORKGROUPS: [u32; 4] = [32, 64, 128, 256];
 
-/// Constants prepended to every stage's WGSL.
+/// Constants prepended to every program's WGSL.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Prelude {
     pub wg_particles: u32,
@@ -138,7 +138,7 @@ include!(concat!(env!("OUT_DIR"), "/shader_files.rs"));
 /// (word, replacement) pairs applied to a template's text.
 type Words = &'static [(&'static str, &'static str)];
 
-/// Stages built from a template in `shared/` by replacing words: (stage, template, words).
+/// Programs built from a template in `shared/` by replacing words: (program, template, words).
 /// WGSL has no generics; one gather kernel serves two element types.
 const VARIANTS: &[(&str, &str, Words)] = &[
     (
@@ -158,7 +158,7 @@ const WALK_TEMPLATE: &str = "shared/walk.wgsl";
 
 /// One neighbour walk made from [`WALK_TEMPLATE`] (its words are explained there).
 struct Walk {
-    /// The function's name; `//!walk NAME` in a stage puts it there.
+    /// The function's name; `//!walk NAME` in a program puts it there.
     name: &'static str,
     /// The template's section: `scan` (around the position) or `masked` (the neighbour mask).
     template: &'static str,
@@ -178,7 +178,7 @@ struct Walk {
 const PBF_SKIP_WALLS: &str = "!wall_reach($, me.p.y, max(me.hi, me.k.h0), grid)";
 const VISC_SKIP_WALLS: &str = "!wall_reach($, me.p.y, max(me.lv.x, me.k.h0), grid)";
 
-/// Every walk the stages generate. The masked and the scan walk of one pass share its pair
+/// Every walk the programs generate. The masked and the scan walk of one pass share its pair
 /// function, so the mask changes which candidates are visited, never what a pair adds.
 const WALKS: &[Walk] = &[
     Walk {
@@ -320,8 +320,8 @@ fn calls(text: &str, word: &str, call: &str) -> Result<String> {
     Ok(out)
 }
 
-/// Names of the compute stages (every `.wgsl` outside `shared/`, and the template variants).
-pub fn stage_names() -> impl Iterator<Item = &'static str> {
+/// Names of the compute programs (every `.wgsl` outside `shared/`, and the template variants).
+pub fn program_names() -> impl Iterator<Item = &'static str> {
     SHADER_FILES
         .iter()
         .map(|(n, _)| *n)
@@ -337,12 +337,12 @@ fn raw(name: &str) -> Result<&'static str> {
         .ok_or_else(|| Error::Runtime(format!("shader '{name}' is not built into this binary")))
 }
 
-/// The full WGSL text of a stage with its includes expanded, after the default prelude.
+/// The full WGSL text of a program with its includes expanded, after the default prelude.
 pub fn source(name: &str) -> Result<String> {
     source_with(name, &Prelude::default())
 }
 
-/// The full WGSL text of a stage with its includes expanded, after `prelude`.
+/// The full WGSL text of a program with its includes expanded, after `prelude`.
 pub fn source_with(name: &str, prelude: &Prelude) -> Result<String> {
     let (file, words): (&str, Words) = VARIANTS
         .iter()
@@ -375,7 +375,7 @@ fn expand(name: &str, seen: &mut Vec<String>, out: &mut String) -> Result<()> {
     Ok(())
 }
 
-/// Parses and validates a stage with naga (what wgpu does at pipeline creation).
+/// Parses and validates a program with naga (what wgpu does at pipeline creation).
 pub fn validate(name: &str) -> Result<naga::Module> {
     validate_with(name, &Prelude::default())
 }
@@ -394,7 +394,7 @@ pub fn validate_with(name: &str, prelude: &Prelude) -> Result<naga::Module> {
     Ok(module)
 }
 
-/// Compiles a stage into a shader module on the context's device, with its prelude.
+/// Compiles a program into a shader module on the context's device, with its prelude.
 ///
 /// Every check wgpu adds stays on except the forced loop bound: naga would give every loop a
 /// 64-bit trip counter and an extra exit test, which cost 5-12% of a PBF substep on llvmpipe
@@ -420,11 +420,11 @@ mod tests {
     #[test]
     fn every_shader_compiles_through_naga() {
         // Shared files are valid modules on their own (templates only as their variants);
-        // stages are checked with their includes.
+        // programs are checked with their includes.
         let mut templates: Vec<&str> = super::VARIANTS.iter().map(|(_, t, _)| *t).collect();
         templates.push(super::WALK_TEMPLATE);
         let files = super::SHADER_FILES.iter().map(|(n, _)| *n);
-        for name in files.chain(super::stage_names()) {
+        for name in files.chain(super::program_names()) {
             if !templates.contains(&name) {
                 super::validate(name).unwrap_or_else(|e| panic!("{e}"));
             }

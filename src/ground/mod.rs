@@ -4,13 +4,19 @@
 //! - `clock`: where a simulation stands in time;
 //! - `rest`: rest positions, their codec and their reset schedule (`export.detail`);
 //! - `grid`: sparse voxel grids of 8^3 leaves and their world transform;
-//! - `noise`: the hash and value noise both the GPU step and the detail evaluate.
+//! - `noise`: the hash and value noise both the GPU step and the detail evaluate;
+//! - `heat_map`: a decoded heat map of an image source;
+//! - `voxels`: the coarse voxel grid of `control.target` and the target's voxels on it.
 pub mod clock;
 pub mod grid;
+pub mod heat_map;
 pub mod noise;
 pub mod particles;
 pub mod rest;
+pub mod voxels;
 
 pub use clock::SimClock;
 pub use grid::{GridTransform, Leaf, SparseGrid, LEAF_DIM, LEAF_VOXELS};
+pub use heat_map::HeatMap;
 pub use particles::ParticleState;
+pub use voxels::{TargetVoxels, VoxelGrid, MAX_VOXELS};

@@ -12,15 +12,7 @@ pub const MAX_SIDE: usize = 4096;
 /// Largest file accepted (bytes).
 pub const MAX_BYTES: u64 = 256 << 20;
 
-/// A decoded heat map: `values[j * width + i]` for column i (x) and row j (z).
-#[derive(Debug, Clone, PartialEq)]
-pub struct HeatMap {
-    pub width: usize,
-    pub height: usize,
-    pub values: Vec<f32>,
-    /// SHA-256 (hex) of the file's bytes.
-    pub sha256: String,
-}
+pub use crate::ground::HeatMap;
 
 /// Hex SHA-256 of a file, or why it cannot be read.
 pub fn file_sha256(path: &Path) -> Result<String, String> {

@@ -236,12 +236,12 @@ mod tests {
 
     fn space(sets: &[&str]) -> ExportSpace {
         let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-        let cfg = crate::config::load_str(
+        let cfg = crate::shot::load_str(
             "shot: t\noutput: {frames: {start: 1, end: 10}}\ndomain: {size: [100, 50, 100], spacing: 5}\n",
             "t.yaml",
             &sets,
         )
-        .unwrap();
+        .unwrap().into_config();
         ExportSpace::from_config(&cfg)
     }
 

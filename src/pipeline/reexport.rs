@@ -26,6 +26,7 @@ use super::writer::{FrameJob, FrameWriter};
 use crate::config::ShotConfig;
 use crate::error::{Error, Result};
 use crate::export::ExportSpace;
+use crate::shot::Shot;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -61,12 +62,12 @@ pub fn parse_frames(s: &str) -> Result<(u32, u32)> {
     Ok((a, b))
 }
 
-/// The run's resolved config from its manifest, with `sets` applied.
-fn config_of(manifest: &Manifest, run_dir: &Path, sets: &[String]) -> Result<ShotConfig> {
+/// The shot of the run's resolved config from its manifest, with `sets` applied.
+fn shot_of(manifest: &Manifest, run_dir: &Path, sets: &[String]) -> Result<Shot> {
     let text = serde_json::to_string_pretty(&manifest.config)
         .map_err(|e| Error::Runtime(e.to_string()))?;
     let origin = run_dir.join(super::records::MANIFEST);
-    crate::config::load_str(&text, &origin.to_string_lossy(), sets)
+    crate::shot::load_str(&text, &origin.to_string_lossy(), sets)
 }
 
 /// `nimbus export` changes `export.*` keys only, and not `export.particles`.
@@ -90,8 +91,8 @@ pub fn check_sets(sets: &[String]) -> Result<()> {
 pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
     check_sets(&req.sets)?;
     let manifest = Manifest::load(run_dir)?;
-    let run_cfg = config_of(&manifest, run_dir, &[])?;
-    let own = config_of(&manifest, run_dir, &req.sets)?.export == run_cfg.export;
+    let run_cfg = shot_of(&manifest, run_dir, &[])?.into_config();
+    let own = shot_of(&manifest, run_dir, &req.sets)?.config().export == run_cfg.export;
     // Own settings write into the run directory: held shared, and the manifest read again
     // under the lock. Another export directory needs no run lock (see the module's note).
     let (_lock, manifest) = if own {
@@ -100,14 +101,15 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
     } else {
         (None, manifest)
     };
-    let run_cfg = config_of(&manifest, run_dir, &[])?;
+    let run_cfg = shot_of(&manifest, run_dir, &[])?.into_config();
     if !run_cfg.export.particles {
         return Err(Error::InvalidInput(format!(
             "{}: the run wrote no particle caches (export.particles: false), so there is nothing to export from",
             run_dir.display()
         )));
     }
-    let cfg = config_of(&manifest, run_dir, &req.sets)?;
+    let shot = shot_of(&manifest, run_dir, &req.sets)?;
+    let cfg = shot.config().clone();
     let frames: Vec<&FrameRecord> = manifest
         .frames
         .iter()
@@ -157,7 +159,7 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
     // The writer never writes caches again: it splats the ones it reads.
     let mut wcfg = cfg.clone();
     wcfg.export.particles = false;
-    let writer = FrameWriter::new(&wcfg, &dest)?;
+    let writer = FrameWriter::new(&wcfg, shot.heat_maps(), &dest)?;
     for d in super::naming::DIRS.iter().filter(|d| **d != "checkpoints") {
         std::fs::create_dir_all(dest.join(d)).map_err(|e| Error::io(dest.join(d), e))?;
     }
@@ -372,8 +374,8 @@ fn lock_file(dest: &Path) -> Result<std::fs::File> {
 /// when the sets leave the run's own export settings (the files then go to the run itself).
 pub fn destination(run_dir: &Path, sets: &[String], name: Option<&str>) -> Result<Option<PathBuf>> {
     let manifest = Manifest::load(run_dir)?;
-    let run_cfg = config_of(&manifest, run_dir, &[])?;
-    let cfg = config_of(&manifest, run_dir, sets)?;
+    let run_cfg = shot_of(&manifest, run_dir, &[])?.into_config();
+    let cfg = shot_of(&manifest, run_dir, sets)?.into_config();
     if cfg.export == run_cfg.export {
         return Ok(None);
     }

@@ -13,6 +13,7 @@ use crate::error::{Error, Result};
 use crate::io::vdb::{read::read_file, GridData};
 use crate::preview::overlay::{draw_domain_box, sources::SourceOverlay, target::TargetGhost};
 use crate::preview::LinearImage;
+use crate::shot::Shot;
 use std::path::{Path, PathBuf};
 
 /// What `nimbus preview` draws.
@@ -46,7 +47,8 @@ impl View {
 /// files) is an input error before anything is written.
 pub fn rerender_run(run_dir: &Path, set: &[String], view: View) -> Result<(usize, PathBuf)> {
     let _lock = RunLock::acquire(run_dir, Create::No, "preview")?;
-    let cfg = super::resume::config_of_run(run_dir, set)?;
+    let shot = super::resume::shot_of_run(run_dir, set)?;
+    let cfg = shot.config().clone();
     let dir = match view.folder() {
         Some(f) => run_dir.join("preview").join(f),
         None => run_dir.join("preview"),
@@ -59,12 +61,12 @@ pub fn rerender_run(run_dir: &Path, set: &[String], view: View) -> Result<(usize
         ))
     };
     let n = match view {
-        View::Volume => rerender_previews(run_dir, &cfg)?,
+        View::Volume => rerender_previews(run_dir, &shot)?,
         View::Sources => {
             if cfg.physics.sources.is_empty() {
                 return Err(refused("the run has no physics.sources"));
             }
-            let overlay = SourceOverlay::new(&cfg)?;
+            let overlay = SourceOverlay::new(&cfg, shot.heat_maps())?;
             let draw = |img: &mut LinearImage, frame: u32, p: &_| {
                 draw_domain_box(img, p, cfg.domain.size);
                 overlay.draw(img, p, frame)
@@ -72,10 +74,10 @@ pub fn rerender_run(run_dir: &Path, set: &[String], view: View) -> Result<(usize
             rerender_into(run_dir, &cfg, &dir, false, Some(&draw))?
         }
         View::Target => {
-            let Some(target) = crate::sim::control::Target::load(&cfg)? else {
+            let Some(target) = shot.target() else {
                 return Err(refused("the run has no control.target"));
             };
-            let ghost = TargetGhost::new(&target);
+            let ghost = TargetGhost::new(target);
             let draw = |img: &mut LinearImage, _: u32, p: &_| {
                 draw_domain_box(img, p, cfg.domain.size);
                 ghost.draw(img, p)
@@ -96,11 +98,12 @@ type Decorate<'a> = &'a dyn Fn(&mut LinearImage, u32, &crate::preview::PreviewPa
 /// stderr, its old preview files are removed (none is left looking current), and the command
 /// fails (exit 2) after rendering the others. With `output.preview.source_overlay` the sources
 /// are drawn in, as the run drew them.
-pub fn rerender_previews(run_dir: &Path, cfg: &ShotConfig) -> Result<usize> {
+pub fn rerender_previews(run_dir: &Path, shot: &Shot) -> Result<usize> {
+    let cfg = shot.config();
     let dir = run_dir.join("preview");
     let exr = cfg.output.preview.exr;
     if cfg.output.preview.source_overlay {
-        let overlay = SourceOverlay::new(cfg)?;
+        let overlay = SourceOverlay::new(cfg, shot.heat_maps())?;
         let draw = |img: &mut LinearImage, frame: u32, p: &_| overlay.draw(img, p, frame);
         rerender_into(run_dir, cfg, &dir, exr, Some(&draw))
     } else {

@@ -9,21 +9,22 @@ use super::run::{run, RunOptions, Start};
 use crate::config::{self, ShotConfig};
 use crate::error::{Error, Result};
 use crate::io::checkpoint::{self, Checkpoint, ResumeScan, SkipReason};
+use crate::shot::Shot;
 use std::path::Path;
 
 /// `nimbus resume OUT_DIR`: goes on with the run in `out_dir`, with the config it recorded.
 pub fn resume(out_dir: &Path, log: LogFormat) -> Result<()> {
     let lock = RunLock::acquire(out_dir, Create::No, "resume")?;
-    let cfg = recorded_config(out_dir)?;
-    run(&cfg, &resume_options(out_dir, log), &lock)
+    let shot = recorded_shot(out_dir)?;
+    run(&shot, &resume_options(out_dir, log), &lock)
 }
 
-/// `nimbus run CONFIG --resume`: goes on with the run in `out_dir` with `cfg`, refused when one
-/// of its simulation keys differs from the run's (output-only keys may change).
-pub fn resume_with(cfg: &ShotConfig, out_dir: &Path, log: LogFormat) -> Result<()> {
+/// `nimbus run CONFIG --resume`: goes on with the run in `out_dir` with `shot`, refused when
+/// one of its simulation keys differs from the run's (output-only keys may change).
+pub fn resume_with(shot: &Shot, out_dir: &Path, log: LogFormat) -> Result<()> {
     let lock = RunLock::acquire(out_dir, Create::No, "run")?;
-    refuse_changed_simulation(cfg, out_dir)?;
-    run(cfg, &resume_options(out_dir, log), &lock)
+    refuse_changed_simulation(shot.config(), out_dir)?;
+    run(shot, &resume_options(out_dir, log), &lock)
 }
 
 fn resume_options(out_dir: &Path, log: LogFormat) -> RunOptions {
@@ -35,26 +36,28 @@ fn resume_options(out_dir: &Path, log: LogFormat) -> RunOptions {
     }
 }
 
-/// The resolved config a run recorded in its manifest, with overrides applied (JSON is YAML).
-pub fn config_of_run(out_dir: &Path, set: &[String]) -> Result<ShotConfig> {
+/// The shot of the resolved config a run recorded in its manifest, with overrides applied
+/// (JSON is YAML).
+pub fn shot_of_run(out_dir: &Path, set: &[String]) -> Result<Shot> {
     let manifest = Manifest::load(out_dir)?;
     let text = serde_json::to_string_pretty(&manifest.config)
         .map_err(|e| Error::Runtime(e.to_string()))?;
     let origin = out_dir.join(MANIFEST);
-    config::load_str(&text, &origin.to_string_lossy(), set)
+    crate::shot::load_str(&text, &origin.to_string_lossy(), set)
 }
 
-/// The run's config: from its manifest, or from its newest checkpoint when the manifest is lost.
-pub fn recorded_config(out_dir: &Path) -> Result<ShotConfig> {
+/// The run's shot: its manifest's config, or its newest checkpoint's when the manifest is lost.
+pub fn recorded_shot(out_dir: &Path) -> Result<Shot> {
     if out_dir.join(MANIFEST).exists() {
-        config_of_run(out_dir, &[])
+        shot_of_run(out_dir, &[])
     } else {
-        config_of_checkpoints(out_dir)
+        shot_of_checkpoints(out_dir)
     }
 }
 
-/// The config recorded in the newest valid checkpoint (a run whose manifest.json was lost).
-fn config_of_checkpoints(out_dir: &Path) -> Result<ShotConfig> {
+/// The shot of the config recorded in the newest valid checkpoint (a run whose manifest.json
+/// was lost).
+fn shot_of_checkpoints(out_dir: &Path) -> Result<Shot> {
     let Some((path, cfg)) = checkpoint::newest_config(&out_dir.join("checkpoints"))? else {
         return Err(Error::InvalidInput(format!(
             "{}: not a nimbus run directory: no manifest.json, and no checkpoint that records its config",
@@ -63,20 +66,20 @@ fn config_of_checkpoints(out_dir: &Path) -> Result<ShotConfig> {
     };
     // Loaded through validation like any config; the checkpoint names it in errors.
     let text = serde_json::to_string_pretty(&cfg).map_err(|e| Error::Runtime(e.to_string()))?;
-    let cfg = config::load_str(&text, &path.to_string_lossy(), &[])?;
+    let shot = crate::shot::load_str(&text, &path.to_string_lossy(), &[])?;
     eprintln!(
         "note: {} is missing; resuming with the config recorded in {}",
         out_dir.join(MANIFEST).display(),
         path.display()
     );
-    Ok(cfg)
+    Ok(shot)
 }
 
 /// Refuses `cfg` for resuming the run in `out_dir` when its simulation keys differ from the
 /// run's recorded config, naming every key that differs.
 pub fn refuse_changed_simulation(cfg: &ShotConfig, out_dir: &Path) -> Result<()> {
-    let recorded = recorded_config(out_dir)?;
-    let diff = config::sim_key_diff(&recorded, cfg);
+    let recorded = recorded_shot(out_dir)?;
+    let diff = config::sim_key_diff(recorded.config(), cfg);
     if diff.is_empty() {
         Ok(())
     } else {
@@ -181,10 +184,10 @@ mod tests {
     use super::*;
     use crate::io::checkpoint::{write_checkpoint, CheckpointHeader, CONFIG_SECTION};
 
-    fn tiny(set: &[&str]) -> ShotConfig {
+    fn tiny(set: &[&str]) -> Shot {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny.yaml");
         let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
-        config::load(&path, &set).unwrap()
+        crate::shot::load(&path, &set).unwrap()
     }
 
     /// A run directory whose manifest was lost: one checkpoint that records `cfg`.
@@ -212,10 +215,10 @@ mod tests {
 
     #[test]
     fn a_library_resume_is_refused_like_the_command_line() {
-        let cfg = tiny(&[]);
+        let cfg = tiny(&[]).into_config();
         let run = checkpoint_only_run(&cfg);
-        let recorded = recorded_config(run.path()).unwrap();
-        assert!(config::sim_key_diff(&recorded, &cfg).is_empty());
+        let recorded = recorded_shot(run.path()).unwrap();
+        assert!(config::sim_key_diff(recorded.config(), &cfg).is_empty());
         // Every changed simulation key is named, before the GPU is opened.
         let changed = tiny(&["seed=9", "physics.heat_source=0.31", "output.frames.end=5"]);
         let e = resume_with(&changed, run.path(), LogFormat::Json).unwrap_err();

@@ -11,6 +11,7 @@ use crate::error::{Error, Result};
 use crate::gpu;
 use crate::ground::{ParticleState, SimClock};
 use crate::io::checkpoint;
+use crate::shot::Shot;
 use crate::sim::rest::{self, RestTracker};
 use crate::sim::Simulation;
 use std::path::{Path, PathBuf};
@@ -37,15 +38,16 @@ pub struct RunOptions {
     pub device: Option<Arc<gpu::Context>>,
 }
 
-/// `nimbus run CONFIG`: a new run of `cfg` into `out_dir` (created if missing; refused when it
+/// `nimbus run CONFIG`: a new run of `shot` into `out_dir` (created if missing; refused when it
 /// holds an earlier run, unless `force`: see `run_dir`). Resuming is `super::resume`.
-pub fn run_fresh(cfg: &ShotConfig, out_dir: &Path, log: LogFormat, force: bool) -> Result<()> {
+pub fn run_fresh(shot: &Shot, out_dir: &Path, log: LogFormat, force: bool) -> Result<()> {
+    let cfg = shot.config();
     // What can be checked of --out without writing comes first (exit 2, with or without a
     // GPU); then the device, and whether it holds the shot: a shot it cannot hold is refused
     // (exit 4, the limit and the largest particle count that fits) before anything is written.
     super::run_dir::check_fresh_out(out_dir, force)?;
     let ctx = Arc::new(gpu::Context::new(&cfg.gpu)?);
-    crate::sim::footprint::check_shot(&ctx, cfg, config::lattice_count(&cfg.domain) as u64)?;
+    crate::sim::footprint::check_shot(&ctx, shot, shot.particles())?;
     let lock = RunLock::acquire(out_dir, Create::IfMissing, "run")?;
     let opts = RunOptions {
         out_dir: out_dir.to_path_buf(),
@@ -53,11 +55,12 @@ pub fn run_fresh(cfg: &ShotConfig, out_dir: &Path, log: LogFormat, force: bool) 
         start: Start::Fresh { force },
         device: Some(ctx),
     };
-    run(cfg, &opts, &lock)
+    run(shot, &opts, &lock)
 }
 
 /// Runs (or resumes) a shot into `opts.out_dir`, which `lock` must hold.
-pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
+pub fn run(shot: &Shot, opts: &RunOptions, lock: &RunLock) -> Result<()> {
+    let cfg = shot.config();
     let run_dir = opts.out_dir.as_path();
     if lock.dir() != run_dir {
         return Err(Error::Runtime(format!(
@@ -106,7 +109,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     };
     let adapter = ctx.adapter_name();
     let (mut sim, first_frame) = match &resumed {
-        None => (Simulation::new(ctx.clone(), cfg)?, cfg.output.frames.start),
+        None => (Simulation::new(ctx.clone(), shot)?, cfg.output.frames.start),
         Some(ck) if ck.extra.contains_key(PREROLL_SECTION) => {
             // A checkpoint of the pre-roll: no frame is written yet.
             let clock = SimClock {
@@ -116,7 +119,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                 next_id: ck.header.next_id,
             };
             (
-                Simulation::from_state(ctx.clone(), cfg, &ck.state, clock)?,
+                Simulation::from_state(ctx.clone(), shot, &ck.state, clock)?,
                 cfg.output.frames.start,
             )
         }
@@ -137,7 +140,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                 next_id: ck.header.next_id,
             };
             (
-                Simulation::from_state(ctx.clone(), cfg, &ck.state, clock)?,
+                Simulation::from_state(ctx.clone(), shot, &ck.state, clock)?,
                 next,
             )
         }
@@ -171,7 +174,7 @@ pub fn run(cfg: &ShotConfig, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     );
     let h0 = cfg.domain.kernel_radius();
 
-    let writer = FrameWriter::new(cfg, run_dir)?;
+    let writer = FrameWriter::new(cfg, shot.heat_maps(), run_dir)?;
     let mut manifest = match (&resumed, Manifest::load(run_dir)) {
         (Some(_), Ok(m)) => m,
         (Some(_), Err(_)) => {

@@ -86,12 +86,12 @@ mod tests {
     }
 
     fn cfg() -> ShotConfig {
-        crate::config::load_str(
+        crate::shot::load_str(
             "shot: t\noutput: {frames: {start: 1, end: 2}}\ndomain: {size: [100, 50, 100], spacing: 5}\n",
             "t.yaml",
             &[],
         )
-        .unwrap()
+        .unwrap().into_config()
     }
 
     #[test]

@@ -6,6 +6,7 @@ use crate::config::ShotConfig;
 use crate::error::Result;
 use crate::export::ExportSpace;
 use crate::ground::rest::{RestClock, RestCodec, RestFrame};
+use crate::ground::HeatMap;
 use crate::ground::ParticleState;
 use crate::ground::{GridTransform, SparseGrid};
 use crate::io::vdb::{VdbFile, VdbGrid, VdbOptions};
@@ -52,7 +53,9 @@ pub struct FrameWriter {
 }
 
 impl FrameWriter {
-    pub fn new(cfg: &ShotConfig, run_dir: &Path) -> Result<Self> {
+    /// The writer of `cfg`'s frames into `run_dir`; `heat_maps` are the shot's (`shot::Shot`),
+    /// drawn by the source overlay.
+    pub fn new(cfg: &ShotConfig, heat_maps: &[Option<HeatMap>], run_dir: &Path) -> Result<Self> {
         if cfg.output.preview.enabled && cfg.output.preview.movie {
             crate::preview::movie::require_ffmpeg()?;
         }
@@ -63,7 +66,9 @@ impl FrameWriter {
             None
         };
         let overlay = if preview.is_some() && cfg.output.preview.source_overlay {
-            Some(crate::preview::overlay::sources::SourceOverlay::new(cfg)?)
+            Some(crate::preview::overlay::sources::SourceOverlay::new(
+                cfg, heat_maps,
+            )?)
         } else {
             None
         };

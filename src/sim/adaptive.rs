@@ -2,7 +2,7 @@
 //!
 //! A stage over the particle buffers of docs/ARCHITECTURE.md (cell-ordered, with the cell table
 //! of the last grid build), recorded at the end of every substep without a host round trip
-//! ([`AdaptiveStage::split_and_merge`]):
+//! (three phases, marks, merges and splits, each a call of its `Stage::record`):
 //! 1. `adaptive_mark`: E = kp (1 - exp(-kc w)) into `thermo.w`; merge marks (E < beta, l > 0);
 //!    split marks (E > alpha, l < max_level) where both children fit (min_distance);
 //! 2. `merge_cells` lists, per grid colour, the cells holding a merge mark with a merge-marked
@@ -23,18 +23,39 @@ use crate::config::AdaptiveConfig;
 use crate::error::{Error, Result};
 use crate::gpu::buffers::{self, ParamSlots};
 use crate::gpu::live::LiveBuffer;
-use crate::gpu::program::{Dispatch, Program, Resources};
+use crate::gpu::program::{entry_points, Dispatch, Entry, Program, Resources};
 use crate::gpu::scan::{PrefixScan, ScanOf};
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::grid_params::GridParams;
 use crate::sim::phase::{Phase, Recorder};
+use crate::sim::stage::{Setup, Stage, Substep};
+
+entry_points! {
+    /// Shape energy, merge and split marks.
+    pub enum MarkEntry in "adaptive_mark.wgsl" { Mark = "adaptive_mark" }
+    /// The cells to merge per colour, and one indirect dispatch per colour.
+    pub enum PlanEntry in "adaptive_plan.wgsl" {
+        Cells = "merge_cells", Dispatches = "merge_dispatch",
+    }
+    /// A workgroup per listed cell of a colour.
+    pub enum MergeEntry in "adaptive_merge.wgsl" { Merge = "adaptive_merge" }
+    /// The in-place compaction of the dead slots.
+    pub enum CompactEntry in "adaptive_compact.wgsl" {
+        Holes = "compact_holes", Move = "compact_move",
+    }
+    /// The children, appended after the live range.
+    pub enum SplitEntry in "adaptive_split.wgsl" { Split = "adaptive_split" }
+    /// The run's totals after the merges and after the splits.
+    pub enum StatsEntry in "adaptive_stats.wgsl" {
+        Merges = "totals_merge", Splits = "totals_split",
+    }
+}
 
 /// Levels the counters buffer has room for (`MAX_LEVELS` in shaders/shared/adaptive.wgsl).
 pub const MAX_LEVELS: u32 = 24;
-/// Largest `min_distance` for which the 27 cells around a merging cell hold every particle the
-/// room check needs: |midpoint - x_i| < h_l / 2 <= 2^(-1/3) L / 2 and h_new <= L.
-pub const MAX_MIN_DISTANCE: f64 = 0.6;
+/// Largest `min_distance` the room check's 27 cells allow (a limit of the config's range).
+pub use crate::config::MAX_MIN_DISTANCE;
 
 // Flags of one run (shaders/shared/adaptive.wgsl).
 pub const FLAG_MERGE: u32 = 1;
@@ -69,40 +90,10 @@ pub struct AdaptiveParams {
 }
 
 impl AdaptiveParams {
-    /// Validated parameters of a shot (count and next_id are set per run).
-    pub fn new(cfg: &AdaptiveConfig, h0: f64, capacity: u32) -> Result<Self> {
-        let bad = |key: &str, msg: String| Err(Error::Config(format!("adaptive.{key}: {msg}")));
-        let ordered = cfg.merge_threshold < cfg.split_threshold;
-        if !ordered {
-            return bad(
-                "merge_threshold",
-                format!(
-                    "must be below split_threshold ({} >= {})",
-                    cfg.merge_threshold, cfg.split_threshold
-                ),
-            );
-        }
-        if !(0.0..=MAX_MIN_DISTANCE).contains(&cfg.min_distance) {
-            return bad(
-                "min_distance",
-                format!("{} is outside [0, {MAX_MIN_DISTANCE}]", cfg.min_distance),
-            );
-        }
-        if cfg.split_offset.is_nan() || cfg.split_offset <= 0.0 || cfg.split_offset > 0.5 {
-            return bad(
-                "split_offset",
-                format!("{} is outside (0, 0.5]", cfg.split_offset),
-            );
-        }
-        if !(cfg.kp.is_finite() && cfg.kc.is_finite()) {
-            return bad("kp", "kp and kc must be finite".into());
-        }
-        if !h0.is_finite() || h0 <= 0.0 {
-            return Err(Error::Config(format!(
-                "domain: kernel radius {h0} must be positive"
-            )));
-        }
-        Ok(Self {
+    /// The parameters of a prepared shot's `adaptive` section (its ranges and order checked
+    /// there, `shot::Shot`); count and next_id are set per run.
+    pub fn new(cfg: &AdaptiveConfig, h0: f64, capacity: u32) -> Self {
+        Self {
             count: 0,
             capacity,
             max_level: cfg.max_level,
@@ -115,7 +106,7 @@ impl AdaptiveParams {
             min_distance: cfg.min_distance as f32,
             split_offset: cfg.split_offset as f32,
             pad0: 0,
-        })
+        }
     }
 }
 
@@ -287,12 +278,12 @@ pub struct FrameTotals {
 pub struct AdaptiveStage {
     params: AdaptiveParams,
     capacity: u32,
-    mark: Program,
-    merge: Program,
-    plan: Program,
-    compact: Program,
-    split: Program,
-    stats: Program,
+    mark: Program<MarkEntry>,
+    merge: Program<MergeEntry>,
+    plan: Program<PlanEntry>,
+    compact: Program<CompactEntry>,
+    split: Program<SplitEntry>,
+    stats: Program<StatsEntry>,
     param_buf: ParamSlots<AdaptiveParams>,
     colour_map: ParamSlots<ColourMap>,
     colours: ParamSlots<MergeColour>,
@@ -323,7 +314,7 @@ struct Binds {
 
 impl AdaptiveStage {
     /// Builds the stage over the particle buffers `b` on `grid` (its host copy: the merge
-    /// colours follow its dims), kernel radius `h0` of level 0.
+    /// colours follow its dims), kernel radius `h0` of level 0, of a prepared shot (`shot`).
     pub fn new(
         ctx: &Context,
         cfg: &AdaptiveConfig,
@@ -332,40 +323,15 @@ impl AdaptiveStage {
         b: &ParticleBuffers,
     ) -> Result<Self> {
         let capacity = b.capacity;
-        let params = AdaptiveParams::new(cfg, h0, capacity)?;
-        if let Some(edge) = grid
-            .cell_size
-            .iter()
-            .find(|&&e| e < h0 as f32 * (1.0 - 1e-6))
-        {
-            return Err(Error::Config(format!(
-                "domain: grid cells ({edge}) are smaller than the kernel radius {h0}"
-            )));
-        }
-        if (grid.periodic_x() && grid.dims[0] < 3) || (grid.periodic_z() && grid.dims[2] < 3) {
-            return Err(Error::Config(
-                "domain: a periodic axis needs at least 3 grid cells".into(),
-            ));
-        }
+        let params = AdaptiveParams::new(cfg, h0, capacity);
+        // the grid of a prepared shot: cells of at least h0, 3 or more along a periodic axis
         let d = &ctx.device;
-        let mark = Program::new(ctx, "adaptive_mark.wgsl", &["adaptive_mark"])?;
-        let merge = Program::new(ctx, "adaptive_merge.wgsl", &["adaptive_merge"])?;
-        let plan = Program::new(
-            ctx,
-            "adaptive_plan.wgsl",
-            &["merge_cells", "merge_dispatch"],
-        )?;
-        let compact = Program::new(
-            ctx,
-            "adaptive_compact.wgsl",
-            &["compact_holes", "compact_move"],
-        )?;
-        let split = Program::new(ctx, "adaptive_split.wgsl", &["adaptive_split"])?;
-        let stats = Program::new(
-            ctx,
-            "adaptive_stats.wgsl",
-            &["totals_merge", "totals_split"],
-        )?;
+        let mark = Program::new(ctx)?;
+        let merge = Program::new(ctx)?;
+        let plan = Program::new(ctx)?;
+        let compact = Program::new(ctx)?;
+        let split = Program::new(ctx)?;
+        let stats = Program::new(ctx)?;
         let param_buf = ParamSlots::single(ctx, "adaptive params", &params);
         let flags = b.quarter(&b.pred, 0);
         let hole_index = b.quarter(&b.pred, 1);
@@ -490,64 +456,65 @@ impl AdaptiveStage {
             .write_buffer(&self.load, 0, bytemuck::cast_slice(&[0u32; N_LOAD]));
     }
 
-    /// Records one run: marks, merges, compaction and splits of the live particles, the new
-    /// live state written over `live` on the GPU. The particle arrays are updated in place; the
-    /// cell table is stale afterwards (the next grid build re-sorts).
-    pub fn split_and_merge(&self, rec: &mut Recorder, live: &LiveBuffer) -> Result<()> {
+    /// Shape energy and marks (the marks phase).
+    fn record_marks(&self, rec: &mut Recorder, live: &LiveBuffer) {
+        let mark = MarkEntry::Mark;
+        per_particle(&self.mark, &mut rec.pass(), mark, &self.binds.mark, live);
+    }
+
+    /// The cells to visit per colour, one cooperative dispatch per colour, then the compaction
+    /// of the dead slots (the merge phase).
+    fn record_merges(&self, rec: &mut Recorder, live: &LiveBuffer) {
         let b = &self.binds;
-        let one = |stage: &Program, pass: &mut wgpu::ComputePass, entry, bind| {
-            stage.dispatch(pass, entry, &[(bind, 0)], Dispatch::Live(live))
-        };
-        // Split phase 1: shape energy and marks.
-        {
-            let mut pass = rec.pass(Phase::Split);
-            one(&self.mark, &mut pass, "adaptive_mark", &b.mark);
-        }
-        rec.end_phase(Phase::Split)?;
-        // Merge: the cells to visit per colour, one cooperative dispatch per colour, then the
-        // compaction of the dead slots.
         rec.encoder().clear_buffer(&self.colour_count, 0, None);
-        {
-            let mut pass = rec.pass(Phase::Merge);
-            let cells = Dispatch::Threads(self.num_cells);
-            self.plan
-                .dispatch(&mut pass, "merge_cells", &[(&b.plan, 0)], cells);
-            self.plan.dispatch(
+        let mut pass = rec.pass();
+        let cells = Dispatch::Threads(self.num_cells);
+        let plan = [(&b.plan, 0)];
+        self.plan
+            .dispatch(&mut pass, PlanEntry::Cells, &plan, cells);
+        let one = Dispatch::Groups(1);
+        self.plan
+            .dispatch(&mut pass, PlanEntry::Dispatches, &plan, one);
+        for c in 0..self.n_colours {
+            self.merge.dispatch(
                 &mut pass,
-                "merge_dispatch",
-                &[(&b.plan, 0)],
-                Dispatch::Groups(1),
+                MergeEntry::Merge,
+                &[(&b.merge, 0), (&b.colour, self.colours.offset(c))],
+                Dispatch::Indirect(&self.merge_args, c as u64 * 16),
             );
-            for c in 0..self.n_colours {
-                self.merge.dispatch(
-                    &mut pass,
-                    "adaptive_merge",
-                    &[(&b.merge, 0), (&b.colour, self.colours.offset(c))],
-                    Dispatch::Indirect(&self.merge_args, c as u64 * 16),
-                );
-            }
-            self.scan.encode(&mut pass, 0);
-            self.stats.dispatch(
-                &mut pass,
-                "totals_merge",
-                &[(&b.stats, 0)],
-                Dispatch::Groups(1),
-            );
-            one(&self.compact, &mut pass, "compact_holes", &b.compact);
-            one(&self.compact, &mut pass, "compact_move", &b.compact);
         }
-        rec.end_phase(Phase::Merge)?;
-        // Split phase 2: scan of the split marks, the new live state, children and level counts.
+        self.scan.encode(&mut pass, 0);
+        let totals = StatsEntry::Merges;
+        self.stats
+            .dispatch(&mut pass, totals, &[(&b.stats, 0)], one);
+        per_particle(
+            &self.compact,
+            &mut pass,
+            CompactEntry::Holes,
+            &b.compact,
+            live,
+        );
+        per_particle(
+            &self.compact,
+            &mut pass,
+            CompactEntry::Move,
+            &b.compact,
+            live,
+        );
+    }
+
+    /// The scan of the split marks, the new live state, children and level counts, and the new
+    /// live state copied over `live` (the split phase).
+    fn record_splits(&self, rec: &mut Recorder, live: &LiveBuffer) {
+        let b = &self.binds;
         {
-            let mut pass = rec.pass(Phase::Split);
+            let mut pass = rec.pass();
             self.scan.encode(&mut pass, 1);
-            self.stats.dispatch(
-                &mut pass,
-                "totals_split",
-                &[(&b.stats, 0)],
-                Dispatch::Groups(1),
-            );
-            one(&self.split, &mut pass, "adaptive_split", &b.split);
+            let totals = StatsEntry::Splits;
+            let one = Dispatch::Groups(1);
+            self.stats
+                .dispatch(&mut pass, totals, &[(&b.stats, 0)], one);
+            per_particle(&self.split, &mut pass, SplitEntry::Split, &b.split, live);
         }
         rec.encoder().copy_buffer_to_buffer(
             &self.counters,
@@ -556,7 +523,6 @@ impl AdaptiveStage {
             0,
             std::mem::size_of::<crate::gpu::live::Live>() as u64,
         );
-        rec.end_phase(Phase::Split)
     }
 
     /// The run's report from the read-back counters (`N_COUNTERS` u32).
@@ -588,12 +554,15 @@ impl AdaptiveStage {
         self.loop_budget
     }
 
-    /// Records and runs one split/merge on its own and reads the counters back (tests and
-    /// benchmarks; the simulation records the stage into its substeps instead).
+    /// Records and runs one split/merge on its own (its phases in the order of `sim::step`)
+    /// and reads the counters back (tests and benchmarks; the simulation records the stage
+    /// into its substeps instead).
     pub fn run(&self, ctx: &Context, live: &LiveBuffer) -> Result<AdaptiveReport> {
         self.start_frame(ctx);
         let mut rec = Recorder::new(ctx, None, None);
-        self.split_and_merge(&mut rec, live)?;
+        self.record_marks(&mut rec, live);
+        self.record_merges(&mut rec, live);
+        self.record_splits(&mut rec, live);
         rec.submit();
         let mut rb = buffers::Readback::default();
         let counters = rb.add_array::<u32>(&self.counters, N_COUNTERS);
@@ -602,8 +571,38 @@ impl AdaptiveStage {
         load_error(&data.get::<u32>(load), self.loop_budget)?;
         Ok(self.report(&data.get::<u32>(counters)))
     }
+}
 
-    pub fn device_bytes(&self) -> u64 {
+/// Records `entry` over the live particles.
+fn per_particle<E: Entry>(
+    program: &Program<E>,
+    pass: &mut wgpu::ComputePass,
+    entry: E,
+    bind: &wgpu::BindGroup,
+    live: &LiveBuffer,
+) {
+    program.dispatch(pass, entry, &[(bind, 0)], Dispatch::Live(live));
+}
+
+impl Stage for AdaptiveStage {
+    fn from_setup(setup: &Setup) -> Result<Self> {
+        let (cfg, h0) = (&setup.shot.config().adaptive, setup.shot.h0());
+        Self::new(setup.ctx, cfg, setup.grid, h0, setup.buffers)
+    }
+
+    /// The marks, the merges or the splits; the cell table is stale afterwards (the next grid
+    /// build re-sorts).
+    fn record(&self, phase: Phase, rec: &mut Recorder, sub: &Substep) -> Result<()> {
+        match phase {
+            Phase::Mark => self.record_marks(rec, sub.live),
+            Phase::Merge => self.record_merges(rec, sub.live),
+            Phase::Split => self.record_splits(rec, sub.live),
+            other => return Err(crate::sim::stage::not_recorded("split and merge", other)),
+        }
+        Ok(())
+    }
+
+    fn device_bytes(&self) -> u64 {
         [
             &self.counters,
             &self.load,
@@ -676,27 +675,6 @@ mod tests {
         }
         // A multiple of 3 needs exactly the 27 colours of Fig. 4.
         assert_eq!(colour_passes(&grid([6, 9, 3], true, true)).len(), 27);
-    }
-
-    #[test]
-    fn params_validation_rejects_bad_config() {
-        let ok = AdaptiveConfig::default();
-        assert!(AdaptiveParams::new(&ok, 0.1, 10).is_ok());
-        // (max_level's range is the config's alone: config::validate, tests/config_limits.rs)
-        let breakers: [fn(&mut AdaptiveConfig); 4] = [
-            |c: &mut AdaptiveConfig| c.merge_threshold = c.split_threshold,
-            |c: &mut AdaptiveConfig| c.min_distance = 0.9,
-            |c: &mut AdaptiveConfig| c.split_offset = 0.0,
-            |c: &mut AdaptiveConfig| c.kc = f64::NAN,
-        ];
-        for f in breakers {
-            let mut c = ok.clone();
-            f(&mut c);
-            assert!(matches!(
-                AdaptiveParams::new(&c, 0.1, 10),
-                Err(Error::Config(_))
-            ));
-        }
     }
 
     /// The shader's colour of every cell is the colour pass that holds it.

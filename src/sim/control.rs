@@ -1,14 +1,10 @@
 //! Target-shape control (`control.target`), a feedback controller after Dobashi et al. 2008.
 //!
-//! On the host, once: the target is placed in the domain (scale, then rotation about y, then
-//! translation) and voxelised on a coarse grid tiling the domain (cells of about `voxel_size`,
-//! default the kernel radius): a voxel is inside when its centre is. For an OBJ mesh
-//! ([`crate::io::obj`]) by the parity of the crossings of a vertical ray through its column; for
-//! a VDB fog volume or level set ([`crate::sim::target_volume`]) by the grid's value there. From
-//! the voxels on, both are the same. Per ground column this gives
-//! the target's top, and the footprint gives a mask that keeps the other heating (noise,
-//! sources) at full strength within `margin` of the footprint and fades it to 0 over the next
-//! `margin` (condensation supply suppressed far outside the target).
+//! The prepared shot has placed the target in the domain and voxelised it once on a coarse grid
+//! tiling the domain (`shot::target`). From the voxels this gives, per ground column, the
+//! target's top, and the footprint gives a mask that keeps the other heating (noise, sources) at
+//! full strength within `margin` of the footprint and fades it to 0 over the next `margin`
+//! (condensation supply suppressed far outside the target).
 //!
 //! Per frame, from the state the frame's one read-back already brought home (no host wait of
 //! its own): the particles are binned into the voxels; a voxel is cloud when the mass-weighted
@@ -21,130 +17,7 @@
 //! continues byte for byte. The same binning gives `target_iou`, the intersection over union of
 //! the cloud voxels and the target voxels.
 use crate::config::{ShotConfig, TargetConfig};
-use crate::ground::ParticleState;
-use crate::io::obj::Mesh;
-
-/// The controller's voxel grid: `n` cells along x, y, z tiling the domain exactly.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct VoxelGrid {
-    pub n: [usize; 3],
-    pub cell: [f64; 3],
-}
-
-/// Most voxels of the controller's grid (validation refuses more).
-pub const MAX_VOXELS: usize = 1 << 24;
-
-impl VoxelGrid {
-    /// Cells of about `voxel` m over a domain of `size` m (at least one per axis).
-    pub fn new(size: [f64; 3], voxel: f64) -> Self {
-        // at most MAX_VOXELS per axis, so the products below cannot overflow (validation
-        // refuses grids of more than MAX_VOXELS voxels in all)
-        let n = size.map(|s| ((s / voxel).round() as usize).clamp(1, MAX_VOXELS));
-        Self {
-            n,
-            cell: [0, 1, 2].map(|a| size[a] / n[a] as f64),
-        }
-    }
-
-    pub fn for_target(cfg: &ShotConfig, t: &TargetConfig) -> Self {
-        Self::new(cfg.domain.size, voxel_size(cfg, t))
-    }
-
-    pub fn len(&self) -> usize {
-        self.n[0] * self.n[1] * self.n[2]
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    pub fn columns(&self) -> usize {
-        self.n[0] * self.n[2]
-    }
-
-    /// Index of voxel (i, j, k): x fastest, then z, then y (so a column's voxels are `columns`
-    /// apart and a layer is one heat map, row = z).
-    pub fn index(&self, i: usize, j: usize, k: usize) -> usize {
-        (j * self.n[2] + k) * self.n[0] + i
-    }
-
-    /// Voxel holding point p (clamped into the grid).
-    pub fn voxel_of(&self, p: [f64; 3]) -> [usize; 3] {
-        [0, 1, 2].map(|a| ((p[a] / self.cell[a]).floor().max(0.0) as usize).min(self.n[a] - 1))
-    }
-}
-
-/// Edge of the controller's voxels (m).
-pub fn voxel_size(cfg: &ShotConfig, t: &TargetConfig) -> f64 {
-    t.voxel_size.unwrap_or(cfg.domain.kernel_radius())
-}
-
-/// The mesh's vertices placed in the domain: scaled, turned about y (from +x towards +z),
-/// translated.
-pub fn place(mesh: &Mesh, t: &TargetConfig) -> Mesh {
-    let vertices = mesh
-        .vertices
-        .iter()
-        .map(|v| crate::sim::target_volume::place_point(*v, t))
-        .collect();
-    Mesh {
-        vertices,
-        triangles: mesh.triangles.clone(),
-    }
-}
-
-/// Inside flags of every voxel of `grid` (by its centre), by ray parity: a vertical ray through
-/// each column (nudged by a tiny irrational offset, so it misses edges and vertices of meshes
-/// on round coordinates) crosses the surface at sorted heights; a centre with an odd number of
-/// crossings below it is inside.
-pub fn voxelize(mesh: &Mesh, grid: &VoxelGrid) -> Vec<bool> {
-    let mut inside = vec![false; grid.len()];
-    let tris: Vec<[[f64; 3]; 3]> = mesh
-        .triangles
-        .iter()
-        .map(|t| t.map(|i| mesh.vertices[i as usize]))
-        .collect();
-    let mut ys = Vec::new();
-    for k in 0..grid.n[2] {
-        for i in 0..grid.n[0] {
-            let x = (i as f64 + 0.5) * grid.cell[0]
-                + 1.0e-7 * grid.cell[0] * std::f64::consts::FRAC_1_PI;
-            let z =
-                (k as f64 + 0.5) * grid.cell[2] + 1.0e-7 * grid.cell[2] * std::f64::consts::LN_2;
-            ys.clear();
-            for t in &tris {
-                if let Some(y) = vertical_hit(t, x, z) {
-                    ys.push(y);
-                }
-            }
-            if ys.is_empty() {
-                continue;
-            }
-            ys.sort_by(f64::total_cmp);
-            for j in 0..grid.n[1] {
-                let y = (j as f64 + 0.5) * grid.cell[1];
-                let below = ys.partition_point(|h| *h < y);
-                inside[grid.index(i, j, k)] = below % 2 == 1;
-            }
-        }
-    }
-    inside
-}
-
-/// Height where the vertical line through (x, z) crosses triangle t, if it does.
-fn vertical_hit(t: &[[f64; 3]; 3], x: f64, z: f64) -> Option<f64> {
-    let [a, b, c] = t;
-    let d = (b[0] - a[0]) * (c[2] - a[2]) - (c[0] - a[0]) * (b[2] - a[2]);
-    if d == 0.0 {
-        return None; // a vertical triangle: the ray grazes it
-    }
-    let u = ((x - a[0]) * (c[2] - a[2]) - (c[0] - a[0]) * (z - a[2])) / d;
-    let v = ((b[0] - a[0]) * (z - a[2]) - (x - a[0]) * (b[2] - a[2])) / d;
-    if u < 0.0 || v < 0.0 || u + v > 1.0 {
-        return None;
-    }
-    Some(a[1] + u * (b[1] - a[1]) + v * (c[1] - a[1]))
-}
+use crate::ground::{ParticleState, TargetVoxels, VoxelGrid};
 
 /// Intersection over union of two voxel sets (0 when both are empty).
 pub fn iou(a: &[bool], b: &[bool]) -> f64 {
@@ -184,39 +57,17 @@ pub struct Target {
 }
 
 impl Target {
-    /// The shot's target, or `None` without `control.target`; the mesh or VDB is read again
-    /// here (a file that changed or vanished since validation is an input error).
-    pub fn load(cfg: &ShotConfig) -> crate::Result<Option<Self>> {
-        let Some(t) = &cfg.control.target else {
-            return Ok(None);
-        };
-        if let Some(vdb) = crate::sim::target_volume::load(t) {
-            let vdb = vdb.map_err(|e| {
-                crate::Error::InvalidInput(format!("control.target.vdb: {}", e.msg))
-            })?;
-            let grid = VoxelGrid::for_target(cfg, t);
-            let inside = vdb.voxelize(t, &grid);
-            return Ok(Some(Self::from_inside(cfg, t, grid, inside)));
-        }
-        let mesh = load_mesh(t)
-            .map_err(|why| crate::Error::InvalidInput(format!("control.target.mesh: {why}")))?;
-        Ok(Some(Self::new(cfg, t, &mesh)))
+    /// The controller of the shot's target, or `None` without `control.target`.
+    pub fn of_shot(shot: &crate::shot::Shot) -> Option<Self> {
+        let cfg = shot.config();
+        let t = cfg.control.target.as_ref()?;
+        Some(Self::new(cfg, t, shot.target()?))
     }
 
-    /// The target of `mesh` (in its own coordinates) placed by `t`.
-    pub fn new(cfg: &ShotConfig, t: &TargetConfig, mesh: &Mesh) -> Self {
-        let grid = VoxelGrid::for_target(cfg, t);
-        let inside = voxelize(&place(mesh, t), &grid);
-        Self::from_inside(cfg, t, grid, inside)
-    }
-
-    /// The target of the voxels `inside` of `grid` (index [`VoxelGrid::index`]).
-    pub fn from_inside(
-        cfg: &ShotConfig,
-        t: &TargetConfig,
-        grid: VoxelGrid,
-        inside: Vec<bool>,
-    ) -> Self {
+    /// The controller of the target `t` of `cfg`, voxelised as `voxels`.
+    pub fn new(cfg: &ShotConfig, t: &TargetConfig, voxels: &TargetVoxels) -> Self {
+        let grid = voxels.grid;
+        let inside = voxels.inside.clone();
         let cols = grid.columns();
         let mut top = vec![0.0; cols];
         for (v, _) in inside.iter().enumerate().filter(|(_, x)| **x) {
@@ -286,40 +137,6 @@ impl Target {
         let cloud = self.cloud_voxels(state);
         (self.supply(&cloud), iou(&cloud, &self.inside))
     }
-}
-
-/// Reads a target's mesh and checks that it is closed (the error is one line, without the key).
-/// (A target without `mesh` is a VDB: [`crate::sim::target_volume::load`].)
-pub fn load_mesh(t: &TargetConfig) -> Result<Mesh, String> {
-    let Some(name) = t.mesh.as_deref() else {
-        return Err("control.target has no mesh".into());
-    };
-    let path = std::path::Path::new(name);
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase());
-    if ext.as_deref() == Some("vdb") {
-        return Err(format!(
-            "{name}: a VDB volume is given as control.target.vdb, not as a mesh"
-        ));
-    }
-    if ext.as_deref() != Some("obj") {
-        return Err(format!(
-            "{name}: only Wavefront OBJ meshes (.obj) are read as target meshes (VDB volumes: control.target.vdb)"
-        ));
-    }
-    let mesh = crate::io::obj::read(path).map_err(|why| format!("{name}: {why}"))?;
-    mesh.check_closed()
-        .map_err(|why| format!("{name}: {why}"))?;
-    if let Some(sha) = &t.mesh_sha256 {
-        let now = crate::io::heat_map::file_sha256(path)?;
-        if *sha != now {
-            return Err(format!(
-                "{name} has changed since this config was resolved (SHA-256 {now}, recorded {sha}); restore the mesh or start a new run"
-            ));
-        }
-    }
-    Ok(mesh)
 }
 
 /// The offset from each voxel's centre to the nearest target voxel's centre, by a breadth-first
@@ -446,6 +263,11 @@ mod tests {
     const CUBE: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
         f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n";
 
+    fn cube_target(cfg: &ShotConfig, t: &TargetConfig) -> Target {
+        let mesh = crate::io::obj::parse(CUBE).unwrap();
+        Target::new(cfg, t, &crate::shot::target::mesh_voxels(cfg, t, &mesh))
+    }
+
     fn shot(target: &str) -> ShotConfig {
         let mut cfg: ShotConfig = serde_saphyr::from_str(
             "shot: t\noutput: {frames: {start: 1, end: 2}}\n\
@@ -462,7 +284,7 @@ mod tests {
         // 100 m, centres 350..650 along x, 250..450 along y, 450..550 along z
         let cfg = shot("{mesh: c.obj, scale: [400, 300, 200], translate: [300, 200, 400]}");
         let t = cfg.control.target.clone().unwrap();
-        let target = Target::new(&cfg, &t, &crate::io::obj::parse(CUBE).unwrap());
+        let target = cube_target(&cfg, &t);
         assert_eq!(target.grid.n, [10, 8, 10]);
         let count = target.inside.iter().filter(|x| **x).count();
         assert_eq!(count, 4 * 3 * 2);
@@ -485,7 +307,7 @@ mod tests {
         let cfg =
             shot("{mesh: c.obj, scale: [600, 200, 100], rotate_y: 90, translate: [560, 100, 200]}");
         let t = cfg.control.target.clone().unwrap();
-        let target = Target::new(&cfg, &t, &crate::io::obj::parse(CUBE).unwrap());
+        let target = cube_target(&cfg, &t);
         // x' = -z, z' = x: the bar covers x in [460, 560], z in [200, 800]
         let cols: Vec<usize> = (0..100).filter(|c| target.top[*c] > 0.0).collect();
         assert_eq!(cols.len(), 6, "{cols:?}");
@@ -498,7 +320,7 @@ mod tests {
     fn the_pull_field_points_at_the_nearest_target_voxel() {
         let cfg = shot("{mesh: c.obj, scale: [400, 300, 200], translate: [300, 200, 400]}");
         let t = cfg.control.target.clone().unwrap();
-        let target = Target::new(&cfg, &t, &crate::io::obj::parse(CUBE).unwrap());
+        let target = cube_target(&cfg, &t);
         let g = target.grid;
         assert_eq!(target.field[g.index(3, 2, 4)], [0.0; 4]);
         // two voxels above the top layer (j = 4): 200 m down
@@ -525,7 +347,7 @@ mod tests {
         let cfg =
             shot("{mesh: c.obj, scale: [400, 300, 200], translate: [300, 200, 400], gain: 0.005}");
         let t = cfg.control.target.clone().unwrap();
-        let target = Target::new(&cfg, &t, &crate::io::obj::parse(CUBE).unwrap());
+        let target = cube_target(&cfg, &t);
         let mut s = ParticleState::default();
         let mut put = |x: f32, y: f32, z: f32, w: f32| {
             s.pos.push([x, y, z, 0.0]);

@@ -46,21 +46,13 @@ pub struct ShotSize {
 }
 
 impl ShotSize {
-    /// The shot of `cfg` with `particles` particles (its heat maps and target read to size the
-    /// map buffer, as the thermodynamics stage will).
-    pub fn of(cfg: &ShotConfig, particles: u64) -> Result<Self> {
-        let target = crate::sim::control::Target::load(cfg)?;
-        Self::with_target(cfg, particles, target.as_ref())
-    }
-
-    /// [`Self::of`] with the shot's target already loaded.
-    pub fn with_target(
-        cfg: &ShotConfig,
-        particles: u64,
-        target: Option<&crate::sim::control::Target>,
-    ) -> Result<Self> {
-        let maps = crate::sim::sources::HeatMaps::load(cfg)?.with_target(target);
-        Ok(Self::with_maps(cfg, particles, maps.values.len() as u64))
+    /// A prepared shot with `particles` particles (its heat maps and target size the map
+    /// buffer, as the thermodynamics stage will).
+    pub fn of(shot: &crate::shot::Shot, particles: u64) -> Self {
+        let target = crate::sim::control::Target::of_shot(shot);
+        let maps =
+            crate::sim::sources::HeatMaps::new(shot.heat_maps()).with_target(target.as_ref());
+        Self::with_maps(shot.config(), particles, maps.values.len() as u64)
     }
 
     /// [`Self::of`] with the heat-map buffer's length known.
@@ -293,23 +285,27 @@ pub fn refusal(
     )
 }
 
-/// Checks `cfg` with `particles` particles against the device; the refusal is exit 4 with the
+/// Checks `shot` with `particles` particles against the device; the refusal is exit 4 with the
 /// limit and the largest count that fits, and a domain.spacing that fits.
 pub fn check_shot(
     ctx: &crate::gpu::Context,
-    cfg: &ShotConfig,
+    shot: &crate::shot::Shot,
     particles: u64,
 ) -> Result<Footprint> {
-    let shot = ShotSize::of(cfg, particles)?;
-    check(ctx, &shot, || spacing_hint(ctx, cfg, &shot))
+    let size = ShotSize::of(shot, particles);
+    check(ctx, &size, || spacing_hint(ctx, shot.config(), &size))
 }
 
-/// `validate --gpu`: the shot of `cfg` (its lattice's particles) checked against the device;
-/// on success, its footprint and the largest particle count of this shot the device holds.
-pub fn check_config(ctx: &crate::gpu::Context, cfg: &ShotConfig) -> Result<(Footprint, u64)> {
-    let shot = ShotSize::of(cfg, crate::config::lattice_count(&cfg.domain) as u64)?;
-    let fp = check(ctx, &shot, || spacing_hint(ctx, cfg, &shot))?;
-    let largest = largest_count(&shot, smallest_workgroup(&ctx.prelude), &ctx.limits);
+/// `validate --gpu`: `shot` (its lattice's particles) checked against the device; on success,
+/// its footprint and the largest particle count of this shot the device holds.
+pub fn check_config(
+    ctx: &crate::gpu::Context,
+    shot: &crate::shot::Shot,
+) -> Result<(Footprint, u64)> {
+    let cfg = shot.config();
+    let size = ShotSize::of(shot, shot.particles());
+    let fp = check(ctx, &size, || spacing_hint(ctx, cfg, &size))?;
+    let largest = largest_count(&size, smallest_workgroup(&ctx.prelude), &ctx.limits);
     Ok((fp, largest))
 }
 

@@ -7,17 +7,30 @@
 use crate::error::Result;
 use crate::gpu::buffers::{range, storage_zeroed, Span};
 use crate::gpu::live::LiveBuffer;
-use crate::gpu::program::{Dispatch, Program};
+use crate::gpu::program::{entry_points, Dispatch, Entry, Program};
 use crate::gpu::scan::{PrefixScan, ScanOf};
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::grid_params::GridParams;
 use crate::sim::phase::{Phase, Recorder};
+use crate::sim::stage::{Setup, Stage, Substep};
+
+entry_points! {
+    /// The entry points of shaders/grid.wgsl, in the order of a build.
+    pub enum GridEntry in "grid.wgsl" {
+        CellClear = "cell_clear", CellKeys = "cell_keys",
+        CellScatter = "cell_scatter", CellOrder = "cell_order",
+    }
+    /// Gathers a `vec4` array into cell order (into the velocity array) and copies it back.
+    pub enum Permute4Entry in "permute4.wgsl" { Gather = "permute4", CopyBack = "copy4" }
+    /// The same for a `vec2<u32>` array.
+    pub enum Permute2Entry in "permute2.wgsl" { Gather = "permute2", CopyBack = "copy2" }
+}
 
 pub struct GridStage {
-    keys: Program,
-    perm4: Program,
-    perm2: Program,
+    keys: Program<GridEntry>,
+    perm4: Program<Permute4Entry>,
+    perm2: Program<Permute2Entry>,
     /// counts -> cell_start
     scan: PrefixScan,
     keys_bind: wgpu::BindGroup,
@@ -31,13 +44,9 @@ pub struct GridStage {
 
 impl GridStage {
     pub fn new(ctx: &Context, grid: &GridParams, b: &ParticleBuffers) -> Result<Self> {
-        let keys = Program::new(
-            ctx,
-            "grid.wgsl",
-            &["cell_clear", "cell_keys", "cell_scatter", "cell_order"],
-        )?;
-        let perm4 = Program::new(ctx, "permute4.wgsl", &["permute4", "copy4"])?;
-        let perm2 = Program::new(ctx, "permute2.wgsl", &["permute2", "copy2"])?;
+        let keys = Program::new(ctx)?;
+        let perm4 = Program::new(ctx)?;
+        let perm2 = Program::new(ctx)?;
         let table_len = grid.table_len() as u32;
         // the pairs buffer (dead outside the solve): keys, order, the counts where the table
         // fits one of its arrays (every filled box: ~0.25 entries per particle), the scatter
@@ -68,22 +77,13 @@ impl GridStage {
             ("scattered", range(&b.pairs, 3 * arr, arr)),
         ];
         let keys_bind = keys.bind(ctx, &[&own, b])?;
-        let perm = |stage: &Program, src: &wgpu::Buffer, dst: &wgpu::Buffer| {
-            let own = [
-                ("order", order()),
-                ("src", src.as_entire_binding()),
-                ("dst", dst.as_entire_binding()),
-            ];
-            stage.bind(ctx, &[&own, b])
-        };
+        let perm4_bind = |src, dst| permute_bind(ctx, &perm4, b, order(), src, dst);
+        let perm2_bind = |src, dst| permute_bind(ctx, &perm2, b, order(), src, dst);
         let perm4_binds = [&b.pos, &b.pred, &b.thermo]
             .iter()
-            .map(|a| Ok((perm(&perm4, a, &b.vel)?, perm(&perm4, &b.vel, a)?)))
+            .map(|a| Ok((perm4_bind(a, &b.vel)?, perm4_bind(&b.vel, a)?)))
             .collect::<Result<Vec<_>>>()?;
-        let perm2_binds = (
-            perm(&perm2, &b.info, &b.vel)?,
-            perm(&perm2, &b.vel, &b.info)?,
-        );
+        let perm2_binds = (perm2_bind(&b.info, &b.vel)?, perm2_bind(&b.vel, &b.info)?);
         Ok(Self {
             keys_bind,
             perm4_binds,
@@ -99,29 +99,61 @@ impl GridStage {
 
     /// Records the grid build of the live particles.
     pub fn build(&self, rec: &mut Recorder, live: &LiveBuffer) -> Result<()> {
-        {
-            let mut pass = rec.pass(Phase::Grid);
-            let p = &mut pass;
-            let live_n = Dispatch::Live(live);
-            let bind = [(&self.keys_bind, 0)];
-            let entries = Dispatch::Threads(self.table_len);
-            self.keys.dispatch(p, "cell_clear", &bind, entries);
-            self.keys.dispatch(p, "cell_keys", &bind, live_n);
-            self.scan.encode(p, 0);
-            self.keys.dispatch(p, "cell_scatter", &bind, live_n);
-            self.keys.dispatch(p, "cell_order", &bind, live_n);
-            for (gather, back) in &self.perm4_binds {
-                self.perm4.dispatch(p, "permute4", &[(gather, 0)], live_n);
-                self.perm4.dispatch(p, "copy4", &[(back, 0)], live_n);
-            }
-            let (gather, back) = &self.perm2_binds;
-            self.perm2.dispatch(p, "permute2", &[(gather, 0)], live_n);
-            self.perm2.dispatch(p, "copy2", &[(back, 0)], live_n);
+        let mut pass = rec.pass();
+        let p = &mut pass;
+        let live_n = Dispatch::Live(live);
+        let bind = [(&self.keys_bind, 0)];
+        let entries = Dispatch::Threads(self.table_len);
+        self.keys.dispatch(p, GridEntry::CellClear, &bind, entries);
+        self.keys.dispatch(p, GridEntry::CellKeys, &bind, live_n);
+        self.scan.encode(p, 0);
+        self.keys.dispatch(p, GridEntry::CellScatter, &bind, live_n);
+        self.keys.dispatch(p, GridEntry::CellOrder, &bind, live_n);
+        for (gather, back) in &self.perm4_binds {
+            self.perm4
+                .dispatch(p, Permute4Entry::Gather, &[(gather, 0)], live_n);
+            self.perm4
+                .dispatch(p, Permute4Entry::CopyBack, &[(back, 0)], live_n);
         }
-        rec.end_phase(Phase::Grid)
+        let (gather, back) = &self.perm2_binds;
+        self.perm2
+            .dispatch(p, Permute2Entry::Gather, &[(gather, 0)], live_n);
+        self.perm2
+            .dispatch(p, Permute2Entry::CopyBack, &[(back, 0)], live_n);
+        Ok(())
+    }
+}
+
+/// A bind group of a permutation: `src` gathered by `order` into `dst`.
+fn permute_bind<E: Entry>(
+    ctx: &Context,
+    program: &Program<E>,
+    b: &ParticleBuffers,
+    order: wgpu::BindingResource,
+    src: &wgpu::Buffer,
+    dst: &wgpu::Buffer,
+) -> Result<wgpu::BindGroup> {
+    let own = [
+        ("order", order),
+        ("src", src.as_entire_binding()),
+        ("dst", dst.as_entire_binding()),
+    ];
+    program.bind(ctx, &[&own, b])
+}
+
+impl Stage for GridStage {
+    fn from_setup(setup: &Setup) -> Result<Self> {
+        Self::new(setup.ctx, setup.grid, setup.buffers)
     }
 
-    pub fn device_bytes(&self) -> u64 {
+    fn record(&self, phase: Phase, rec: &mut Recorder, sub: &Substep) -> Result<()> {
+        match phase {
+            Phase::Grid => self.build(rec, sub.live),
+            other => Err(crate::sim::stage::not_recorded("grid", other)),
+        }
+    }
+
+    fn device_bytes(&self) -> u64 {
         self.scan.device_bytes() + self.counts_own.as_ref().map_or(0, |c| c.size())
     }
 }

@@ -6,7 +6,8 @@ use crate::gpu::buffers::read_back;
 use crate::gpu::live::LiveBuffer;
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
-use crate::sim::phase::{Phase, Recorder};
+use crate::sim::pbf::PbfEntry;
+use crate::sim::phase::Recorder;
 use crate::sim::smoothing::{SmoothParams, SmoothingStage};
 use crate::sim::thermo::{ThermoParams, ThermoStage};
 use crate::sim::Simulation;
@@ -49,25 +50,21 @@ impl Simulation {
         let mut rec = Recorder::new(&ctx, None, None);
         let (pbf, live) = (&self.s.pbf, &self.b.live);
         let entry = match step {
-            Step::Predict => "predict",
-            Step::Lambda => "compute_lambda",
-            Step::LambdaMasked => "compute_lambda_masked",
-            Step::Delta => "compute_delta",
-            Step::UpdateVelocity => "update_velocity",
-            Step::Vorticity => "vorticity",
-            Step::ViscosityConfine => "viscosity_confine",
+            Step::Predict => PbfEntry::Predict,
+            Step::Lambda => PbfEntry::ComputeLambda,
+            Step::LambdaMasked => PbfEntry::ComputeLambdaMasked,
+            Step::Delta => PbfEntry::ComputeDelta,
+            Step::UpdateVelocity => PbfEntry::UpdateVelocity,
+            Step::Vorticity => PbfEntry::Vorticity,
+            Step::ViscosityConfine => PbfEntry::ViscosityConfine,
+            Step::Finish => PbfEntry::FinishPositions,
             Step::Grid => {
                 self.s.grid.build(&mut rec, live)?;
                 rec.submit();
                 return ctx.wait();
             }
-            Step::Finish => {
-                pbf.finish(&mut rec.pass(Phase::Velocity), live);
-                rec.submit();
-                return ctx.wait();
-            }
         };
-        pbf.dispatch_entry(&mut rec.pass(Phase::Solve), entry, live);
+        pbf.run(&mut rec.pass(), entry, live);
         rec.submit();
         ctx.wait()
     }

@@ -1,8 +1,9 @@
-//! Particle state and the simulation step. Each GPU stage is a module (`pbf`, `grid`,
-//! `smoothing`, `thermo`, `adaptive`) declared with `gpu::program::Program` and bound once to the
-//! particle buffers (`buffers`); `step` holds the order of a substep, `simulation` the frame loop
-//! and its one read-back, `phase` the phases and their timings; `reference` the f64 mirror of
-//! every shader, file for file.
+//! Particle state and the simulation step. Each stage of the substep (`stage::Stage`) is a
+//! module (`pbf`, `grid`, `smoothing`, `thermo`, `adaptive`, the forces of their own under
+//! `forces`), running `gpu::program::Program`s and bound once to the particle buffers
+//! (`buffers`); `step` holds the stages and the order of a substep, `simulation` the frame loop
+//! and its one read-back, `phase` the phases and their timings, `forces` the list of every
+//! force; `reference` the f64 mirror of every shader, file for file.
 //!
 //! Contract between the GPU stages (see docs/ARCHITECTURE.md):
 //! - particle arrays are SoA storage buffers of length `capacity`, the first `count` live;
@@ -17,6 +18,7 @@ pub mod cell_table;
 pub mod control;
 pub mod diagnostics;
 pub mod footprint;
+pub mod forces;
 pub mod frame_report;
 pub mod grid;
 pub mod grid_params;
@@ -32,8 +34,8 @@ mod simulation;
 pub mod smoothing;
 pub mod source_field;
 pub mod sources;
+pub mod stage;
 mod step;
-pub mod target_volume;
 pub mod thermo;
 pub mod wind;
 

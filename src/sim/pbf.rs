@@ -4,10 +4,11 @@ use crate::config::ShotConfig;
 use crate::error::Result;
 use crate::gpu::buffers::ParamSlots;
 use crate::gpu::live::LiveBuffer;
-use crate::gpu::program::{Dispatch, Program};
+use crate::gpu::program::{entry_points, Dispatch, Program};
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::phase::{Phase, Recorder};
+use crate::sim::stage::{Setup, Stage, Substep};
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
@@ -91,34 +92,47 @@ impl PbfParams {
     }
 }
 
+entry_points! {
+    /// The entry points of shaders/pbf.wgsl, in the order of a substep.
+    pub enum PbfEntry in "pbf.wgsl" {
+        /// v += -g dt, speed clamp, p* = x + v dt (gravity acts here).
+        Predict = "predict",
+        /// lambda of a substep's first iteration (records the neighbour mask).
+        ComputeLambda = "compute_lambda",
+        /// lambda of the later iterations (the mask's neighbours).
+        ComputeLambdaMasked = "compute_lambda_masked",
+        /// The position correction of eq. 4.
+        ComputeDelta = "compute_delta",
+        /// v = (p* - x) / dt.
+        UpdateVelocity = "update_velocity",
+        /// Vorticity confinement's curl.
+        Vorticity = "vorticity",
+        /// XSPH viscosity and the vorticity force.
+        ViscosityConfine = "viscosity_confine",
+        /// x = p*.
+        FinishPositions = "finish_positions",
+    }
+}
+
 /// The PBF passes of a substep (shaders/pbf.wgsl; f64 mirror `sim::reference::pbf`):
 /// prediction, the density iterations and the velocity update, bound once to the particle
 /// buffers. The neighbour grid between prediction and solve is [`crate::sim::grid`].
 pub struct PbfStage {
-    program: Program,
+    program: Program<PbfEntry>,
     params: ParamSlots<PbfParams>,
     bind: wgpu::BindGroup,
     /// The s_corr exponent the pipelines were compiled with (`SCORR_N` in the WGSL).
     scorr_n: f32,
+    /// Whether vorticity confinement is on (`solver.vorticity > 0`, fixed for the shot).
+    vorticity: bool,
 }
-
-/// The entry points of shaders/pbf.wgsl in the order of a substep.
-pub const ENTRIES: [&str; 8] = [
-    "predict",
-    "compute_lambda",
-    "compute_lambda_masked",
-    "compute_delta",
-    "update_velocity",
-    "vorticity",
-    "viscosity_confine",
-    "finish_positions",
-];
 
 impl PbfStage {
     pub fn new(ctx: &Context, params: &PbfParams, b: &ParticleBuffers) -> Result<Self> {
         let scorr_n = params.scorr_n;
         let constants = [("SCORR_N", scorr_n as f64)];
-        let program = Program::with_constants(ctx, "pbf.wgsl", &ENTRIES, &constants)?;
+        let program = Program::with_constants(ctx, &constants)?;
+        let vorticity = params.vorticity > 0.0;
         let params = ParamSlots::single(ctx, "pbf params", params);
         let own = [
             ("prm", params.slot(0)),
@@ -130,6 +144,7 @@ impl PbfStage {
             params,
             bind,
             scorr_n,
+            vorticity,
         })
     }
 
@@ -139,69 +154,61 @@ impl PbfStage {
         self.params.write(ctx, 0, params);
     }
 
-    fn run(&self, pass: &mut wgpu::ComputePass, entry: &str, live: &LiveBuffer) {
+    /// Records one entry point over the live particles.
+    pub(crate) fn run(&self, pass: &mut wgpu::ComputePass, entry: PbfEntry, live: &LiveBuffer) {
         self.program
             .dispatch(pass, entry, &[(&self.bind, 0)], Dispatch::Live(live));
-    }
-
-    /// Prediction: v += -g dt, speed clamp, p* = x + v dt, wrap x/z, clamp y.
-    pub fn predict(&self, rec: &mut Recorder, live: &LiveBuffer) -> Result<()> {
-        self.run(&mut rec.pass(Phase::Predict), "predict", live);
-        rec.end_phase(Phase::Predict)
     }
 
     /// `iterations` Jacobi iterations of the density constraint (eqs. 1-4). The first
     /// compute_lambda records each particle's neighbours (shaders/pbf.wgsl "Neighbour mask"),
     /// the later passes of the substep visit only those.
-    pub fn solve(&self, rec: &mut Recorder, live: &LiveBuffer, iterations: u32) -> Result<()> {
-        {
-            let mut pass = rec.pass(Phase::Solve);
-            for it in 0..iterations {
-                let lambda = if it == 0 {
-                    "compute_lambda"
-                } else {
-                    "compute_lambda_masked"
-                };
-                self.run(&mut pass, lambda, live);
-                self.run(&mut pass, "compute_delta", live);
-            }
+    fn solve(&self, pass: &mut wgpu::ComputePass, live: &LiveBuffer, iterations: u32) {
+        for it in 0..iterations {
+            let lambda = if it == 0 {
+                PbfEntry::ComputeLambda
+            } else {
+                PbfEntry::ComputeLambdaMasked
+            };
+            self.run(pass, lambda, live);
+            self.run(pass, PbfEntry::ComputeDelta, live);
         }
-        rec.end_phase(Phase::Solve)
     }
 
     /// v = (p* - x) / dt and the density into the scratch (the height gained waits in
     /// `density`), vorticity confinement (if on), XSPH (the final v and the height gained into
-    /// vel, and the density at p* into `density`), x = p*.
-    pub fn update_velocity(
-        &self,
-        rec: &mut Recorder,
-        live: &LiveBuffer,
-        vorticity: bool,
-    ) -> Result<()> {
-        {
-            let mut pass = rec.pass(Phase::Velocity);
-            self.run(&mut pass, "update_velocity", live);
-            if vorticity {
-                self.run(&mut pass, "vorticity", live);
-            }
-            self.run(&mut pass, "viscosity_confine", live);
-            self.finish(&mut pass, live);
+    /// vel, and the density at p* into `density`), x = p* (w = 0: pos.w held the neighbour
+    /// mask's anchor).
+    fn update_velocity(&self, pass: &mut wgpu::ComputePass, live: &LiveBuffer) {
+        self.run(pass, PbfEntry::UpdateVelocity, live);
+        if self.vorticity {
+            self.run(pass, PbfEntry::Vorticity, live);
         }
-        rec.end_phase(Phase::Velocity)
+        self.run(pass, PbfEntry::ViscosityConfine, live);
+        self.run(pass, PbfEntry::FinishPositions, live);
+    }
+}
+
+impl Stage for PbfStage {
+    fn from_setup(setup: &Setup) -> Result<Self> {
+        let params = PbfParams::for_shot(setup.shot.config());
+        Self::new(setup.ctx, &params, setup.buffers)
     }
 
-    /// The close of a substep: x = p* (w = 0: pos.w held the neighbour mask's anchor).
-    pub fn finish(&self, pass: &mut wgpu::ComputePass, live: &LiveBuffer) {
-        self.run(pass, "finish_positions", live);
+    /// Prediction, the density iterations, or the velocity update; the neighbour grid between
+    /// prediction and solve is a stage of its own ([`crate::sim::grid`]).
+    fn record(&self, phase: Phase, rec: &mut Recorder, sub: &Substep) -> Result<()> {
+        let live = sub.live;
+        match phase {
+            Phase::Predict => self.run(&mut rec.pass(), PbfEntry::Predict, live),
+            Phase::Solve => self.solve(&mut rec.pass(), live, sub.iterations),
+            Phase::Velocity => self.update_velocity(&mut rec.pass(), live),
+            other => return Err(crate::sim::stage::not_recorded("PBF", other)),
+        }
+        Ok(())
     }
 
-    /// Runs one entry point alone (test hooks compare it with the f64 mirror).
-    #[cfg(feature = "test-hooks")]
-    pub fn dispatch_entry(&self, pass: &mut wgpu::ComputePass, entry: &str, live: &LiveBuffer) {
-        self.run(pass, entry, live);
-    }
-
-    pub fn device_bytes(&self) -> u64 {
+    fn device_bytes(&self) -> u64 {
         self.params.size()
     }
 }

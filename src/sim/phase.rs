@@ -6,7 +6,8 @@
 //! `Timing::HostWaits` (benchmarks) then submits and waits after every phase and times it on the
 //! host, which costs the waits the normal step avoids.
 
-/// One phase of the step (paper sections 3-5).
+/// One phase of the step (paper sections 3-5): what a stage's passes are timed under. The
+/// order of the substep is `sim::step`'s; the variants follow it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Phase {
     /// Prediction of the positions (gravity, speed clamp, p* = x + v dt).
@@ -21,26 +22,35 @@ pub enum Phase {
     Smoothing,
     /// Cloud thermodynamics (eqs. 5-11).
     Cloud,
-    /// Shape energy, split marks and splits (section 5.2.1).
-    Split,
+    /// The forces that are stages of their own (`sim::forces`), after the thermodynamics.
+    Forces,
+    /// Shape energy, merge and split marks (section 5.2.1).
+    Mark,
     /// Merges and compaction (section 5.2.2).
     Merge,
+    /// Splits (section 5.2.1).
+    Split,
 }
 
+/// Phases of the step.
+const PHASES: usize = 10;
+
 impl Phase {
-    pub const ALL: [Phase; 8] = [
+    pub const ALL: [Phase; PHASES] = [
         Phase::Predict,
         Phase::Grid,
         Phase::Solve,
         Phase::Velocity,
         Phase::Smoothing,
         Phase::Cloud,
-        Phase::Split,
+        Phase::Forces,
+        Phase::Mark,
         Phase::Merge,
+        Phase::Split,
     ];
 
     /// The key stats.jsonl and the benchmarks use (predict and solve are both "pbf", as they
-    /// have been since the first stats files).
+    /// have been since the first stats files; the marks are timed with the splits).
     pub fn key(self) -> &'static str {
         match self {
             Phase::Predict | Phase::Solve => "pbf",
@@ -48,7 +58,8 @@ impl Phase {
             Phase::Velocity => "velocity",
             Phase::Smoothing => "smoothing",
             Phase::Cloud => "cloud",
-            Phase::Split => "split",
+            Phase::Forces => "forces",
+            Phase::Mark | Phase::Split => "split",
             Phase::Merge => "merge",
         }
     }
@@ -62,8 +73,10 @@ impl Phase {
             Phase::Velocity => "velocity",
             Phase::Smoothing => "smoothing",
             Phase::Cloud => "cloud",
-            Phase::Split => "split",
+            Phase::Forces => "forces",
+            Phase::Mark => "mark",
             Phase::Merge => "merge",
+            Phase::Split => "split",
         }
     }
 }
@@ -81,9 +94,9 @@ pub enum Timing {
 /// Milliseconds per phase summed over a frame's substeps.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct PhaseTimes {
-    ms: [f64; 8],
+    ms: [f64; PHASES],
     /// Which phases were timed this frame.
-    ran: [bool; 8],
+    ran: [bool; PHASES],
 }
 
 impl PhaseTimes {
@@ -122,14 +135,17 @@ impl PhaseTimes {
     }
 }
 
-/// Records a substep's phases into one command encoder (one submit per substep, no wait), each
-/// phase in compute passes timed under it.
+/// Records a substep's phases into one command encoder (one submit per substep, no wait): the
+/// step opens a phase ([`Recorder::begin`]), a stage records its compute passes, each timed
+/// under that phase, and the step closes it ([`Recorder::end_phase`]).
 pub struct Recorder<'a> {
     ctx: &'a crate::gpu::Context,
     enc: Option<wgpu::CommandEncoder>,
     timer: Option<&'a mut crate::gpu::timing::GpuTimer<Phase>>,
     /// `Timing::HostWaits`: the frame's times and when the current phase began.
     host: Option<(&'a mut PhaseTimes, std::time::Instant)>,
+    /// The phase the passes are timed under (none: untimed, as when a test runs a stage alone).
+    phase: Option<Phase>,
 }
 
 impl<'a> Recorder<'a> {
@@ -145,6 +161,7 @@ impl<'a> Recorder<'a> {
             enc: Some(ctx.device.create_command_encoder(&Default::default())),
             timer: if host.is_some() { None } else { timer },
             host: host.map(|t| (t, std::time::Instant::now())),
+            phase: None,
         }
     }
 
@@ -158,16 +175,22 @@ impl<'a> Recorder<'a> {
             .expect("the recorder's encoder is open until submit")
     }
 
-    /// A compute pass of `phase` (timed when the adapter has timestamps).
-    pub fn pass(&mut self, phase: Phase) -> wgpu::ComputePass<'_> {
+    /// Opens `phase`: the passes from here to [`Self::end_phase`] are timed under it.
+    pub fn begin(&mut self, phase: Phase) {
+        self.phase = Some(phase);
+    }
+
+    /// A compute pass of the open phase (timed when the adapter has timestamps).
+    pub fn pass(&mut self) -> wgpu::ComputePass<'_> {
+        let phase = self.phase;
         let enc = self
             .enc
             .as_mut()
             .expect("the recorder's encoder is open until submit");
-        match self.timer.as_deref_mut() {
-            Some(timer) => timer.pass(enc, phase, phase.label()),
-            None => enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some(phase.label()),
+        match (self.timer.as_deref_mut(), phase) {
+            (Some(timer), Some(phase)) => timer.pass(enc, phase, phase.label()),
+            _ => enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(phase.map_or("untimed", Phase::label)),
                 timestamp_writes: None,
             }),
         }
@@ -178,10 +201,11 @@ impl<'a> Recorder<'a> {
         self.enc_mut()
     }
 
-    /// Marks the end of `phase`: with host timing, submits what was recorded, waits, and adds
-    /// the wall time to the phase; otherwise nothing.
-    pub fn end_phase(&mut self, phase: Phase) -> crate::error::Result<()> {
-        let Some((times, since)) = self.host.as_mut() else {
+    /// Closes the open phase: with host timing, submits what was recorded, waits, and adds the
+    /// wall time to the phase; otherwise nothing.
+    pub fn end_phase(&mut self) -> crate::error::Result<()> {
+        let phase = self.phase.take();
+        let (Some((times, since)), Some(phase)) = (self.host.as_mut(), phase) else {
             return Ok(());
         };
         let enc = self

@@ -1,5 +1,6 @@
 //! `Simulation`: the particle set on the device, its stages, and the frame loop that records the
-//! substeps (the order of one substep is in `sim/step.rs`) and reads the state back once.
+//! substeps (the stages and the order of one substep are in `sim/step.rs`) and reads the state
+//! back once.
 //!
 //! A frame records its substeps without waiting for the GPU: one submit per substep, the count
 //! that split and merge change stays on the GPU (`gpu::live`), and the host reads the state,
@@ -13,27 +14,19 @@ use crate::gpu::live::Live;
 use crate::gpu::timing::GpuTimer;
 use crate::gpu::Context;
 use crate::ground::{ParticleState, SimClock};
+use crate::shot::Shot;
 use crate::sim::adaptive::{self, AdaptiveStage};
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::control::Target;
 use crate::sim::frame_report::{FrameReport, Levels, SplitMerge};
-use crate::sim::grid::GridStage;
 use crate::sim::grid_params::GridParams;
-use crate::sim::pbf::{PbfParams, PbfStage};
+use crate::sim::pbf::PbfParams;
 use crate::sim::phase::{Phase, PhaseTimes, Recorder, Timing};
-use crate::sim::smoothing::SmoothingStage;
-use crate::sim::thermo::{LayerBuoyancy, ThermoStage};
+use crate::sim::sources::HeatMaps;
+use crate::sim::stage::Setup;
+use crate::sim::step::Stages;
+use crate::sim::thermo::LayerBuoyancy;
 use std::sync::Arc;
-
-/// The stages of a substep, each bound once to the particle buffers.
-pub(super) struct Stages {
-    pub pbf: PbfStage,
-    pub grid: GridStage,
-    pub smoothing: SmoothingStage,
-    pub thermo: ThermoStage,
-    /// Split and merge (paper 5.2); `None` when `adaptive.enabled` is false.
-    pub adaptive: Option<AdaptiveStage>,
-}
 
 pub struct Simulation {
     pub(super) ctx: Arc<Context>,
@@ -59,7 +52,8 @@ pub struct Simulation {
 
 impl Simulation {
     /// A fresh shot: the initial state of section 5 at `output.frames.start`.
-    pub fn new(ctx: Arc<Context>, cfg: &ShotConfig) -> Result<Self> {
+    pub fn new(ctx: Arc<Context>, shot: &Shot) -> Result<Self> {
+        let cfg = shot.config();
         let state = crate::sim::init::initial_particles(cfg);
         let clock = SimClock {
             frame: cfg.output.frames.start,
@@ -67,16 +61,17 @@ impl Simulation {
             time: 0.0,
             next_id: state.len() as u32,
         };
-        Self::from_state(ctx, cfg, &state, clock)
+        Self::from_state(ctx, shot, &state, clock)
     }
 
     /// Resumes from a read-back (or checkpointed) state; continues bit-identically.
     pub fn from_state(
         ctx: Arc<Context>,
-        cfg: &ShotConfig,
+        shot: &Shot,
         state: &ParticleState,
         clock: SimClock,
     ) -> Result<Self> {
+        let cfg = shot.config();
         let n = state.len();
         if n == 0 {
             return Err(Error::InvalidInput(
@@ -92,57 +87,39 @@ impl Simulation {
                 "particle state arrays have different lengths".into(),
             ));
         }
-        if cfg.output.substeps == 0
-            || cfg.output.frame_seconds.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
-        {
-            return Err(Error::Config(
-                "output.substeps and output.frame_seconds must be positive".into(),
-            ));
-        }
         // the device holds the shot, or it is refused before anything is allocated (exit 4,
         // with the limit and the largest count that fits; `run` checked it already)
-        let target = Target::load(cfg)?;
-        let shot = crate::sim::footprint::ShotSize::with_target(cfg, n as u64, target.as_ref())?;
-        let capacity = shot.capacity();
+        let target = Target::of_shot(shot);
+        let maps = HeatMaps::new(shot.heat_maps()).with_target(target.as_ref());
+        let size =
+            crate::sim::footprint::ShotSize::with_maps(cfg, n as u64, maps.values.len() as u64);
+        let capacity = size.capacity();
         if capacity > u32::MAX as u64 / 2 {
             return Err(Error::InvalidInput(format!(
                 "{n} particles (capacity {capacity}): more than nimbus's u32 particle indices hold"
             )));
         }
-        crate::sim::footprint::check(&ctx, &shot, || None)?;
+        crate::sim::footprint::check(&ctx, &size, || None)?;
         let capacity = capacity as u32;
+        // (a prepared shot has 3 or more kernel radii along each periodic axis)
         let mut grid = GridParams::for_shot(cfg);
-        for (per, a, name) in [(grid.periodic_x(), 0, "x"), (grid.periodic_z(), 2, "z")] {
-            if per && grid.dims[a] < 3 {
-                return Err(Error::Config(format!(
-                    "domain.periodic: axis {name} needs at least 3 kernel radii of extent (domain.size / (spacing * kernel_ratio) >= 3)"
-                )));
-            }
-        }
         let boundary = crate::sim::init::boundary_particles(cfg, &grid);
         grid.n_boundary = boundary.0.len() as u32;
         let params = PbfParams::for_shot(cfg);
         let b = ParticleBuffers::new(&ctx, state, capacity, &grid, &boundary, clock.next_id)?;
-        let mut thermo = ThermoStage::new(&ctx, cfg, &b, target.as_ref())?;
-        thermo.set_layers(LayerBuoyancy::of_state(cfg, state));
+        let mut s = Stages::new(&Setup {
+            ctx: &ctx,
+            shot,
+            buffers: &b,
+            grid: &grid,
+            maps: &maps,
+        })?;
+        s.thermo.set_layers(LayerBuoyancy::of_state(cfg, state));
         // the controller's state is a function of the particles: a resume from a checkpoint
         // sets the same supply as the uninterrupted run did at that frame's end
         if let Some(t) = &target {
-            thermo.set_supply(&ctx, &t.update(state).0);
+            s.thermo.set_supply(&ctx, &t.update(state).0);
         }
-        let adaptive = if cfg.adaptive.enabled {
-            let h0 = cfg.domain.kernel_radius();
-            Some(AdaptiveStage::new(&ctx, &cfg.adaptive, &grid, h0, &b)?)
-        } else {
-            None
-        };
-        let s = Stages {
-            pbf: PbfStage::new(&ctx, &params, &b)?,
-            grid: GridStage::new(&ctx, &grid, &b)?,
-            smoothing: SmoothingStage::new(&ctx, cfg, &b)?,
-            thermo,
-            adaptive,
-        };
         let timer = ctx
             .timestamps
             .then(|| GpuTimer::new(&ctx.device, &ctx.queue));
@@ -207,14 +184,9 @@ impl Simulation {
     /// Bytes of every device buffer this simulation and its stages allocated (the frame's
     /// read-back staging, host memory that lives for one wait, not counted).
     pub fn device_bytes(&self) -> u64 {
-        let s = &self.s;
         self.b.device_bytes()
             + self.timer.as_ref().map_or(0, |t| t.buffer().size())
-            + s.pbf.device_bytes()
-            + s.grid.device_bytes()
-            + s.smoothing.device_bytes()
-            + s.thermo.device_bytes()
-            + s.adaptive.as_ref().map_or(0, |a| a.device_bytes())
+            + self.s.device_bytes()
     }
 
     /// Substeps for the next frame: the fewest (`output.substeps`) or as many as keep the

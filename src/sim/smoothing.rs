@@ -16,14 +16,21 @@ use crate::config::ShotConfig;
 use crate::error::Result;
 use crate::gpu::buffers::ParamSlots;
 use crate::gpu::live::LiveBuffer;
-use crate::gpu::program::{Dispatch, Program};
+use crate::gpu::program::{entry_points, Dispatch, Program};
 use crate::gpu::Context;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::phase::{Phase, Recorder};
+use crate::sim::stage::{Setup, Stage, Substep};
 
-const SHADER: &str = "smoothing.wgsl";
-const ENTRY: &str = "smooth_temperature";
-const LIMIT_ENTRY: &str = "vapor_limit";
+entry_points! {
+    /// The entry points of shaders/smoothing.wgsl, in the order of an iteration.
+    pub enum SmoothingEntry in "smoothing.wgsl" {
+        /// The vapor-mixing limiter (only with vapor mixing on).
+        VaporLimit = "vapor_limit",
+        /// One Jacobi iteration of eqs. 12-17 and the vapor mixing.
+        SmoothTemperature = "smooth_temperature",
+    }
+}
 
 /// Uniform of shaders/smoothing.wgsl (same layout).
 #[repr(C)]
@@ -78,7 +85,7 @@ impl SmoothParams {
 /// dead after the PBF substep: the smoothed thermo goes to `pairs` and is copied back, the
 /// vapor-mixing limiter lives in a quarter of `pred`. It allocates nothing per particle.
 pub struct SmoothingStage {
-    program: Program,
+    program: Program<SmoothingEntry>,
     params: ParamSlots<SmoothParams>,
     bind: wgpu::BindGroup,
     cfg: ShotConfig,
@@ -91,7 +98,7 @@ pub struct SmoothingStage {
 
 impl SmoothingStage {
     pub fn new(ctx: &Context, cfg: &ShotConfig, b: &ParticleBuffers) -> Result<Self> {
-        let program = Program::new(ctx, SHADER, &[LIMIT_ENTRY, ENTRY])?;
+        let program = Program::new(ctx)?;
         let params = ParamSlots::single(ctx, "smoothing params", &SmoothParams::new(cfg, 1.0));
         let limiter = b.quarter(&b.pred, 0);
         let own = [
@@ -145,14 +152,15 @@ impl SmoothingStage {
         self.params.write(rec.ctx(), 0, params);
         for _ in 0..iterations {
             {
-                let mut pass = rec.pass(Phase::Smoothing);
+                let mut pass = rec.pass();
                 let group = [(&self.bind, 0)];
+                let live = Dispatch::Live(live);
                 if mixing {
-                    self.program
-                        .dispatch(&mut pass, LIMIT_ENTRY, &group, Dispatch::Live(live));
+                    let limit = SmoothingEntry::VaporLimit;
+                    self.program.dispatch(&mut pass, limit, &group, live);
                 }
-                self.program
-                    .dispatch(&mut pass, ENTRY, &group, Dispatch::Live(live));
+                let smooth = SmoothingEntry::SmoothTemperature;
+                self.program.dispatch(&mut pass, smooth, &group, live);
             }
             // the whole array: the live count is on the GPU; slots past it are dead
             rec.encoder().copy_buffer_to_buffer(
@@ -163,10 +171,23 @@ impl SmoothingStage {
                 self.thermo_bytes,
             );
         }
-        rec.end_phase(Phase::Smoothing)
+        Ok(())
+    }
+}
+
+impl Stage for SmoothingStage {
+    fn from_setup(setup: &Setup) -> Result<Self> {
+        Self::new(setup.ctx, setup.shot.config(), setup.buffers)
     }
 
-    pub fn device_bytes(&self) -> u64 {
+    fn record(&self, phase: Phase, rec: &mut Recorder, sub: &Substep) -> Result<()> {
+        match phase {
+            Phase::Smoothing => self.smooth(rec, sub.live, sub.dt),
+            other => Err(crate::sim::stage::not_recorded("smoothing", other)),
+        }
+    }
+
+    fn device_bytes(&self) -> u64 {
         self.params.size()
     }
 }

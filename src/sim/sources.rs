@@ -11,11 +11,11 @@
 //! other side. An image is sampled bilinearly at its pixel centres (wrapping on periodic axes,
 //! clamped on walled ones).
 use crate::config::{HeatSource, ShotConfig, SourceShape};
-use crate::error::{Error, Result};
+use crate::ground::HeatMap;
 use serde::{Deserialize, Serialize};
 
 /// Most entries of `physics.sources` (the uniform's table).
-pub const MAX_SOURCES: usize = 8;
+pub use crate::config::MAX_SOURCES;
 
 /// `Source.kind.x` of thermo.wgsl.
 pub const KIND_DISC: u32 = 0;
@@ -120,39 +120,28 @@ pub struct HeatMaps {
 }
 
 impl HeatMaps {
-    /// Reads every image source's map (already checked by validation; a file that changed or
-    /// vanished since is an input error here too).
-    pub fn load(cfg: &ShotConfig) -> Result<Self> {
+    /// The maps of a shot's sources, as the prepared shot read them (`maps[i]` for source i,
+    /// `None` for a source without a heat map).
+    pub fn new(maps: &[Option<HeatMap>]) -> Self {
         let mut values = Vec::new();
         let mut entries = Vec::new();
-        for (i, s) in cfg.physics.sources.iter().enumerate() {
-            let Some(path) = &s.image else {
+        for map in maps {
+            let Some(map) = map else {
                 entries.push([0; 3]);
                 continue;
             };
-            let map = crate::io::heat_map::read(std::path::Path::new(path)).map_err(|why| {
-                Error::InvalidInput(format!("physics.sources[{i}].image: {path}: {why}"))
-            })?;
-            if let Some(sha) = &s.image_sha256 {
-                if *sha != map.sha256 {
-                    return Err(Error::InvalidInput(format!(
-                        "physics.sources[{i}].image: {path} has changed since the run started (SHA-256 {}, recorded {sha})",
-                        map.sha256
-                    )));
-                }
-            }
             entries.push([values.len() as u32, map.width as u32, map.height as u32]);
             values.extend_from_slice(&map.values);
         }
         if values.is_empty() {
             values.push(0.0);
         }
-        Ok(Self {
+        Self {
             values,
             entries,
             control: None,
             pull: [0.0; 4],
-        })
+        }
     }
 
     /// These maps with room for an active target's supply (0 until the first
@@ -308,7 +297,7 @@ mod tests {
     use super::*;
 
     fn shot(sources: &str) -> ShotConfig {
-        crate::config::load_str(
+        crate::shot::load_str(
             &format!(
                 "shot: t\noutput: {{frames: {{start: 1, end: 2}}}}\n\
                  domain: {{size: [1000, 800, 1000], spacing: 50}}\nphysics: {{sources: {sources}}}\n"
@@ -316,7 +305,7 @@ mod tests {
             "t.yaml",
             &[],
         )
-        .unwrap()
+        .unwrap().into_config()
     }
 
     #[test]

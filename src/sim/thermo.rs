@@ -20,22 +20,28 @@
 //!    rounding and neither goes negative;
 //! 5. latent heat, eq. 11: `T += Q (w* - w)` (eq. 11 integrated the same way as eq. 9).
 //!
-//! Usage: `let stage = ThermoStage::new(&ctx, &cfg, &buffers, target)?;` once (it reads the heat
-//! maps),
-//! then per substep `stage.step(&mut recorder, &live, dt, time)`. Initial state (section 5):
+//! Usage: `let stage = ThermoStage::new(&ctx, &cfg, &buffers, maps)?;` once (the shot's heat
+//! maps), then per substep `stage.step(&mut recorder, &live, dt, time)` (`sim::step` does it
+//! through [`Stage`]). Initial state (section 5):
 //! [`initial_thermo`].
 use crate::config::{PhysicsConfig, ShotConfig};
 use crate::error::Result;
 use crate::gpu::buffers::ParamSlots;
 use crate::gpu::live::LiveBuffer;
-use crate::gpu::program::{Dispatch, Program};
+use crate::gpu::program::{entry_points, Dispatch, Program};
 use crate::gpu::Context;
 use crate::ground::noise;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::phase::{Phase, Recorder};
+use crate::sim::stage::{Setup, Stage, Substep};
 
-const SHADER: &str = "thermo.wgsl";
-const ENTRY: &str = "thermo_step";
+entry_points! {
+    /// The entry point of shaders/thermo.wgsl.
+    pub enum ThermoEntry in "thermo.wgsl" {
+        /// Eqs. 5-11 for one substep, with the forces of eq. 6, the wind and the target pull.
+        Step = "thermo_step",
+    }
+}
 
 /// Uniform of shaders/thermo.wgsl (same layout). Build it with [`ThermoParams::new`].
 #[repr(C)]
@@ -281,7 +287,7 @@ pub fn initial_thermo(p: &PhysicsConfig, y: f64) -> [f32; 4] {
 /// The thermodynamics pass (eqs. 5-11), bound once to the particle buffers; its parameters
 /// are rewritten before every substep (time, each source's schedule).
 pub struct ThermoStage {
-    program: Program,
+    program: Program<ThermoEntry>,
     params: ParamSlots<ThermoParams>,
     bind: wgpu::BindGroup,
     cfg: ShotConfig,
@@ -293,17 +299,17 @@ pub struct ThermoStage {
 }
 
 impl ThermoStage {
-    /// The stage, with the heat maps of the image sources and, when `target` is given and its
-    /// control is on, room for the controller's supply map and its footprint mask.
+    /// The stage, with the heat maps of the image sources and, when the shot's target control
+    /// is on, room for the controller's supply map and its footprint mask
+    /// ([`HeatMaps::with_target`]).
     pub fn new(
         ctx: &Context,
         cfg: &ShotConfig,
         b: &ParticleBuffers,
-        target: Option<&crate::sim::control::Target>,
+        maps: HeatMaps,
     ) -> Result<Self> {
-        let program = Program::new(ctx, SHADER, &[ENTRY])?;
+        let program = Program::new(ctx)?;
         let params = ParamSlots::single(ctx, "thermo params", &ThermoParams::new(cfg, 0.0, 0.0));
-        let maps = HeatMaps::load(cfg)?.with_target(target);
         let map_buffer = crate::gpu::buffers::storage_init(&ctx.device, "heat maps", &maps.values);
         let own = [
             ("P", params.slot(0)),
@@ -361,15 +367,29 @@ impl ThermoStage {
         // written before the submit that carries this substep, after the previous one's
         self.params.write(rec.ctx(), 0, params);
         self.program.dispatch(
-            &mut rec.pass(Phase::Cloud),
-            ENTRY,
+            &mut rec.pass(),
+            ThermoEntry::Step,
             &[(&self.bind, 0)],
             Dispatch::Live(live),
         );
-        rec.end_phase(Phase::Cloud)
+        Ok(())
+    }
+}
+
+impl Stage for ThermoStage {
+    fn from_setup(setup: &Setup) -> Result<Self> {
+        let cfg = setup.shot.config();
+        Self::new(setup.ctx, cfg, setup.buffers, setup.maps.clone())
     }
 
-    pub fn device_bytes(&self) -> u64 {
+    fn record(&self, phase: Phase, rec: &mut Recorder, sub: &Substep) -> Result<()> {
+        match phase {
+            Phase::Cloud => self.step(rec, sub.live, sub.dt, sub.time),
+            other => Err(crate::sim::stage::not_recorded("thermodynamics", other)),
+        }
+    }
+
+    fn device_bytes(&self) -> u64 {
         self.params.size() + self.map_buffer.size()
     }
 }

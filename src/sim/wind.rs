@@ -50,7 +50,7 @@ mod tests {
     use super::*;
 
     fn shot(wind: &str) -> ShotConfig {
-        crate::config::load_str(
+        crate::shot::load_str(
             &format!(
                 "shot: t\noutput: {{frames: {{start: 1, end: 2}}}}\n\
                  domain: {{size: [400, 400, 400], spacing: 50}}\nphysics: {{wind: {wind}}}\n"
@@ -59,6 +59,7 @@ mod tests {
             &[],
         )
         .unwrap()
+        .into_config()
     }
 
     #[test]

@@ -25,8 +25,9 @@ pub use write::{encode, write_file, NanoGrid, NanoValues};
 pub const MAGIC: u64 = 0x3042_4456_6f6e_614e;
 /// Version 32.4.2 packed as NanoVDB does (11 + 11 + 10 bits).
 pub const VERSION: u32 = (32 << 21) | (4 << 10) | 2;
-/// Longest grid name stored in the grid itself (255 bytes and a NUL); nimbus writes no longer.
-pub const MAX_NAME_BYTES: usize = 255;
+/// Longest grid name stored in the grid itself (255 bytes and a NUL); nimbus writes no longer
+/// (a limit the config checks, so it is the config's).
+pub const MAX_NAME_BYTES: usize = crate::config::MAX_NANOVDB_NAME_BYTES;
 
 /// How a float grid's values are stored: as they are, or quantised per leaf into codes between
 /// the leaf's minimum and maximum (NanoVDB's Fp4, Fp8, Fp16, and FpN with a bit width per leaf).

@@ -13,6 +13,7 @@
 use super::{blend, display_color, draw_segment, edge, ground_hit, line_width, PALETTE};
 use crate::config::{Axis, HeatSource, ShotConfig, SourceShape};
 use crate::error::{Error, Result};
+use crate::ground::HeatMap;
 use crate::preview::{LinearImage, PreviewParams};
 use glam::DVec3;
 
@@ -25,7 +26,7 @@ const DIM: f64 = 0.35;
 /// The sources of a shot, ready to draw (heat maps read once).
 pub struct SourceOverlay {
     sources: Vec<HeatSource>,
-    maps: Vec<Option<crate::io::heat_map::HeatMap>>,
+    maps: Vec<Option<HeatMap>>,
     size: [f64; 3],
     periodic: [bool; 2],
     /// Simulated seconds per frame and the first frame: a frame's time span.
@@ -34,28 +35,17 @@ pub struct SourceOverlay {
 }
 
 impl SourceOverlay {
-    /// The overlay of `cfg`'s sources; an input error when it has none or a heat map cannot be
-    /// read.
-    pub fn new(cfg: &ShotConfig) -> Result<Self> {
+    /// The overlay of `cfg`'s sources with their heat maps as the prepared shot read them
+    /// (`maps[i]` for source i); an input error when it has none.
+    pub fn new(cfg: &ShotConfig, maps: &[Option<HeatMap>]) -> Result<Self> {
         if cfg.physics.sources.is_empty() {
             return Err(Error::InvalidInput(
                 "the shot has no physics.sources to draw".into(),
             ));
         }
-        let mut maps = Vec::new();
-        for (i, s) in cfg.physics.sources.iter().enumerate() {
-            maps.push(match &s.image {
-                Some(path) => Some(
-                    crate::io::heat_map::read(std::path::Path::new(path)).map_err(|why| {
-                        Error::InvalidInput(format!("physics.sources[{i}].image: {path}: {why}"))
-                    })?,
-                ),
-                None => None,
-            });
-        }
         Ok(Self {
             sources: cfg.physics.sources.clone(),
-            maps,
+            maps: maps.to_vec(),
             size: cfg.domain.size,
             periodic: [
                 cfg.domain.periodic.contains(&Axis::X),
@@ -234,7 +224,7 @@ impl SourceOverlay {
 
 /// A heat map at ground point (u, v) in [0, 1] of the domain's x and z: bilinear between pixel
 /// centres, wrapped on periodic axes and clamped on walled ones (as the thermo stage samples).
-fn sample_map(map: &crate::io::heat_map::HeatMap, u: f64, v: f64, periodic: [bool; 2]) -> f64 {
+fn sample_map(map: &HeatMap, u: f64, v: f64, periodic: [bool; 2]) -> f64 {
     let (w, h) = (map.width as i64, map.height as i64);
     let pick = |i: i64, n: i64, p: bool| {
         if p {
@@ -313,7 +303,7 @@ mod tests {
     use super::*;
 
     fn overlay(sources: &str) -> SourceOverlay {
-        let cfg = crate::config::load_str(
+        let shot = crate::shot::load_str(
             &format!(
                 "shot: t\noutput: {{frames: {{start: 1, end: 9}}, frame_seconds: 5}}\n\
                  domain: {{size: [800, 800, 800], spacing: 50}}\nphysics: {{sources: {sources}}}\n"
@@ -322,7 +312,7 @@ mod tests {
             &[],
         )
         .unwrap();
-        SourceOverlay::new(&cfg).unwrap()
+        SourceOverlay::new(shot.config(), shot.heat_maps()).unwrap()
     }
 
     #[test]

@@ -5,8 +5,8 @@
 //! silhouette and creases (neighbouring pixels entering through other faces or missing it) are
 //! drawn as lines.
 use super::{blend, line_width};
+use crate::ground::{TargetVoxels, VoxelGrid};
 use crate::preview::{LinearImage, PreviewParams};
-use crate::sim::control::{Target, VoxelGrid};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -32,7 +32,7 @@ struct Hit {
 }
 
 impl TargetGhost {
-    pub fn new(target: &Target) -> Self {
+    pub fn new(target: &TargetVoxels) -> Self {
         Self {
             grid: target.grid,
             inside: target.inside.clone(),

@@ -138,7 +138,7 @@ mod tests {
             p.info[k] = [o, rng.random_range(0..=3)];
         }
         let cfg = AdaptiveConfig::default();
-        let mut prm = AdaptiveParams::new(&cfg, 0.1, 2 * n as u32).unwrap();
+        let mut prm = AdaptiveParams::new(&cfg, 0.1, 2 * n as u32);
         prm.count = n as u32;
         prm.next_id = n as u32;
         let before: u64 = p.info[..n]

@@ -9,8 +9,9 @@
 //! interpolated trilinearly at the voxel's centre mapped back through the placement and the
 //! grid's transform (OpenVDB's box sampler), is inside: the same rule as a mesh's (the centre
 //! is inside), so from the voxels on the controller is the same for both.
-use super::control::VoxelGrid;
+use super::target::place_point;
 use crate::config::TargetConfig;
+use crate::ground::VoxelGrid;
 use crate::io::vdb::read::ReadFile;
 use crate::io::vdb::volume::Volume;
 use crate::io::vdb::{GridData, CLASS_FOG_VOLUME, CLASS_LEVEL_SET};
@@ -264,18 +265,6 @@ impl VdbTarget {
         }
         inside
     }
-}
-
-/// The placement of a target: scale, then turn about y (from +x towards +z), then translate.
-pub fn place_point(v: [f64; 3], t: &TargetConfig) -> [f64; 3] {
-    let s = t.scale3();
-    let (sin, cos) = t.rotate_y.to_radians().sin_cos();
-    let (x, y, z) = (v[0] * s[0], v[1] * s[1], v[2] * s[2]);
-    [
-        cos * x - sin * z + t.translate[0],
-        y + t.translate[1],
-        sin * x + cos * z + t.translate[2],
-    ]
 }
 
 /// The inverse of [`place_point`].

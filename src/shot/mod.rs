@@ -1,0 +1,145 @@
+//! The prepared shot: a config read and checked (`config`), then everything that needs more
+//! than the config's own keys, done once: the files it names read and checked (the heat maps of
+//! image sources, `control.target`'s mesh or VDB voxelised on the controller's grid), the limits
+//! of the stages that will run it (the splat's and the preview's parameters), the SHA-256 pins
+//! of its files set, and the values derived from it. `nimbus validate`, `run` and `resume` all
+//! build one, so what validate accepts, run accepts; the simulation and the writers take theirs
+//! from it instead of reading the files again.
+//!
+//! An issue found here is placed as the config's own are (`FILE:LINE:COL: KEY: ...`,
+//! `config::Checked::error`).
+pub mod heat_maps;
+pub mod target;
+pub mod target_volume;
+
+use crate::config::{self, Checked, Issue, ShotConfig};
+use crate::error::Result;
+use crate::ground::{HeatMap, TargetVoxels};
+use std::path::Path;
+
+/// A shot config with its files read and its derived values, checked once.
+#[derive(Debug, Clone)]
+pub struct Shot {
+    config: ShotConfig,
+    /// Per `physics.sources` entry: its heat map (`shape: image`), else `None`.
+    heat_maps: Vec<Option<HeatMap>>,
+    /// `control.target` voxelised on the controller's grid.
+    target: Option<TargetVoxels>,
+    /// Level-0 kernel radius h0 = spacing * kernel_ratio (m).
+    h0: f64,
+    /// Particles of the initial lattice.
+    particles: u64,
+}
+
+/// Reads the config at `path` with `overrides` (`config::read`) and prepares its shot.
+pub fn load(path: &Path, overrides: &[String]) -> Result<Shot> {
+    Shot::from_checked(config::read(path, overrides)?)
+}
+
+/// [`load`] for config text in memory; `origin` names it in errors (`config::read_str`).
+pub fn load_str(text: &str, origin: &str, overrides: &[String]) -> Result<Shot> {
+    Shot::from_checked(config::read_str(text, origin, overrides)?)
+}
+
+impl Shot {
+    /// The shot of a config read and checked; its issues placed in the config's file.
+    pub fn from_checked(checked: Checked) -> Result<Self> {
+        Self::build(checked.config.clone()).map_err(|issue| checked.error(&issue))
+    }
+
+    /// The shot of a config as `config::read` gives it, checked here (a config built or changed
+    /// in code); an issue names its key without a file position.
+    pub fn prepare(cfg: ShotConfig) -> Result<Self> {
+        if let Some(issue) = config::first_issue(&cfg) {
+            return Err(issue.error());
+        }
+        Self::build(cfg).map_err(|issue| issue.error())
+    }
+
+    fn build(mut cfg: ShotConfig) -> std::result::Result<Self, Issue> {
+        let heat_maps = heat_maps::read(&cfg)?;
+        let target = target::prepare(&cfg)?;
+        check_stage_limits(&cfg)?;
+        pin_files(&mut cfg, &heat_maps);
+        Ok(Self {
+            h0: cfg.domain.kernel_radius(),
+            particles: config::lattice_count(&cfg.domain) as u64,
+            config: cfg,
+            heat_maps,
+            target,
+        })
+    }
+
+    /// The config, with its files' SHA-256 pins set.
+    pub fn config(&self) -> &ShotConfig {
+        &self.config
+    }
+
+    pub fn into_config(self) -> ShotConfig {
+        self.config
+    }
+
+    /// Per `physics.sources` entry: its heat map, `None` for a source without one.
+    pub fn heat_maps(&self) -> &[Option<HeatMap>] {
+        &self.heat_maps
+    }
+
+    /// `control.target` voxelised on the controller's grid, if the shot has one.
+    pub fn target(&self) -> Option<&TargetVoxels> {
+        self.target.as_ref()
+    }
+
+    /// Level-0 kernel radius h0 (m).
+    pub fn h0(&self) -> f64 {
+        self.h0
+    }
+
+    /// Particles of the initial lattice (size / spacing per axis).
+    pub fn particles(&self) -> u64 {
+        self.particles
+    }
+}
+
+/// The checks `run` makes when it builds the splat and preview parameters, made here first
+/// (the same functions, so validate and run can never disagree).
+fn check_stage_limits(c: &ShotConfig) -> std::result::Result<(), Issue> {
+    let issue = |key: &str, msg: String, prefix: &str| Issue {
+        keys: vec![key.to_string()],
+        msg: msg.strip_prefix(prefix).unwrap_or(&msg).to_string(),
+    };
+    if let Err(e) = crate::splat::SplatParams::from_config(c) {
+        return Err(issue("export.voxel_size", e.to_string(), "splat: "));
+    }
+    if let Err(e) = crate::preview::PreviewParams::for_shot(c) {
+        let msg = e.to_string();
+        let key = if msg.contains("camera") {
+            "output.preview.camera.look_at"
+        } else if msg.contains("sun_direction") {
+            "output.preview.sun_direction"
+        } else {
+            "output.preview"
+        };
+        return Err(issue(key, msg, "preview: "));
+    }
+    Ok(())
+}
+
+/// Pins each file's content, so the manifest and the checkpoints name exactly the file the run
+/// used and a resume refuses a changed one (a pinned file is compared as it is read).
+fn pin_files(cfg: &mut ShotConfig, maps: &[Option<HeatMap>]) {
+    for (src, map) in cfg.physics.sources.iter_mut().zip(maps) {
+        if let (Some(map), None) = (map, &src.image_sha256) {
+            src.image_sha256 = Some(map.sha256.clone());
+        }
+    }
+    if let Some(t) = &mut cfg.control.target {
+        for (path, sha) in [(&t.mesh, &mut t.mesh_sha256), (&t.vdb, &mut t.vdb_sha256)] {
+            if let (Some(path), true) = (path, sha.is_none()) {
+                *sha = crate::io::heat_map::file_sha256(Path::new(path)).ok();
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
