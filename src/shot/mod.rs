@@ -8,6 +8,7 @@
 //!
 //! An issue found here is placed as the config's own are (`FILE:LINE:COL: KEY: ...`,
 //! `config::Checked::error`).
+pub mod handoff;
 pub mod heat_maps;
 pub mod target;
 pub mod target_volume;
@@ -60,6 +61,7 @@ impl Shot {
         let heat_maps = heat_maps::read(&cfg)?;
         let target = target::prepare(&cfg)?;
         check_stage_limits(&cfg)?;
+        handoff::check(&cfg.export)?;
         pin_files(&mut cfg, &heat_maps);
         Ok(Self {
             h0: cfg.domain.kernel_radius(),
