@@ -13,6 +13,25 @@
 @group(0) @binding(6) var<storage, read_write> flags: array<u32>;
 @group(0) @binding(7) var<storage, read> live: Live;
 
+// A candidate split: particle i and its children's positions a and b, and how close another
+// particle may come to either (squared).
+struct Fit {
+    i: u32,
+    a: vec3<f32>,
+    b: vec3<f32>,
+    r2: f32,
+}
+
+// Whether particle k other than i is too close to a child (stops the walk).
+fn fit_blocked(me: Fit, k: u32) -> bool {
+    if (k == me.i) { return false; }
+    let q = pos[k].xyz;
+    let da = min_image(me.a - q, grid);
+    let db = min_image(me.b - q, grid);
+    return dot(da, da) < me.r2 || dot(db, db) < me.r2;
+}
+//!walk fit_walk
+
 fn split_fits(i: u32, x: vec3<f32>, id: u32, level: u32) -> bool {
     let hc = level_radius(params.h0, level + 1u);
     let off = (params.split_offset * hc) * split_dir(id);
@@ -20,24 +39,7 @@ fn split_fits(i: u32, x: vec3<f32>, id: u32, level: u32) -> bool {
     let b = wrap_pos(x - off, grid);
     if (!inside_walls(a, grid) || !inside_walls(b, grid)) { return false; }
     let r = params.min_distance * hc;
-    let r2 = r * r;
-    let c = cell_coord(x, grid);
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            for (var dx = -1; dx <= 1; dx++) {
-                let n = neighbor_cell(c, vec3<i32>(dx, dy, dz), grid);
-                if (n < 0) { continue; }
-                for (var k = cell_start[cell_entry(u32(n), grid)]; k < cell_start[cell_entry(u32(n) + 1u, grid)]; k++) {
-                    if (k == i) { continue; }
-                    let q = pos[k].xyz;
-                    let da = min_image(a - q, grid);
-                    let db = min_image(b - q, grid);
-                    if (dot(da, da) < r2 || dot(db, db) < r2) { return false; }
-                }
-            }
-        }
-    }
-    return true;
+    return !fit_walk(Fit(i, a, b, r * r), cell_coord(x, grid));
 }
 
 @compute @workgroup_size(WG_BLOCK)

@@ -62,6 +62,49 @@ fn first_candidate(kc: u32, t: u32) -> u32 {
     return nb_start[kc] + skip;
 }
 
+// The slot i being merged, its position and level.
+struct Merging {
+    i: u32,
+    x: vec3<f32>,
+    level: u32,
+}
+// This thread's nearest partner so far: squared distance, neighbourhood order, slot.
+struct Nearest {
+    d2: f32,
+    order: u32,
+    slot: u32,
+}
+// Candidate k of neighbour cell kc as i's partner: merge-marked, on i's level, nearer than the
+// best so far (ties: the first in this thread's neighbourhood order). Never stops the walk.
+fn nearest_pair(a: ptr<function, Nearest>, me: Merging, kc: u32, k: u32) -> bool {
+    if (k == me.i || flags[k] != FLAG_MERGE || info[k].y != me.level) { return false; }
+    let dk = min_image(pos[k].xyz - me.x, grid);
+    let d2 = dot(dk, dk);
+    if (d2 < (*a).d2) {
+        (*a).d2 = d2;
+        (*a).order = nb_pre[kc] + (k - nb_start[kc]);
+        (*a).slot = k;
+    }
+    return false;
+}
+//!walk nearest_walk
+
+// The merge of slots i and j at midpoint m, and how close another particle may come to it
+// (squared).
+struct Product {
+    i: u32,
+    j: u32,
+    m: vec3<f32>,
+    r2: f32,
+}
+// Whether live candidate k other than i and j is too close to the midpoint (stops the walk).
+fn room_blocked(me: Product, k: u32) -> bool {
+    if (k == me.i || k == me.j || (flags[k] & FLAG_DEAD) != 0u) { return false; }
+    let dk = min_image(me.m - pos[k].xyz, grid);
+    return dot(dk, dk) < me.r2;
+}
+//!walk room_walk
+
 @compute @workgroup_size(WG_PARTICLES)
 fn adaptive_merge(@builtin(workgroup_id) wid: vec3<u32>,
                   @builtin(num_workgroups) nwg: vec3<u32>,
@@ -76,13 +119,12 @@ fn adaptive_merge(@builtin(workgroup_id) wid: vec3<u32>,
     let d = grid.dims;
     let c = vec3<i32>(vec3<u32>(cell % d.x, (cell / d.x) % d.y, cell / (d.x * d.y)));
     if (t < 27u) {
-        let off = vec3<i32>(i32(t % 3u) - 1, i32((t / 3u) % 3u) - 1, i32(t / 9u) - 1);
-        let n = neighbor_cell(c, off, grid);
+        let e = cell_entries(c, t, grid);
         var start = 0u;
         var len = 0u;
-        if (n >= 0) {
-            start = cell_start[cell_entry(u32(n), grid)];
-            len = cell_start[cell_entry(u32(n) + 1u, grid)] - start;
+        if (e.x != e.y) {
+            start = cell_start[e.x];
+            len = cell_start[e.y] - start;
         }
         nb_start[t] = start;
         nb_pre[t + 1u] = len;
@@ -112,30 +154,16 @@ fn adaptive_merge(@builtin(workgroup_id) wid: vec3<u32>,
         let xi = pos[i].xyz;
         let h = level_radius(params.h0, level);
         // Nearest merge-marked partner on the same level within h.
-        var best_d2 = h * h;
-        var best_order = NONE;
-        var best_slot = NONE;
-        for (var kc = 0u; kc < 27u; kc++) {
-            let stop = nb_start[kc] + (nb_pre[kc + 1u] - nb_pre[kc]);
-            for (var k = first_candidate(kc, t); k < stop; k += WG_PARTICLES) {
-                if (k == i || flags[k] != FLAG_MERGE || info[k].y != level) { continue; }
-                let dk = min_image(pos[k].xyz - xi, grid);
-                let d2 = dot(dk, dk);
-                if (d2 < best_d2) {
-                    best_d2 = d2;
-                    best_order = nb_pre[kc] + (k - nb_start[kc]);
-                    best_slot = k;
-                }
-            }
-        }
-        if (best_order != NONE) { atomicMin(&wg_d2, bitcast<u32>(best_d2)); }
+        var best = Nearest(h * h, NONE, NONE);
+        _ = nearest_walk(&best, Merging(i, xi, level), t);
+        if (best.order != NONE) { atomicMin(&wg_d2, bitcast<u32>(best.d2)); }
         workgroupBarrier();
-        if (best_order != NONE && bitcast<u32>(best_d2) == atomicLoad(&wg_d2)) {
-            atomicMin(&wg_order, best_order);
+        if (best.order != NONE && bitcast<u32>(best.d2) == atomicLoad(&wg_d2)) {
+            atomicMin(&wg_order, best.order);
         }
         workgroupBarrier();
         // neighbourhood orders are distinct: one thread holds the winner
-        if (best_order != NONE && best_order == atomicLoad(&wg_order)) { wg_partner = best_slot; }
+        if (best.order != NONE && best.order == atomicLoad(&wg_order)) { wg_partner = best.slot; }
         let j = workgroupUniformLoad(&wg_partner);
         if (j == NONE) {
             continue;
@@ -143,20 +171,7 @@ fn adaptive_merge(@builtin(workgroup_id) wid: vec3<u32>,
         // Equal masses on a level: the midpoint is the mass-weighted centre; it needs room.
         let m = wrap_pos(xi + 0.5 * min_image(pos[j].xyz - xi, grid), grid);
         let r = params.min_distance * level_radius(params.h0, level - 1u);
-        let r2 = r * r;
-        var blocked = false;
-        for (var kc = 0u; kc < 27u && !blocked; kc++) {
-            let stop = nb_start[kc] + (nb_pre[kc + 1u] - nb_pre[kc]);
-            for (var k = first_candidate(kc, t); k < stop; k += WG_PARTICLES) {
-                if (k == i || k == j || (flags[k] & FLAG_DEAD) != 0u) { continue; }
-                let dk = min_image(m - pos[k].xyz, grid);
-                if (dot(dk, dk) < r2) {
-                    blocked = true;
-                    break;
-                }
-            }
-        }
-        if (blocked) { atomicOr(&wg_blocked, 1u); }
+        if (room_walk(Product(i, j, m, r * r), t)) { atomicOr(&wg_blocked, 1u); }
         workgroupBarrier();
         if (t == 0u && atomicLoad(&wg_blocked) == 0u) {
             pos[i] = vec4<f32>(m, pos[i].w);

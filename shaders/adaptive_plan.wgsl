@@ -40,35 +40,41 @@ struct ColourMap {
 // budget with merge_cells' own walks).
 const PARTNER_SCAN_CAP: u32 = 8192u;
 
-// Whether a merge-marked slot of the cell [begin, end) has a merge-marked partner on its level
-// closer than h (adaptive_merge's partner test, the same f32 expression). Merges only take marks
-// away (MERGED, DEAD) and move only the particles they merge, so a cell without such a pair now
-// merges nothing in any colour pass: it is not listed, and its workgroup is not launched.
-fn may_merge(begin: u32, end: u32, cc: vec3<i32>) -> bool {
-    var tested = 0u;
-    for (var kc = 0u; kc < 27u; kc++) {
-        let off = vec3<i32>(i32(kc % 3u) - 1, i32((kc / 3u) % 3u) - 1, i32(kc / 9u) - 1);
-        let n = neighbor_cell(cc, off, grid);
-        if (n < 0) { continue; }
-        let k_end = cell_start[cell_entry(u32(n) + 1u, grid)];
-        for (var k = cell_start[cell_entry(u32(n), grid)]; k < k_end; k++) {
-            tested++;
-            if (tested > PARTNER_SCAN_CAP) { return true; }
-            if (flags[k] != FLAG_MERGE) { continue; }
-            let lk = info[k].y;
-            let xk = pos[k].xyz;
-            let h = level_radius(params.h0, lk);
-            for (var i = begin; i < end; i++) {
-                tested++;
-                if (tested > PARTNER_SCAN_CAP) { return true; }
-                if (i == k || flags[i] != FLAG_MERGE || info[i].y != lk) { continue; }
-                let xi = pos[i].xyz;
-                let dk = min_image(xk - xi, grid);
-                if (dot(dk, dk) < h * h) { return true; }
-            }
-        }
+// The slots [begin, end) of the cell whose merges are in question.
+struct Slots {
+    begin: u32,
+    end: u32,
+}
+
+// Whether merge-marked candidate k has a merge-marked partner among the cell's slots on its
+// level closer than h (adaptive_merge's partner test, the same f32 expression), or the walk has
+// taken PARTNER_SCAN_CAP loop trips (`tested`): either stops it.
+fn partner_found(tested: ptr<function, u32>, me: Slots, k: u32) -> bool {
+    *tested += 1u;
+    if (*tested > PARTNER_SCAN_CAP) { return true; }
+    if (flags[k] != FLAG_MERGE) { return false; }
+    let lk = info[k].y;
+    let xk = pos[k].xyz;
+    let h = level_radius(params.h0, lk);
+    for (var i = me.begin; i < me.end; i++) {
+        *tested += 1u;
+        if (*tested > PARTNER_SCAN_CAP) { return true; }
+        if (i == k || flags[i] != FLAG_MERGE || info[i].y != lk) { continue; }
+        let xi = pos[i].xyz;
+        let dk = min_image(xk - xi, grid);
+        if (dot(dk, dk) < h * h) { return true; }
     }
     return false;
+}
+//!walk partner_walk
+
+// Whether a merge-marked slot of the cell [begin, end) has a merge-marked partner (or the check
+// ran out of trips: the cell is listed unchecked). Merges only take marks away (MERGED, DEAD) and
+// move only the particles they merge, so a cell without such a pair now merges nothing in any
+// colour pass: it is not listed, and its workgroup is not launched.
+fn may_merge(begin: u32, end: u32, cc: vec3<i32>) -> bool {
+    var tested = 0u;
+    return partner_walk(&tested, Slots(begin, end), cc);
 }
 
 fn axis_class(x: u32, split: u32) -> u32 {
@@ -89,14 +95,11 @@ fn merge_cells(@builtin(global_invocation_id) gid: vec3<u32>,
     let d = grid.dims;
     let cc = vec3<u32>(cell % d.x, (cell / d.x) % d.y, cell / (d.x * d.y));
     if (!may_merge(begin, end, vec3<i32>(cc))) { return; }
+    // the particles in the 27 cells (an empty range outside a walled axis adds 0)
     var nb = 0u;
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            for (var dx = -1; dx <= 1; dx++) {
-                let n = neighbor_cell(vec3<i32>(cc), vec3<i32>(dx, dy, dz), grid);
-                if (n >= 0) { nb += cell_start[cell_entry(u32(n) + 1u, grid)] - cell_start[cell_entry(u32(n), grid)]; }
-            }
-        }
+    for (var kc = 0u; kc < 27u; kc++) {
+        let e = cell_entries(vec3<i32>(cc), kc, grid);
+        nb += cell_start[e.y] - cell_start[e.x];
     }
     // loop iterations of one merge invocation: the slot walk, and per marked slot the 27 cells
     // and its share of two neighbourhood scans (+16: what the tree reductions took before they

@@ -445,37 +445,8 @@ fn pop_bit(bits: ptr<function, vec2<u32>>) -> vec2<u32> {
     return vec2<u32>(select(32u, 0u, lo) + firstTrailingBit(w), u32(w != 0u));
 }
 
-// First iteration: lambda over the anchor's candidates, recording the neighbours.
-fn lam_build(a: ptr<function, LamAcc>, me: Me, an: Anchor) -> Mask {
-    var m = Mask(vec4<u32>(0u), 0u, 0u);
-    var off = 0u;
-    for (var dz = -1; dz <= 1; dz++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            let rows = anchor_row(an, dy, dz);
-            for (var s = 0u; s < 2u; s++) {
-                let e = select(rows.xy, rows.zw, s == 1u);
-                if (e.x == e.y) { continue; }
-                let j0 = cell_start[e.x];
-                let j1 = cell_start[e.y];
-                var bits = vec2<u32>(0u);
-                for (var j = j0; j < j1; j++) {
-                    if (lam_fluid(a, me, j, false)) {
-                        let k = j - j0;
-                        bits.x |= select(0u, 1u << (k & 31u), k < 32u);
-                        bits.y |= select(0u, 1u << (k & 31u), k >= 32u && k < 64u);
-                    }
-                }
-                mask_put(&m, off, bits, seg_bits(off, j1 - j0, me.k.single));
-                off += j1 - j0;
-                if (!wall_reach(an.c.y + dy, me.p.y, max(me.hi, me.k.h0), grid)) { continue; }
-                let we = e - vec2<u32>(wall_shift(an.c.y + dy, an.c.z + dz, grid));
-                let k_end = bcell_start[we.y];
-                for (var k = bcell_start[we.x]; k < k_end; k++) { lam_wall(a, me, k); }
-            }
-        }
-    }
-    return m;
-}
+// First iteration: lambda over the anchor's candidates, recording the neighbours (closer than h0).
+//!walk lam_build
 //!walk lam_masked
 
 // The first iteration's lambda: builds the neighbour mask (vel, pred.w, pos.w; pred.w alone,

@@ -132,6 +132,15 @@ fn cell_entry(c: u32, g: GridParams) -> u32 {
     return c * g.x_slices;
 }
 
+// Table entries [x, y) of the whole cell kc (0..27) of the 27 around cell c, in neighbourhood
+// order: offset (kc % 3, kc / 3 % 3, kc / 9) - 1, x fastest; empty (0, 0) outside a walled axis.
+fn cell_entries(c: vec3<i32>, kc: u32, g: GridParams) -> vec2<u32> {
+    let off = vec3<i32>(i32(kc % 3u) - 1, i32((kc / 3u) % 3u) - 1, i32(kc / 9u) - 1);
+    let n = neighbor_cell(c, off, g);
+    if (n < 0) { return vec2<u32>(0u); }
+    return vec2<u32>(cell_entry(u32(n), g), cell_entry(u32(n) + 1u, g));
+}
+
 // Neighbour search by rows. The cells x-1..x+1 of a (y, z) row are consecutive in the linear
 // cell index, and within a cell the particles are sorted by x slice (GridParams.x_slices), so a
 // row is one run of cell-table entries ordered by x. Each of the 9 rows around the particle is

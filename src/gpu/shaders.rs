@@ -153,20 +153,24 @@ const VARIANTS: &[(&str, &str, Words)] = &[
     ),
 ];
 
-/// The neighbour-walk template: sections `//!template KIND` (`scan`, `masked`).
+/// The neighbour-walk template: sections `//!template KIND` (`scan`, `build`, `masked`, `cells`,
+/// `cells_shared`).
 const WALK_TEMPLATE: &str = "shared/walk.wgsl";
 
 /// One neighbour walk made from [`WALK_TEMPLATE`] (its words are explained there).
 struct Walk {
     /// The function's name; `//!walk NAME` in a program puts it there.
     name: &'static str,
-    /// The template's section: `scan` (around the position) or `masked` (the neighbour mask).
+    /// The template's section: `scan` (around the position), `build` (around the anchor, writing
+    /// the neighbour mask), `masked` (reading it), `cells` (the whole 27 cells around a cell) or
+    /// `cells_shared` (adaptive_merge.wgsl's tabulated cells, a thread's share).
     template: &'static str,
-    /// The accumulator's parameter name and pointee type.
-    acc: (&'static str, &'static str),
-    /// The particle's type, and any further parameters.
-    me: &'static str,
-    /// The call for a fluid candidate, `$` its index.
+    /// The function's leading parameters, the ones its pair and wall calls pass on: mostly an
+    /// accumulator and `me`, the particle (the templates read `me.p`, and `build` `me.k`).
+    params: &'static str,
+    /// The call for a fluid candidate, `$` its index: a statement in `scan` and `masked`, in
+    /// `build` whether the candidate is a neighbour, in `cells` and `cells_shared` whether the
+    /// walk stops there.
     pair: &'static str,
     /// The call for a wall particle, `$` its index; `None`: the walk leaves the walls out.
     wall: Option<&'static str>,
@@ -178,23 +182,30 @@ struct Walk {
 const PBF_SKIP_WALLS: &str = "!wall_reach($, me.p.y, max(me.hi, me.k.h0), grid)";
 const VISC_SKIP_WALLS: &str = "!wall_reach($, me.p.y, max(me.lv.x, me.k.h0), grid)";
 
-/// Every walk the programs generate. The masked and the scan walk of one pass share its pair
-/// function, so the mask changes which candidates are visited, never what a pair adds.
+/// Every walk the programs generate. The build, masked and scan walks of one pass share its pair
+/// function, so the mask changes which candidates are visited, never what a pair adds; the
+/// adaptive stage's walks (`cells`, `cells_shared`) visit whole cells and stop where a pair says.
 const WALKS: &[Walk] = &[
     Walk {
         name: "lam_scan",
         template: "scan",
-        acc: ("a", "LamAcc"),
-        me: "Me, packed: bool",
+        params: "a: ptr<function, LamAcc>, me: Me, packed: bool",
         pair: "_ = lam_fluid(a, me, $, packed)",
+        wall: Some("lam_wall(a, me, $)"),
+        skip_walls: PBF_SKIP_WALLS,
+    },
+    Walk {
+        name: "lam_build",
+        template: "build",
+        params: "a: ptr<function, LamAcc>, me: Me",
+        pair: "lam_fluid(a, me, $, false)",
         wall: Some("lam_wall(a, me, $)"),
         skip_walls: PBF_SKIP_WALLS,
     },
     Walk {
         name: "lam_masked",
         template: "masked",
-        acc: ("a", "LamAcc"),
-        me: "Me",
+        params: "a: ptr<function, LamAcc>, me: Me",
         pair: "_ = lam_fluid(a, me, $, true)",
         wall: Some("lam_wall(a, me, $)"),
         skip_walls: PBF_SKIP_WALLS,
@@ -202,8 +213,7 @@ const WALKS: &[Walk] = &[
     Walk {
         name: "delta_scan",
         template: "scan",
-        acc: ("dp", "vec3<f32>"),
-        me: "Me",
+        params: "dp: ptr<function, vec3<f32>>, me: Me",
         pair: "delta_fluid(dp, me, $)",
         wall: Some("delta_wall(dp, me, $)"),
         skip_walls: PBF_SKIP_WALLS,
@@ -211,8 +221,7 @@ const WALKS: &[Walk] = &[
     Walk {
         name: "delta_masked",
         template: "masked",
-        acc: ("dp", "vec3<f32>"),
-        me: "Me",
+        params: "dp: ptr<function, vec3<f32>>, me: Me",
         pair: "delta_fluid(dp, me, $)",
         wall: Some("delta_wall(dp, me, $)"),
         skip_walls: PBF_SKIP_WALLS,
@@ -220,8 +229,7 @@ const WALKS: &[Walk] = &[
     Walk {
         name: "visc_scan",
         template: "scan",
-        acc: ("a", "Visc"),
-        me: "Vi",
+        params: "a: ptr<function, Visc>, me: Vi",
         pair: "visc_pair(a, me, $)",
         wall: Some("visc_wall(a, me, $)"),
         skip_walls: VISC_SKIP_WALLS,
@@ -229,8 +237,7 @@ const WALKS: &[Walk] = &[
     Walk {
         name: "visc_masked",
         template: "masked",
-        acc: ("a", "Visc"),
-        me: "Vi",
+        params: "a: ptr<function, Visc>, me: Vi",
         pair: "visc_pair(a, me, $)",
         wall: Some("visc_wall(a, me, $)"),
         skip_walls: VISC_SKIP_WALLS,
@@ -238,8 +245,7 @@ const WALKS: &[Walk] = &[
     Walk {
         name: "vort_scan",
         template: "scan",
-        acc: ("w", "vec3<f32>"),
-        me: "Vo",
+        params: "w: ptr<function, vec3<f32>>, me: Vo",
         pair: "vort_pair(w, me, $)",
         wall: None,
         skip_walls: "",
@@ -247,8 +253,7 @@ const WALKS: &[Walk] = &[
     Walk {
         name: "demand_scan",
         template: "scan",
-        acc: ("sum", "f32"),
-        me: "Dm",
+        params: "sum: ptr<function, f32>, me: Dm",
         pair: "demand_pair(sum, me, $)",
         wall: None,
         skip_walls: "",
@@ -256,11 +261,42 @@ const WALKS: &[Walk] = &[
     Walk {
         name: "smooth_scan",
         template: "scan",
-        acc: ("a", "SmAcc"),
-        me: "Sm",
+        params: "a: ptr<function, SmAcc>, me: Sm",
         pair: "smooth_pair(a, me, $)",
         wall: Some("smooth_wall(a, me, $)"),
         skip_walls: "S.fixed_walls == 0u || !wall_reach($, me.p.y, S.h0, grid)",
+    },
+    Walk {
+        name: "fit_walk",
+        template: "cells",
+        params: "me: Fit",
+        pair: "fit_blocked(me, $)",
+        wall: None,
+        skip_walls: "",
+    },
+    Walk {
+        name: "partner_walk",
+        template: "cells",
+        params: "tested: ptr<function, u32>, me: Slots",
+        pair: "partner_found(tested, me, $)",
+        wall: None,
+        skip_walls: "",
+    },
+    Walk {
+        name: "nearest_walk",
+        template: "cells_shared",
+        params: "a: ptr<function, Nearest>, me: Merging",
+        pair: "nearest_pair(a, me, kc, $)",
+        wall: None,
+        skip_walls: "",
+    },
+    Walk {
+        name: "room_walk",
+        template: "cells_shared",
+        params: "me: Product",
+        pair: "room_blocked(me, $)",
+        wall: None,
+        skip_walls: "",
     },
 ];
 
@@ -291,12 +327,9 @@ fn walk_source(name: &str) -> Result<String> {
             }
         }
     }
-    // WALK_ACC before WALK_A, its prefix
     let out = out
         .replace("WALK_NAME", w.name)
-        .replace("WALK_ACC", w.acc.1)
-        .replace("WALK_A", w.acc.0)
-        .replace("WALK_ME", w.me);
+        .replace("WALK_PARAMS", w.params);
     let out = calls(&out, "PAIR", w.pair)?;
     let out = calls(&out, "SKIP_WALLS", w.skip_walls)?;
     calls(&out, "WALL", w.wall.unwrap_or(""))
