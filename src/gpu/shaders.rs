@@ -488,6 +488,41 @@ mod tests {
     }
 
     #[test]
+    fn only_the_walk_template_walks_neighbours() {
+        // The pieces a neighbour walk is made of: rows around a position or an anchor, the
+        // neighbour cells by offset, the merge's strided share, the loop over the rows. Outside
+        // the template only common.wgsl (which defines them) and their own definitions name them;
+        // `cell_entries` is free (the merge tabulates cells with it, merge_cells sums their
+        // sizes: neither visits a pair).
+        let pieces = [
+            "row_entries(",
+            "anchor_row(",
+            "neighbor_cell(",
+            "first_candidate(",
+            "for (var dz",
+        ];
+        for (name, text) in super::SHADER_FILES {
+            if [super::WALK_TEMPLATE, "shared/common.wgsl"].contains(name) {
+                continue;
+            }
+            for (n, line) in text.lines().enumerate() {
+                let code = line.split("//").next().unwrap_or("").trim();
+                if code.starts_with("fn ") {
+                    continue;
+                }
+                for piece in pieces {
+                    assert!(
+                        !code.contains(piece),
+                        "{name}:{}: a neighbour walk outside {}: {line}",
+                        n + 1,
+                        super::WALK_TEMPLATE
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
     fn the_level_tables_select_chains_cover_max_level() {
         // lv_of (pbf.wgsl) and level_row (smoothing.wgsl) pick rows 1..MAX_LEVEL by one select
         // each, the last for every level at or above MAX_LEVEL
