@@ -338,6 +338,11 @@ pub struct PhysicsConfig {
     /// serialisation when unset, so the hashes of shots without wind are unchanged.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub wind: Option<WindConfig>,
+    /// Large-scale forcing in physical units (surface fluxes, radiation, a moisture tendency,
+    /// subsidence; `sim::forces::forcing`); `None` = none. Left out of the serialisation when
+    /// unset, so the hashes of shots without it are unchanged.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub forcing: Option<ForcingConfig>,
 }
 /// `true`/`false`, or the words `on`/`off` (YAML 1.2 reads those as strings).
 fn on_off<'de, D: serde::Deserializer<'de>>(d: D) -> Result<bool, D::Error> {
@@ -386,6 +391,7 @@ impl Default for PhysicsConfig {
             initial_speed: 0.5,
             smoothing: SmoothingConfig::default(),
             wind: None,
+            forcing: None,
         }
     }
 }
@@ -499,6 +505,51 @@ pub struct WindConfig {
 }
 fn d_wind_time() -> f64 {
     60.0
+}
+
+/// `physics.forcing`: the large-scale forcing of an atmospheric case (GCSS BOMEX and the like),
+/// applied to every particle once a frame (docs/CONFIG.md "Forcing").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ForcingConfig {
+    /// Kinematic surface sensible heat flux w'theta' (K m/s), put into the particles below
+    /// `surface_layer`.
+    pub surface_heat_flux: f64,
+    /// Kinematic surface moisture flux w'q' (kg/kg m/s), likewise.
+    pub surface_moisture_flux: f64,
+    /// Depth of the surface layer that takes the surface fluxes (m); `null` = the kernel radius.
+    pub surface_layer: Option<f64>,
+    /// Levels by increasing height: radiation, moisture tendency and subsidence, linear between
+    /// levels and constant below the first and above the last; empty = none of the three.
+    pub profile: Vec<ForcingLevel>,
+}
+impl Default for ForcingConfig {
+    fn default() -> Self {
+        Self {
+            surface_heat_flux: 0.0,
+            surface_moisture_flux: 0.0,
+            surface_layer: None,
+            profile: Vec::new(),
+        }
+    }
+}
+
+/// One level of `physics.forcing.profile`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ForcingLevel {
+    /// Height above the ground (m).
+    pub height: f64,
+    /// Radiative heating (K/day; negative cools).
+    #[serde(default)]
+    pub radiation: f64,
+    /// Large-scale moisture tendency (g/kg per day; negative dries).
+    #[serde(default)]
+    pub moisture: f64,
+    /// Large-scale vertical velocity w_ls (m/s; negative = subsidence). It advects the
+    /// horizontal-mean profiles, not the particles.
+    #[serde(default)]
+    pub subsidence: f64,
 }
 
 /// One level of the wind profile.

@@ -116,6 +116,13 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("physics.wind.profile[].height", 0.0, 1.0e5),
     closed("physics.wind.profile[].speed", 0.0, 100.0),
     closed("physics.wind.profile[].direction", -360.0, 360.0),
+    closed("physics.forcing.surface_heat_flux", -1.0, 1.0),
+    closed("physics.forcing.surface_moisture_flux", -1.0e-3, 1.0e-3),
+    above("physics.forcing.surface_layer", 0.0, 1.0e5),
+    closed("physics.forcing.profile[].height", 0.0, 1.0e5),
+    closed("physics.forcing.profile[].radiation", -100.0, 100.0),
+    closed("physics.forcing.profile[].moisture", -100.0, 100.0),
+    closed("physics.forcing.profile[].subsidence", -1.0, 1.0),
     closed("physics.adiabatic_lapse_rate", 0.0, 0.1),
     closed("physics.heat_source", 0.0, 10.0),
     closed("physics.heat_height", 0.0, 1.0e5),
@@ -400,6 +407,35 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
                     _ => "physics.wind.profile[].direction",
                 };
                 v.push((format!("physics.wind.profile[{k}].{name}"), key, x));
+            }
+        }
+    }
+    if let Some(f) = &ph.forcing {
+        let mut put = |key: &'static str, x: f64| v.push((key.to_string(), key, x));
+        put("physics.forcing.surface_heat_flux", f.surface_heat_flux);
+        put(
+            "physics.forcing.surface_moisture_flux",
+            f.surface_moisture_flux,
+        );
+        if let Some(d) = f.surface_layer {
+            put("physics.forcing.surface_layer", d);
+        }
+        for (k, l) in f.profile.iter().enumerate() {
+            for (name, key, x) in [
+                ("height", "physics.forcing.profile[].height", l.height),
+                (
+                    "radiation",
+                    "physics.forcing.profile[].radiation",
+                    l.radiation,
+                ),
+                ("moisture", "physics.forcing.profile[].moisture", l.moisture),
+                (
+                    "subsidence",
+                    "physics.forcing.profile[].subsidence",
+                    l.subsidence,
+                ),
+            ] {
+                v.push((format!("physics.forcing.profile[{k}].{name}"), key, x));
             }
         }
     }
@@ -1001,6 +1037,47 @@ mod tests {
                 "physics.environment.humidity_above",
             ),
             (|c| c.physics.bowen_ratio = Some(0.0), "physics.bowen_ratio"),
+            (
+                |c| {
+                    let level = |height| ForcingLevel {
+                        height,
+                        radiation: -2.0,
+                        moisture: 0.0,
+                        subsidence: 0.0,
+                    };
+                    c.physics.forcing = Some(ForcingConfig {
+                        profile: vec![level(500.0), level(500.0)],
+                        ..Default::default()
+                    });
+                },
+                "physics.forcing.profile[1].height",
+            ),
+            (
+                |c| {
+                    c.physics.forcing = Some(ForcingConfig {
+                        surface_layer: Some(1.0e4),
+                        ..Default::default()
+                    })
+                },
+                "physics.forcing.surface_layer",
+            ),
+            (
+                |c| {
+                    c.physics.forcing = Some(ForcingConfig {
+                        surface_heat_flux: 2.0,
+                        ..Default::default()
+                    })
+                },
+                "physics.forcing.surface_heat_flux",
+            ),
+            (
+                |c| {
+                    c.output.frame_seconds = 400.0;
+                    c.output.substeps = 20;
+                    c.physics.forcing = Some(ForcingConfig::default());
+                },
+                "output.frame_seconds",
+            ),
             (
                 |c| {
                     c.physics.bowen_ratio = Some(0.5);
