@@ -203,6 +203,26 @@ fn random_thermo_state(n: usize, seed: u64, cfg: &ShotConfig) -> State {
     (pos, vel, th)
 }
 
+/// `physics.thermodynamics: atmospheric` (eq. 10 at the pressure of the height) against the
+/// mirror, over the whole 3 km box, where the saturation is up to 1.4 times the paper's.
+#[test]
+fn atmospheric_thermo_step_matches_mirror() {
+    let ctx = context();
+    let mut cfg = shot();
+    cfg.physics.thermodynamics = nimbus::config::Thermodynamics::Atmospheric;
+    cfg.physics.surface_pressure = Some(101_500.0);
+    let n = 3000;
+    let (pos, vel, th) = random_thermo_state(n, 43, &cfg);
+    let params = ThermoParams::new(&cfg, 2.0, 137.0);
+    assert_eq!(params.atmospheric, 1);
+    let out = gpu_thermo(&ctx, &cfg, &[params], &pos, &vel, &th);
+    let (_, th64) = check_against_mirror(&params, &[], (&pos, &vel, &th), &out);
+    let changed = (0..n)
+        .filter(|&i| (th64[i][2] - th[i][2] as f64).abs() > 1e-7)
+        .count();
+    assert!(changed > n / 10, "only {changed} particles changed phase");
+}
+
 #[test]
 fn thermo_step_matches_mirror() {
     let ctx = context();

@@ -320,6 +320,15 @@ pub struct PhysicsConfig {
     pub buoyancy_reference: BuoyancyReference,
     /// Phase transition rate alpha (1/s), eq. 9.
     pub phase_rate: f64,
+    /// How the saturation depends on height: as eq. 10 (`paper`), or also on a hydrostatic
+    /// pressure (`atmospheric`). Left out of the serialisation when `paper`, so the hashes of
+    /// earlier shots are unchanged.
+    #[serde(skip_serializing_if = "Thermodynamics::is_paper")]
+    pub thermodynamics: Thermodynamics,
+    /// Pressure at the floor (Pa) with `thermodynamics: atmospheric`; `null` = 1e5 Pa, the
+    /// pressure eq. 10's constants are for.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub surface_pressure: Option<f64>,
     /// Saturation gamma = A exp(B / (T + C)), eq. 10.
     pub saturation_a: f64,
     pub saturation_b: f64,
@@ -382,6 +391,8 @@ impl Default for PhysicsConfig {
             cloud_weight: 9.81,
             buoyancy_reference: BuoyancyReference::Environment,
             phase_rate: 0.05,
+            thermodynamics: Thermodynamics::Paper,
+            surface_pressure: None,
             saturation_a: 1.79e5,
             saturation_b: -4302.6,
             saturation_c: -29.65,
@@ -563,6 +574,27 @@ pub struct WindLevel {
     /// Heading the air moves towards (degrees in the ground plane, 0 = +x, 90 = +z).
     #[serde(default)]
     pub direction: f64,
+}
+
+/// `physics.thermodynamics`: the saturation of eq. 10 as the paper has it, or at the pressure of
+/// the particle's height.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Thermodynamics {
+    /// gamma = A exp(B / (T + C)) at every height (the paper's eq. 10).
+    #[default]
+    Paper,
+    /// gamma = A exp(B / (T + C)) p0 / p(y): eq. 10's constants are Bolton's (1980) saturation
+    /// mixing ratio at p0 = 1e5 Pa, and the mixing ratio of a given vapor pressure goes as 1 / p.
+    /// p(y) is the hydrostatic pressure of the dry adiabatic reference atmosphere over the
+    /// floor: p(y) = p_s (1 - Gamma_d y / T_s)^(c_p / R_d), with T_s the ground temperature,
+    /// Gamma_d = g / c_p the adiabatic lapse rate and c_p / R_d = 3.5 (dry air).
+    Atmospheric,
+}
+impl Thermodynamics {
+    pub fn is_paper(&self) -> bool {
+        *self == Thermodynamics::Paper
+    }
 }
 
 /// The reference eq. 6's force is measured against.

@@ -132,6 +132,7 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("physics.buoyancy", 0.0, 100.0),
     closed("physics.cloud_weight", 0.0, 100.0),
     closed("physics.phase_rate", 0.0, 100.0),
+    closed("physics.surface_pressure", 1.0e4, 2.0e5),
     above("physics.saturation_a", 0.0, 1.0e8),
     closed("physics.saturation_b", -1.0e5, 1.0e5),
     closed("physics.saturation_c", -500.0, 500.0),
@@ -310,6 +311,7 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         ("physics.environment.lapse_rate_above", env.lapse_rate_above),
         ("physics.environment.humidity_above", env.humidity_above),
         ("physics.bowen_ratio", ph.bowen_ratio),
+        ("physics.surface_pressure", ph.surface_pressure),
         ("export.detail.scale", c.export.detail.scale),
     ] {
         if let Some(x) = x {
@@ -779,6 +781,27 @@ fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
                 .to_string(),
         );
     }
+    if p.surface_pressure.is_some() && p.thermodynamics.is_paper() {
+        k.fail(
+            &["physics.surface_pressure"],
+            "is read only with physics.thermodynamics: atmospheric".to_string(),
+        );
+    }
+    // the reference atmosphere's pressure reaches 0 at T_s / Gamma_d (about 30 km)
+    if !p.thermodynamics.is_paper() && p.adiabatic_lapse_rate > 0.0 {
+        let top = p.ground_temperature / p.adiabatic_lapse_rate;
+        let height = c.domain.size[1];
+        if height.is_finite() && top.is_finite() && height >= 0.5 * top {
+            k.fail(
+                &["physics.thermodynamics", "domain.size"],
+                format!(
+                    "the domain is {} m high; with atmospheric thermodynamics it must stay below half the height of the reference atmosphere, ground_temperature / adiabatic_lapse_rate / 2 = {} m",
+                    num(height),
+                    num(0.5 * top)
+                ),
+            );
+        }
+    }
     if env.humidity_above.is_some() && env.inversion_height.is_none() {
         k.fail(
             &["physics.environment.humidity_above"],
@@ -1037,6 +1060,17 @@ mod tests {
                 "physics.environment.humidity_above",
             ),
             (|c| c.physics.bowen_ratio = Some(0.0), "physics.bowen_ratio"),
+            (
+                |c| c.physics.surface_pressure = Some(101_500.0),
+                "physics.surface_pressure",
+            ),
+            (
+                |c| {
+                    c.physics.thermodynamics = Thermodynamics::Atmospheric;
+                    c.domain.size = [100.0, 20_000.0, 100.0];
+                },
+                "physics.thermodynamics",
+            ),
             (
                 |c| {
                     let level = |height| ForcingLevel {

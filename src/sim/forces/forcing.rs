@@ -350,6 +350,12 @@ mod tests {
     }
 
     #[test]
+    fn params_layout_matches_wgsl() {
+        // 8 scalars, then 64 rows of vec4 (shaders/forcing.wgsl `ForcingParams`)
+        assert_eq!(std::mem::size_of::<ForcingParams>(), 32 + 64 * 16);
+    }
+
+    #[test]
     fn the_profile_is_linear_between_levels_and_constant_outside() {
         let c = cfg("{profile: [{height: 100, radiation: -2}, {height: 300, radiation: 0}]}");
         let f = c.physics.forcing.unwrap();
