@@ -188,11 +188,22 @@ fn the_forcing_budget_closes() {
 
 /// The paper's temperature smoothing (eq. 17, a per-particle projection, not a flux between
 /// pairs) is what does not conserve heat: the same box with it on keeps 4% less of the
-/// forcing's heat, while the water, which no smoothing touches, still closes. This is the heat
-/// that paper example 1's budget misses (docs/PHYSICS.md "Heat budget"). Measured: 0.95930.
+/// forcing's heat, while the water, which no smoothing touches, still closes. Its conservative
+/// form (`physics.smoothing.conservative`, the same step as fluxes between pairs) closes the
+/// budget again. This is the heat that paper example 1's budget misses (docs/PHYSICS.md "Heat
+/// budget"). Measured: paper 0.95930, conservative 0.99988.
 #[test]
-fn the_paper_smoothing_is_what_loses_heat() {
+fn the_paper_smoothing_loses_heat_and_its_conservative_form_keeps_it() {
     let (heat, water) = budget("");
     assert!(heat < 0.99, "heat budget with smoothing: {heat}");
     assert!((water - 1.0).abs() < 0.01, "water budget: {water}");
+    let (heat, water) = budget(", smoothing: {conservative: true}");
+    assert!(
+        (heat - 1.0).abs() < 0.01,
+        "heat budget, conservative: {heat}"
+    );
+    assert!(
+        (water - 1.0).abs() < 0.01,
+        "water budget, conservative: {water}"
+    );
 }

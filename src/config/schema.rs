@@ -637,6 +637,10 @@ pub struct SmoothingConfig {
     /// Diffusivity D (m^2/s) of the vapor mixing between neighbouring particles that the same
     /// pass applies (entrainment at cloud edges); 0 = none, as in the paper.
     pub vapor_diffusivity: f64,
+    /// Eq. 17b as fluxes between pairs, which keep the heat (the paper's per-particle step
+    /// does not). Left out of the serialisation when false, so earlier hashes are unchanged.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub conservative: bool,
 }
 impl Default for SmoothingConfig {
     fn default() -> Self {
@@ -647,6 +651,7 @@ impl Default for SmoothingConfig {
             epsilon: 1.0e-2,
             iterations: 1,
             vapor_diffusivity: 0.0,
+            conservative: false,
         }
     }
 }
