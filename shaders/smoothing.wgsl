@@ -8,6 +8,13 @@
 //   dC_i/dT_i = S_i = sum_j a_ij, dC_i/dT_k = -a_ik (eq. 16)
 //   lambda_i = -C_i / (S_i^2 + sum_k a_ik^2)        (eq. 17a)
 //   T*_i = T_i + kappa lambda_i S_i                 (eq. 17b)
+// Conservative form (S.conservative = 1, physics.smoothing.conservative): eq. 17b written as
+// pair fluxes, T*_i = T_i - sum_j (k_i + k_j) / 2 a_ij (T_i - T_j) with k_i = kappa S_i / (S_i^2 +
+// sum_k a_ik^2) from the entry `smooth_factor` (run first). The paper's step is
+// T_i - k_i C_i; with k symmetrised per pair, m_i a_ij (T_i - T_j) (k_i + k_j) / 2 is
+// antisymmetric in i and j, so sum_i m_i T_i is kept exactly: the smoothing moves heat, it
+// creates or destroys none (the paper's per-particle projection does not, docs/PHYSICS.md
+// "Heat budget").
 // Walls: insulated (S.fixed_walls = 0: the boundary particles are left out, no heat crosses the
 // floor or the ceiling) or fixed-temperature (neighbours with their own temperature boundary.w,
 // level 0). kappa is the per-iteration share of the configured rate (SmoothParams::new).
@@ -31,7 +38,8 @@ struct SmoothParams {
     volume0: f32,
     fixed_walls: u32,
     vapor_rate: f32,
-    _pad2: u32,
+    // 1: the conservative (pair-flux) form of eq. 17b
+    conservative: u32,
 }
 
 @group(0) @binding(0) var<uniform> grid: GridParams;
@@ -46,6 +54,8 @@ struct SmoothParams {
 // the vapor-mixing limiter l_i (written by vapor_limit, read by smooth_temperature)
 @group(0) @binding(9) var<storage, read_write> vapor_limit_of: array<f32>;
 @group(0) @binding(10) var<storage, read> live: Live;
+// k_i = kappa S_i / (S_i^2 + sum a^2) of the conservative form (written by smooth_factor)
+@group(0) @binding(11) var<storage, read_write> smooth_factor_of: array<f32>;
 
 fn radius_of_level(level: u32) -> f32 {
     return S.h0 * exp2(-f32(level) / 3.0);
@@ -155,6 +165,8 @@ struct Sm {
     cloudy: bool,
     mixing: bool,
     limit: f32,
+    // k_i of the conservative form (0 otherwise)
+    ki: f32,
     pc: Pc,
 }
 struct SmAcc {
@@ -162,6 +174,8 @@ struct SmAcc {
     sum_a2: f32,
     c: f32,
     cv: f32,
+    // sum_j (k_i + k_j) / 2 a_ij (T_i - T_j) of the conservative form
+    flux: f32,
 }
 fn smooth_pair(a: ptr<function, SmAcc>, me: Sm, j: u32) {
     let pc = me.pc;
@@ -177,6 +191,9 @@ fn smooth_pair(a: ptr<function, SmAcc>, me: Sm, j: u32) {
     (*a).sum_a2 += aij * aij;
     let tj = thermo_in[j];
     (*a).c += aij * (me.ti - tj.x);
+    if (S.conservative != 0u) {
+        (*a).flux += 0.5 * (me.ki + smooth_factor_of[j]) * aij * (me.ti - tj.x);
+    }
     if (me.mixing && (me.cloudy || tj.z > 0.0)) {
         (*a).cv += min(me.limit, vapor_limit_of[j]) * aij * (me.vi - tj.y);
     }
@@ -192,23 +209,44 @@ fn smooth_wall(a: ptr<function, SmAcc>, me: Sm, k: u32) {
     (*a).sum_a += aik;
     (*a).sum_a2 += aik * aik;
     (*a).c += aik * (me.ti - b.w);
+    // a wall at a fixed temperature exchanges heat with the particle alone
+    (*a).flux += me.ki * aik * (me.ti - b.w);
 }
 //!walk smooth_scan
+
+// The sums of particle i's smoothing pass (`ki`: its k of the conservative form, or 0).
+fn smooth_sums(i: u32, ki: f32) -> SmAcc {
+    let th = thermo_in[i];
+    let pc = pair_consts();
+    let lvi = level_row(pc, info[i].y);
+    let mixing = S.vapor_rate > 0.0;
+    var limit_i = 1.0;
+    if (mixing) { limit_i = vapor_limit_of[i]; }
+    let me = Sm(i, pos[i].xyz, lvi.x, lvi.y, th.x, th.y, th.z > 0.0, mixing, limit_i, ki, pc);
+    var acc = SmAcc(0.0, 0.0, 0.0, 0.0, 0.0);
+    smooth_scan(&acc, me);
+    return acc;
+}
+
+// k_i = kappa S_i / (S_i^2 + sum_k a_ik^2) of the conservative form (eq. 17b's step per unit
+// of C_i), 0 without neighbours.
+@compute @workgroup_size(WG_PARTICLES)
+fn smooth_factor(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    if (i >= live.count) { return; }
+    let acc = smooth_sums(i, 0.0);
+    let g = acc.sum_a * acc.sum_a + acc.sum_a2;
+    smooth_factor_of[i] = select(0.0, S.kappa * acc.sum_a / g, g > 0.0);
+}
 
 @compute @workgroup_size(WG_PARTICLES)
 fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if (i >= live.count) { return; }
     let th = thermo_in[i];
-    let xi = pos[i].xyz;
-    let pc = pair_consts();
-    let lvi = level_row(pc, info[i].y);
-    let mixing = S.vapor_rate > 0.0;
-    var limit_i = 1.0;
-    if (mixing) { limit_i = vapor_limit_of[i]; }
-    let me = Sm(i, xi, lvi.x, lvi.y, th.x, th.y, th.z > 0.0, mixing, limit_i, pc);
-    var acc = SmAcc(0.0, 0.0, 0.0, 0.0);
-    smooth_scan(&acc, me);
+    var ki = 0.0;
+    if (S.conservative != 0u) { ki = smooth_factor_of[i]; }
+    let acc = smooth_sums(i, ki);
     let sum_a = acc.sum_a;
     let sum_a2 = acc.sum_a2;
     let c = acc.c;
@@ -217,7 +255,9 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
     let vi = th.y;
     var out = th;
     let g = sum_a * sum_a + sum_a2;
-    if (g > 0.0) {
+    if (S.conservative != 0u) {
+        out.x = ti - acc.flux;
+    } else if (g > 0.0) {
         // T* = T + kappa lambda S with lambda = -C / g.
         out.x = ti - S.kappa * c * sum_a / g;
     }

@@ -49,6 +49,12 @@ struct ThermoParams {
     // levels of the wind profile (0 = no wind) and 1 - exp(-dt / tau) (physics.wind)
     n_wind: u32,
     wind_fraction: f32,
+    // physics.thermodynamics: atmospheric (1) multiplies eq. 10's saturation by
+    // p0 / p(y) = pressure_surface (1 - y / pressure_top)^(-pressure_exponent)
+    atmospheric: u32,
+    pressure_top: f32,
+    pressure_exponent: f32,
+    pressure_surface: f32,
     // the profile (m/s^2) at the layer centres, four a row (sim::thermo::LayerBuoyancy)
     layers: array<vec4<f32>, 8>,
     // --- art direction (sim::wind, sim::sources) ---
@@ -332,7 +338,11 @@ fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     // s = v + w is kept: w is clamped into [0, s] and v = s - w, so neither goes negative.
     let w = th.z;
     let s = v + w;
-    let gamma = min(P.saturation_a * exp(P.saturation_b / max(temp + P.saturation_c, 1e-3)), s);
+    var saturation = P.saturation_a * exp(P.saturation_b / max(temp + P.saturation_c, 1e-3));
+    if (P.atmospheric != 0u) {
+        saturation = saturation * P.pressure_surface * pow(1.0 - p.y / P.pressure_top, -P.pressure_exponent);
+    }
+    let gamma = min(saturation, s);
     let w_new = clamp(w + P.phase_fraction * (v - gamma), 0.0, s);
     let v_new = s - w_new;
 

@@ -203,6 +203,26 @@ fn random_thermo_state(n: usize, seed: u64, cfg: &ShotConfig) -> State {
     (pos, vel, th)
 }
 
+/// `physics.thermodynamics: atmospheric` (eq. 10 at the pressure of the height) against the
+/// mirror, over the whole 3 km box, where the saturation is up to 1.4 times the paper's.
+#[test]
+fn atmospheric_thermo_step_matches_mirror() {
+    let ctx = context();
+    let mut cfg = shot();
+    cfg.physics.thermodynamics = nimbus::config::Thermodynamics::Atmospheric;
+    cfg.physics.surface_pressure = Some(101_500.0);
+    let n = 3000;
+    let (pos, vel, th) = random_thermo_state(n, 43, &cfg);
+    let params = ThermoParams::new(&cfg, 2.0, 137.0);
+    assert_eq!(params.atmospheric, 1);
+    let out = gpu_thermo(&ctx, &cfg, &[params], &pos, &vel, &th);
+    let (_, th64) = check_against_mirror(&params, &[], (&pos, &vel, &th), &out);
+    let changed = (0..n)
+        .filter(|&i| (th64[i][2] - th[i][2] as f64).abs() > 1e-7)
+        .count();
+    assert!(changed > n / 10, "only {changed} particles changed phase");
+}
+
 #[test]
 fn thermo_step_matches_mirror() {
     let ctx = context();
@@ -527,7 +547,7 @@ fn smooth_params(kappa: f32) -> SmoothParams {
         volume0: 1000.0,
         fixed_walls: 1,
         vapor_rate: 0.0,
-        _pad2: 0,
+        conservative: 0,
     }
 }
 
@@ -597,6 +617,64 @@ fn mirror_input<'a>(
         cell_start: &s.cell_start,
         boundary: &s.boundary,
         boundary_cell_start: &s.boundary_cell_start,
+    }
+}
+
+/// The conservative form (physics.smoothing.conservative) against its mirror, with fixed walls
+/// and without, and the heat it keeps: without walls sum m T moves by f32 rounding only (the
+/// paper's step moves it by far more on the same scene).
+#[test]
+fn conservative_smoothing_matches_mirror_and_keeps_the_heat() {
+    let ctx = context();
+    for (seed, kappa, fixed) in [(15, 0.1f32, 1u32), (16, 1.0, 0), (17, 0.3, 0)] {
+        let s = scene(seed);
+        let mut p = smooth_params(kappa);
+        p.conservative = 1;
+        p.fixed_walls = fixed;
+        let thermo: Vec<[f32; 4]> = s
+            .temp
+            .iter()
+            .map(|&t| [t as f32, 0.01, 0.002, 0.5])
+            .collect();
+        let gpu = gpu_smooth(&ctx, &s, &p, 1, &thermo);
+        let t0: Vec<f64> = thermo.iter().map(|v| v[0] as f64).collect();
+        let t = nimbus::sim::reference::smoothing::smooth_temperature_conservative(&mirror_input(
+            &s, &p, &s.pos, &t0,
+        ));
+        let mut max_change = 0.0f64;
+        for i in 0..s.pos.len() {
+            assert!(
+                (gpu[i][0] as f64 - t[i]).abs() < 2e-3,
+                "seed {seed} particle {i}: {} vs {}",
+                gpu[i][0],
+                t[i]
+            );
+            max_change = max_change.max((t[i] - t0[i]).abs());
+        }
+        assert!(
+            max_change > 0.5,
+            "the test must smooth something: {max_change}"
+        );
+        if fixed == 0 {
+            let mass = |i: usize| (-(s.level[i] as f64)).exp2();
+            let heat =
+                |t: &dyn Fn(usize) -> f64| (0..t0.len()).map(|i| mass(i) * t(i)).sum::<f64>();
+            let before = heat(&|i| t0[i]);
+            let kept = heat(&|i| t[i]) - before;
+            let gpu_kept = heat(&|i| gpu[i][0] as f64) - before;
+            p.conservative = 0;
+            let paper = smooth_temperature(&mirror_input(&s, &p, &s.pos, &t0));
+            let paper_kept = heat(&|i| paper[i]) - before;
+            eprintln!(
+                "seed {seed}: sum m dT conservative mirror {kept:.3e}, GPU {gpu_kept:.3e}, paper {paper_kept:.3e}"
+            );
+            assert!(kept.abs() < 1e-9 * before.abs(), "mirror: {kept}");
+            assert!(gpu_kept.abs() < 1e-6 * before.abs(), "GPU: {gpu_kept}");
+            assert!(
+                paper_kept.abs() > 100.0 * kept.abs().max(1e-9),
+                "paper: {paper_kept}"
+            );
+        }
     }
 }
 

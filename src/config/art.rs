@@ -32,7 +32,65 @@ pub(crate) fn issues(p: &PhysicsConfig, c: &ShotConfig) -> Vec<Issue> {
     if let Some(w) = &p.wind {
         check_wind(&mut out, w, c);
     }
+    if let Some(f) = &p.forcing {
+        check_forcing(&mut out, f, c);
+    }
     out.0
+}
+
+/// Most levels of `physics.forcing.profile` (the host builds the layer table from them).
+pub const MAX_FORCING_LEVELS: usize = 16;
+
+/// Longest frame with `physics.forcing` (s): the forcing is applied once a frame, a step of
+/// the frame's length (docs/CONFIG.md "Forcing").
+pub const MAX_FORCING_FRAME: f64 = 300.0;
+
+fn check_forcing(out: &mut Out, f: &ForcingConfig, c: &ShotConfig) {
+    if f.profile.len() > MAX_FORCING_LEVELS {
+        out.fail(
+            &["physics.forcing.profile"],
+            format!(
+                "{} levels; at most {MAX_FORCING_LEVELS} are supported",
+                f.profile.len()
+            ),
+        );
+    }
+    for (k, pair) in f.profile.windows(2).enumerate() {
+        if pair[1].height <= pair[0].height {
+            out.fail(
+                &[&format!("physics.forcing.profile[{}].height", k + 1)],
+                format!(
+                    "heights must increase: {} m is not above the level before it ({} m)",
+                    num(pair[1].height),
+                    num(pair[0].height)
+                ),
+            );
+        }
+    }
+    if let Some(d) = f.surface_layer {
+        let height = c.domain.size[1];
+        if d.is_finite() && height.is_finite() && d >= height {
+            out.fail(
+                &["physics.forcing.surface_layer"],
+                format!(
+                    "{} m reaches the ceiling of the domain ({} m high)",
+                    num(d),
+                    num(height)
+                ),
+            );
+        }
+    }
+    let fs = c.output.frame_seconds;
+    if fs.is_finite() && fs > MAX_FORCING_FRAME {
+        out.fail(
+            &["output.frame_seconds", "physics.forcing"],
+            format!(
+                "frames of {} s: physics.forcing is applied once a frame, so frames may be at most {} s long",
+                num(fs),
+                num(MAX_FORCING_FRAME)
+            ),
+        );
+    }
 }
 
 fn shape_name(s: SourceShape) -> &'static str {

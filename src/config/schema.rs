@@ -320,6 +320,15 @@ pub struct PhysicsConfig {
     pub buoyancy_reference: BuoyancyReference,
     /// Phase transition rate alpha (1/s), eq. 9.
     pub phase_rate: f64,
+    /// How the saturation depends on height: as eq. 10 (`paper`), or also on a hydrostatic
+    /// pressure (`atmospheric`). Left out of the serialisation when `paper`, so the hashes of
+    /// earlier shots are unchanged.
+    #[serde(skip_serializing_if = "Thermodynamics::is_paper")]
+    pub thermodynamics: Thermodynamics,
+    /// Pressure at the floor (Pa) with `thermodynamics: atmospheric`; `null` = 1e5 Pa, the
+    /// pressure eq. 10's constants are for.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub surface_pressure: Option<f64>,
     /// Saturation gamma = A exp(B / (T + C)), eq. 10.
     pub saturation_a: f64,
     pub saturation_b: f64,
@@ -338,6 +347,11 @@ pub struct PhysicsConfig {
     /// serialisation when unset, so the hashes of shots without wind are unchanged.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub wind: Option<WindConfig>,
+    /// Large-scale forcing in physical units (surface fluxes, radiation, a moisture tendency,
+    /// subsidence; `sim::forces::forcing`); `None` = none. Left out of the serialisation when
+    /// unset, so the hashes of shots without it are unchanged.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub forcing: Option<ForcingConfig>,
 }
 /// `true`/`false`, or the words `on`/`off` (YAML 1.2 reads those as strings).
 fn on_off<'de, D: serde::Deserializer<'de>>(d: D) -> Result<bool, D::Error> {
@@ -377,6 +391,8 @@ impl Default for PhysicsConfig {
             cloud_weight: 9.81,
             buoyancy_reference: BuoyancyReference::Environment,
             phase_rate: 0.05,
+            thermodynamics: Thermodynamics::Paper,
+            surface_pressure: None,
             saturation_a: 1.79e5,
             saturation_b: -4302.6,
             saturation_c: -29.65,
@@ -386,6 +402,7 @@ impl Default for PhysicsConfig {
             initial_speed: 0.5,
             smoothing: SmoothingConfig::default(),
             wind: None,
+            forcing: None,
         }
     }
 }
@@ -501,6 +518,51 @@ fn d_wind_time() -> f64 {
     60.0
 }
 
+/// `physics.forcing`: the large-scale forcing of an atmospheric case (GCSS BOMEX and the like),
+/// applied to every particle once a frame (docs/CONFIG.md "Forcing").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ForcingConfig {
+    /// Kinematic surface sensible heat flux w'theta' (K m/s), put into the particles below
+    /// `surface_layer`.
+    pub surface_heat_flux: f64,
+    /// Kinematic surface moisture flux w'q' (kg/kg m/s), likewise.
+    pub surface_moisture_flux: f64,
+    /// Depth of the surface layer that takes the surface fluxes (m); `null` = the kernel radius.
+    pub surface_layer: Option<f64>,
+    /// Levels by increasing height: radiation, moisture tendency and subsidence, linear between
+    /// levels and constant below the first and above the last; empty = none of the three.
+    pub profile: Vec<ForcingLevel>,
+}
+impl Default for ForcingConfig {
+    fn default() -> Self {
+        Self {
+            surface_heat_flux: 0.0,
+            surface_moisture_flux: 0.0,
+            surface_layer: None,
+            profile: Vec::new(),
+        }
+    }
+}
+
+/// One level of `physics.forcing.profile`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ForcingLevel {
+    /// Height above the ground (m).
+    pub height: f64,
+    /// Radiative heating (K/day; negative cools).
+    #[serde(default)]
+    pub radiation: f64,
+    /// Large-scale moisture tendency (g/kg per day; negative dries).
+    #[serde(default)]
+    pub moisture: f64,
+    /// Large-scale vertical velocity w_ls (m/s; negative = subsidence). It advects the
+    /// horizontal-mean profiles, not the particles.
+    #[serde(default)]
+    pub subsidence: f64,
+}
+
 /// One level of the wind profile.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -512,6 +574,27 @@ pub struct WindLevel {
     /// Heading the air moves towards (degrees in the ground plane, 0 = +x, 90 = +z).
     #[serde(default)]
     pub direction: f64,
+}
+
+/// `physics.thermodynamics`: the saturation of eq. 10 as the paper has it, or at the pressure of
+/// the particle's height.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Thermodynamics {
+    /// gamma = A exp(B / (T + C)) at every height (the paper's eq. 10).
+    #[default]
+    Paper,
+    /// gamma = A exp(B / (T + C)) p0 / p(y): eq. 10's constants are Bolton's (1980) saturation
+    /// mixing ratio at p0 = 1e5 Pa, and the mixing ratio of a given vapor pressure goes as 1 / p.
+    /// p(y) is the hydrostatic pressure of the dry adiabatic reference atmosphere over the
+    /// floor: p(y) = p_s (1 - Gamma_d y / T_s)^(c_p / R_d), with T_s the ground temperature,
+    /// Gamma_d = g / c_p the adiabatic lapse rate and c_p / R_d = 3.5 (dry air).
+    Atmospheric,
+}
+impl Thermodynamics {
+    pub fn is_paper(&self) -> bool {
+        *self == Thermodynamics::Paper
+    }
 }
 
 /// The reference eq. 6's force is measured against.
@@ -554,6 +637,10 @@ pub struct SmoothingConfig {
     /// Diffusivity D (m^2/s) of the vapor mixing between neighbouring particles that the same
     /// pass applies (entrainment at cloud edges); 0 = none, as in the paper.
     pub vapor_diffusivity: f64,
+    /// Eq. 17b as fluxes between pairs, which keep the heat (the paper's per-particle step
+    /// does not). Left out of the serialisation when false, so earlier hashes are unchanged.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub conservative: bool,
 }
 impl Default for SmoothingConfig {
     fn default() -> Self {
@@ -564,6 +651,7 @@ impl Default for SmoothingConfig {
             epsilon: 1.0e-2,
             iterations: 1,
             vapor_diffusivity: 0.0,
+            conservative: false,
         }
     }
 }

@@ -116,6 +116,13 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("physics.wind.profile[].height", 0.0, 1.0e5),
     closed("physics.wind.profile[].speed", 0.0, 100.0),
     closed("physics.wind.profile[].direction", -360.0, 360.0),
+    closed("physics.forcing.surface_heat_flux", -1.0, 1.0),
+    closed("physics.forcing.surface_moisture_flux", -1.0e-3, 1.0e-3),
+    above("physics.forcing.surface_layer", 0.0, 1.0e5),
+    closed("physics.forcing.profile[].height", 0.0, 1.0e5),
+    closed("physics.forcing.profile[].radiation", -100.0, 100.0),
+    closed("physics.forcing.profile[].moisture", -100.0, 100.0),
+    closed("physics.forcing.profile[].subsidence", -1.0, 1.0),
     closed("physics.adiabatic_lapse_rate", 0.0, 0.1),
     closed("physics.heat_source", 0.0, 10.0),
     closed("physics.heat_height", 0.0, 1.0e5),
@@ -125,6 +132,7 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("physics.buoyancy", 0.0, 100.0),
     closed("physics.cloud_weight", 0.0, 100.0),
     closed("physics.phase_rate", 0.0, 100.0),
+    closed("physics.surface_pressure", 1.0e4, 2.0e5),
     above("physics.saturation_a", 0.0, 1.0e8),
     closed("physics.saturation_b", -1.0e5, 1.0e5),
     closed("physics.saturation_c", -500.0, 500.0),
@@ -303,6 +311,7 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         ("physics.environment.lapse_rate_above", env.lapse_rate_above),
         ("physics.environment.humidity_above", env.humidity_above),
         ("physics.bowen_ratio", ph.bowen_ratio),
+        ("physics.surface_pressure", ph.surface_pressure),
         ("export.detail.scale", c.export.detail.scale),
     ] {
         if let Some(x) = x {
@@ -400,6 +409,35 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
                     _ => "physics.wind.profile[].direction",
                 };
                 v.push((format!("physics.wind.profile[{k}].{name}"), key, x));
+            }
+        }
+    }
+    if let Some(f) = &ph.forcing {
+        let mut put = |key: &'static str, x: f64| v.push((key.to_string(), key, x));
+        put("physics.forcing.surface_heat_flux", f.surface_heat_flux);
+        put(
+            "physics.forcing.surface_moisture_flux",
+            f.surface_moisture_flux,
+        );
+        if let Some(d) = f.surface_layer {
+            put("physics.forcing.surface_layer", d);
+        }
+        for (k, l) in f.profile.iter().enumerate() {
+            for (name, key, x) in [
+                ("height", "physics.forcing.profile[].height", l.height),
+                (
+                    "radiation",
+                    "physics.forcing.profile[].radiation",
+                    l.radiation,
+                ),
+                ("moisture", "physics.forcing.profile[].moisture", l.moisture),
+                (
+                    "subsidence",
+                    "physics.forcing.profile[].subsidence",
+                    l.subsidence,
+                ),
+            ] {
+                v.push((format!("physics.forcing.profile[{k}].{name}"), key, x));
             }
         }
     }
@@ -743,6 +781,27 @@ fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
                 .to_string(),
         );
     }
+    if p.surface_pressure.is_some() && p.thermodynamics.is_paper() {
+        k.fail(
+            &["physics.surface_pressure"],
+            "is read only with physics.thermodynamics: atmospheric".to_string(),
+        );
+    }
+    // the reference atmosphere's pressure reaches 0 at T_s / Gamma_d (about 30 km)
+    if !p.thermodynamics.is_paper() && p.adiabatic_lapse_rate > 0.0 {
+        let top = p.ground_temperature / p.adiabatic_lapse_rate;
+        let height = c.domain.size[1];
+        if height.is_finite() && top.is_finite() && height >= 0.5 * top {
+            k.fail(
+                &["physics.thermodynamics", "domain.size"],
+                format!(
+                    "the domain is {} m high; with atmospheric thermodynamics it must stay below half the height of the reference atmosphere, ground_temperature / adiabatic_lapse_rate / 2 = {} m",
+                    num(height),
+                    num(0.5 * top)
+                ),
+            );
+        }
+    }
     if env.humidity_above.is_some() && env.inversion_height.is_none() {
         k.fail(
             &["physics.environment.humidity_above"],
@@ -1001,6 +1060,58 @@ mod tests {
                 "physics.environment.humidity_above",
             ),
             (|c| c.physics.bowen_ratio = Some(0.0), "physics.bowen_ratio"),
+            (
+                |c| c.physics.surface_pressure = Some(101_500.0),
+                "physics.surface_pressure",
+            ),
+            (
+                |c| {
+                    c.physics.thermodynamics = Thermodynamics::Atmospheric;
+                    c.domain.size = [100.0, 20_000.0, 100.0];
+                },
+                "physics.thermodynamics",
+            ),
+            (
+                |c| {
+                    let level = |height| ForcingLevel {
+                        height,
+                        radiation: -2.0,
+                        moisture: 0.0,
+                        subsidence: 0.0,
+                    };
+                    c.physics.forcing = Some(ForcingConfig {
+                        profile: vec![level(500.0), level(500.0)],
+                        ..Default::default()
+                    });
+                },
+                "physics.forcing.profile[1].height",
+            ),
+            (
+                |c| {
+                    c.physics.forcing = Some(ForcingConfig {
+                        surface_layer: Some(1.0e4),
+                        ..Default::default()
+                    })
+                },
+                "physics.forcing.surface_layer",
+            ),
+            (
+                |c| {
+                    c.physics.forcing = Some(ForcingConfig {
+                        surface_heat_flux: 2.0,
+                        ..Default::default()
+                    })
+                },
+                "physics.forcing.surface_heat_flux",
+            ),
+            (
+                |c| {
+                    c.output.frame_seconds = 400.0;
+                    c.output.substeps = 20;
+                    c.physics.forcing = Some(ForcingConfig::default());
+                },
+                "output.frame_seconds",
+            ),
             (
                 |c| {
                     c.physics.bowen_ratio = Some(0.5);

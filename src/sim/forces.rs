@@ -14,6 +14,8 @@
 //! `None` when the shot leaves it off), and one line in [`FORCES`],
 //! `Force::own("drag", &["physics.drag"], drag::stage),` (with the module's `mod` line). Forces of their own run after the thermodynamics, in list order, timed under
 //! `Phase::Forces` (stats.jsonl `phase_ms.forces`, absent while none runs).
+pub mod forcing;
+
 use crate::error::Result;
 use crate::gpu::program::Entry;
 use crate::sim::pbf::PbfEntry;
@@ -123,6 +125,7 @@ pub const FORCES: &[Force] = &[
             uniform: "P.control_pull",
         },
     },
+    Force::own("large-scale forcing", &["physics.forcing"], forcing::stage),
 ];
 
 /// The forces of their own a shot turns on, recorded one after the other.
@@ -159,6 +162,22 @@ impl Stage for OwnForces {
 
     fn device_bytes(&self) -> u64 {
         self.stages.iter().map(|s| s.device_bytes()).sum()
+    }
+
+    fn reads_state(&self) -> bool {
+        self.stages.iter().any(|s| s.reads_state())
+    }
+
+    fn start_frame(&mut self, state: &crate::ground::ParticleState) {
+        for stage in &mut self.stages {
+            stage.start_frame(state);
+        }
+    }
+
+    fn frame_figures(&self, out: &mut Vec<(&'static str, f64)>) {
+        for stage in &self.stages {
+            stage.frame_figures(out);
+        }
     }
 }
 

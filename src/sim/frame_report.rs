@@ -51,6 +51,9 @@ pub struct StepDiagnostics {
     pub levels: Option<Levels>,
     /// With `control.target`: the cloud's overlap with the target.
     pub target_iou: Option<f64>,
+    /// The figures of the forces of their own (`sim::stage::Stage::frame_figures`), by
+    /// stats.jsonl name.
+    pub forces: Vec<(&'static str, f64)>,
 }
 
 impl StepDiagnostics {
@@ -87,6 +90,9 @@ impl StepDiagnostics {
         }
         if let Some(iou) = self.target_iou {
             put("target_iou", iou);
+        }
+        for (name, v) in &self.forces {
+            put(name, *v);
         }
     }
 

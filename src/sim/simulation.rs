@@ -23,7 +23,7 @@ use crate::sim::grid_params::GridParams;
 use crate::sim::pbf::PbfParams;
 use crate::sim::phase::{Phase, PhaseTimes, Recorder, Timing};
 use crate::sim::sources::HeatMaps;
-use crate::sim::stage::Setup;
+use crate::sim::stage::{Setup, Stage};
 use crate::sim::step::Stages;
 use crate::sim::thermo::LayerBuoyancy;
 use std::sync::Arc;
@@ -115,6 +115,9 @@ impl Simulation {
             maps: &maps,
         })?;
         s.thermo.set_layers(LayerBuoyancy::of_state(cfg, state));
+        if s.forces.reads_state() {
+            s.forces.start_frame(state);
+        }
         // the controller's state is a function of the particles: a resume from a checkpoint
         // sets the same supply as the uninterrupted run did at that frame's end
         if let Some(t) = &target {
@@ -221,7 +224,8 @@ impl Simulation {
         // the next frame's buoyancy profile needs positions and thermo
         let full = full
             || self.cfg.physics.buoyancy_reference == crate::config::BuoyancyReference::LayerMean
-            || self.target.is_some();
+            || self.target.is_some()
+            || self.s.forces.reads_state();
         let ctx = self.ctx.clone();
         let waits_before = ctx.waits();
         let mut report = FrameReport::default();
@@ -238,10 +242,10 @@ impl Simulation {
         let host_timing = self.timing == Timing::HostWaits;
         let mut host_times = PhaseTimes::default();
         let mut timer = self.timer.take();
-        for _ in 0..substeps {
+        for k in 0..substeps {
             let mut rec =
                 Recorder::new(&ctx, timer.as_mut(), host_timing.then_some(&mut host_times));
-            let recorded = self.record_substep(&mut rec, dt);
+            let recorded = self.record_substep(&mut rec, dt, k == 0);
             rec.submit();
             if let Err(e) = recorded {
                 self.timer = timer;
@@ -279,6 +283,10 @@ impl Simulation {
         self.s
             .thermo
             .set_layers(LayerBuoyancy::of_state(&self.cfg, &end));
+        if self.s.forces.reads_state() {
+            self.s.forces.frame_figures(&mut report.diagnostics.forces);
+            self.s.forces.start_frame(&end);
+        }
         if let Some(t) = &self.target {
             let (supply, iou) = t.update(&end);
             self.s.thermo.set_supply(&ctx, &supply);

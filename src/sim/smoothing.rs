@@ -27,6 +27,8 @@ entry_points! {
     pub enum SmoothingEntry in "smoothing.wgsl" {
         /// The vapor-mixing limiter (only with vapor mixing on).
         VaporLimit = "vapor_limit",
+        /// k_i of the conservative form (only with `physics.smoothing.conservative`).
+        Factor = "smooth_factor",
         /// One Jacobi iteration of eqs. 12-17 and the vapor mixing.
         SmoothTemperature = "smooth_temperature",
     }
@@ -51,7 +53,8 @@ pub struct SmoothParams {
     /// 2 D dt / iterations (m^2): one iteration's explicit step of vapor mixing with
     /// diffusivity D = `physics.smoothing.vapor_diffusivity` (0 = off).
     pub vapor_rate: f32,
-    pub _pad2: u32,
+    /// 1: the conservative (pair-flux) form of eq. 17b (`physics.smoothing.conservative`).
+    pub conservative: u32,
 }
 
 impl SmoothParams {
@@ -76,14 +79,15 @@ impl SmoothParams {
             volume0: cfg.domain.spacing.powi(3) as f32,
             fixed_walls: (s.walls == crate::config::WallHeat::Fixed) as u32,
             vapor_rate: (2.0 * s.vapor_diffusivity * dt / iterations) as f32,
-            _pad2: 0,
+            conservative: s.conservative as u32,
         }
     }
 }
 
 /// The smoothing pass, bound once to the particle buffers. Its scratch is borrowed from arrays
 /// dead after the PBF substep: the smoothed thermo goes to `pairs` and is copied back, the
-/// vapor-mixing limiter lives in a quarter of `pred`. It allocates nothing per particle.
+/// vapor-mixing limiter lives in a quarter of `pred` and the conservative form's k_i in
+/// another. It allocates nothing per particle.
 pub struct SmoothingStage {
     program: Program<SmoothingEntry>,
     params: ParamSlots<SmoothParams>,
@@ -101,11 +105,13 @@ impl SmoothingStage {
         let program = Program::new(ctx)?;
         let params = ParamSlots::single(ctx, "smoothing params", &SmoothParams::new(cfg, 1.0));
         let limiter = b.quarter(&b.pred, 0);
+        let factor = b.quarter(&b.pred, 1);
         let own = [
             ("S", params.slot(0)),
             ("thermo_in", b.thermo.as_entire_binding()),
             ("thermo_out", b.pairs.as_entire_binding()),
             ("vapor_limit_of", limiter.binding()),
+            ("smooth_factor_of", factor.binding()),
         ];
         let bind = program.bind(ctx, &[&own, b])?;
         Ok(Self {
@@ -158,6 +164,10 @@ impl SmoothingStage {
                 if mixing {
                     let limit = SmoothingEntry::VaporLimit;
                     self.program.dispatch(&mut pass, limit, &group, live);
+                }
+                if params.conservative != 0 {
+                    let factor = SmoothingEntry::Factor;
+                    self.program.dispatch(&mut pass, factor, &group, live);
                 }
                 let smooth = SmoothingEntry::SmoothTemperature;
                 self.program.dispatch(&mut pass, smooth, &group, live);

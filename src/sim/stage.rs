@@ -9,6 +9,7 @@
 use crate::error::Result;
 use crate::gpu::live::LiveBuffer;
 use crate::gpu::Context;
+use crate::ground::ParticleState;
 use crate::shot::Shot;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::grid_params::GridParams;
@@ -37,6 +38,8 @@ pub struct Substep<'a> {
     pub time: f64,
     /// Density iterations of this substep.
     pub iterations: u32,
+    /// Whether this is the frame's first substep.
+    pub first: bool,
 }
 
 /// One physical step of the substep.
@@ -53,6 +56,20 @@ pub trait Stage {
     /// Bytes of the device buffers the stage itself allocated (the particle buffers it borrows
     /// are `ParticleBuffers`').
     fn device_bytes(&self) -> u64;
+
+    /// Whether the stage is given the state each frame starts from ([`Stage::start_frame`]);
+    /// then every frame reads the whole state back.
+    fn reads_state(&self) -> bool {
+        false
+    }
+
+    /// Before a frame's first substep is recorded, when [`Stage::reads_state`]: the state the
+    /// frame starts from (the initial or resumed one, or what the frame before read back), so
+    /// that a resumed run sets what the uninterrupted one did.
+    fn start_frame(&mut self, _state: &ParticleState) {}
+
+    /// The stage's figures of the frame just simulated (stats.jsonl names).
+    fn frame_figures(&self, _out: &mut Vec<(&'static str, f64)>) {}
 }
 
 /// The error of a stage asked for a phase it has no passes in (`sim::step` pairs them, so this

@@ -46,6 +46,10 @@ impl Stages {
         let smoothing = (self.smoothing.iterations() > 0).then_some(&self.smoothing as &dyn Stage);
         let forces = (!self.forces.is_empty()).then_some(&self.forces as &dyn Stage);
         [
+            // The forces that are stages of their own, in `sim::forces::FORCES`' order, before
+            // the prediction (where PBF takes its external forces), on the state the substep
+            // starts from.
+            (Phase::Forces, forces),
             // 3. Position Based Fluids: predict (gravity), find neighbours, enforce the
             // density, update v (vorticity confinement, XSPH viscosity).
             (Phase::Predict, Some(&self.pbf)),
@@ -57,8 +61,6 @@ impl Stages {
             // 4. Heating, buoyancy (with the wind and the target pull), adiabatic cooling,
             // phase transition, latent heat (eqs. 5-11).
             (Phase::Cloud, Some(&self.thermo)),
-            // The forces that are stages of their own, in `sim::forces::FORCES`' order.
-            (Phase::Forces, forces),
             // 5.2 Adaptive particles: shape energy and marks, merges, splits.
             (Phase::Mark, adaptive),
             (Phase::Merge, adaptive),
@@ -90,8 +92,8 @@ impl Stages {
 }
 
 impl Simulation {
-    /// Records one substep of `dt`.
-    pub(super) fn record_substep(&self, rec: &mut Recorder, dt: f64) -> Result<()> {
+    /// Records one substep of `dt` (`first`: the frame's first).
+    pub(super) fn record_substep(&self, rec: &mut Recorder, dt: f64, first: bool) -> Result<()> {
         // the stages take the substep as the PBF parameters hold it (f32), as they always have
         let dt_f32 = self.params.dt as f64;
         debug_assert!((dt_f32 - dt).abs() <= dt * 1e-6);
@@ -100,6 +102,7 @@ impl Simulation {
             dt: dt_f32,
             time: self.clock.time,
             iterations: self.iterations,
+            first,
         };
         self.s.record(rec, &sub)
     }

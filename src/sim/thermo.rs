@@ -99,6 +99,12 @@ pub struct ThermoParams {
     /// 1 - exp(-dt / tau) ([`crate::sim::wind`]).
     pub n_wind: u32,
     pub wind_fraction: f32,
+    /// `physics.thermodynamics`: 1 when atmospheric ([`Pressure`]), then the saturation of
+    /// eq. 10 is multiplied by p0 / p_s (1 - y / top)^(-exponent).
+    pub atmospheric: u32,
+    pub pressure_top: f32,
+    pub pressure_exponent: f32,
+    pub pressure_surface: f32,
     /// The profile (m/s^2), four layers a row: [`LayerBuoyancy`].
     pub layers: [[f32; 4]; MAX_LAYERS / 4],
     // --- art direction (issue 18): wind and sources, after everything else ---
@@ -131,6 +137,7 @@ impl ThermoParams {
         let (cell_x, period_x) = noise::lattice_for_extent(cfg.domain.size[0], p.heat_noise_scale);
         let (cell_z, period_z) = noise::lattice_for_extent(cfg.domain.size[2], p.heat_noise_scale);
         let (wind_levels, wind) = crate::sim::wind::rows(cfg);
+        let pressure = Pressure::of(p);
         Self {
             dt: dt as f32,
             time: time as f32,
@@ -168,6 +175,10 @@ impl ThermoParams {
             ground_vapor: p.bowen_ratio.map_or(0.0, |b| 1.0 / (b * p.latent_heat)) as f32,
             n_wind: wind_levels,
             wind_fraction: crate::sim::wind::fraction(cfg, dt),
+            atmospheric: pressure.is_some() as u32,
+            pressure_top: pressure.map_or(0.0, |q| q.top as f32),
+            pressure_exponent: pressure.map_or(0.0, |q| q.exponent as f32),
+            pressure_surface: pressure.map_or(1.0, |q| q.surface as f32),
             wind,
             sources: crate::sim::sources::pack(cfg, dt, time),
             layers: [[0.0; 4]; MAX_LAYERS / 4],
@@ -266,9 +277,53 @@ pub fn environment_temperature(p: &PhysicsConfig, y: f64) -> f64 {
     p.environment.temperature(p.ground_temperature, y)
 }
 
-/// Saturation vapor content A exp(B / (T + C)) (kg/kg), the first term of eq. 10.
-pub fn saturation(p: &PhysicsConfig, temperature: f64) -> f64 {
-    p.saturation_a * (p.saturation_b / (temperature + p.saturation_c).max(1e-3)).exp()
+/// Saturation vapor content A exp(B / (T + C)) (kg/kg) at height y, the first term of eq. 10
+/// (times p0 / p(y) with atmospheric thermodynamics: [`Pressure`]).
+pub fn saturation(p: &PhysicsConfig, temperature: f64, y: f64) -> f64 {
+    let paper = p.saturation_a * (p.saturation_b / (temperature + p.saturation_c).max(1e-3)).exp();
+    match Pressure::of(p) {
+        Some(q) => paper * q.factor(y),
+        None => paper,
+    }
+}
+
+/// Dry air's c_p / R_d (1004 / 287.04).
+pub const CP_OVER_RD: f64 = 3.4978;
+
+/// Reference pressure eq. 10's constants are for (Pa): A = 0.622 x 611.2 Pa x e^17.67 / p0 is
+/// Bolton's (1980) saturation mixing ratio.
+pub const P0: f64 = 1.0e5;
+
+/// The hydrostatic pressure of `physics.thermodynamics: atmospheric`: the dry adiabatic
+/// reference atmosphere over the floor, p(y) = p_s (1 - y / top)^exponent with
+/// top = T_s / Gamma_d and exponent = c_p / R_d.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pressure {
+    pub top: f64,
+    pub exponent: f64,
+    /// p0 / p_s.
+    pub surface: f64,
+}
+
+impl Pressure {
+    /// The shot's, or none with `thermodynamics: paper`.
+    pub fn of(p: &PhysicsConfig) -> Option<Self> {
+        (p.thermodynamics == crate::config::Thermodynamics::Atmospheric).then(|| Self {
+            top: p.ground_temperature / p.adiabatic_lapse_rate,
+            exponent: CP_OVER_RD,
+            surface: P0 / p.surface_pressure.unwrap_or(P0),
+        })
+    }
+
+    /// p(y) (Pa).
+    pub fn at(&self, y: f64) -> f64 {
+        P0 / self.surface * (1.0 - y / self.top).powf(self.exponent)
+    }
+
+    /// p0 / p(y): how much more vapor saturates at height y than at p0.
+    pub fn factor(&self, y: f64) -> f64 {
+        self.surface * (1.0 - y / self.top).powf(-self.exponent)
+    }
 }
 
 /// Initial thermo of a particle at height y (section 5): T = T0(y), v = kv(y) A exp(B / (T + C))
@@ -278,7 +333,7 @@ pub fn initial_thermo(p: &PhysicsConfig, y: f64) -> [f32; 4] {
     let t = environment_temperature(p, y);
     [
         t as f32,
-        (p.environment.humidity(p.initial_vapor, y) * saturation(p, t)) as f32,
+        (p.environment.humidity(p.initial_vapor, y) * saturation(p, t, y)) as f32,
         0.0,
         0.0,
     ]
@@ -400,7 +455,7 @@ mod tests {
 
     #[test]
     fn params_layout_matches_wgsl() {
-        assert_eq!(std::mem::size_of::<ThermoParams>(), 1088);
+        assert_eq!(std::mem::size_of::<ThermoParams>(), 1104);
     }
 
     /// A force that depends on height alone is the whole profile: eq. 6 less the profile is

@@ -73,6 +73,56 @@ pub fn constraint_terms(input: &SmoothInput, i: usize) -> (f64, f64, f64) {
     (sum_a, sum_a2, c)
 }
 
+/// One Jacobi iteration of the conservative form (`physics.smoothing.conservative`):
+/// T*_i = T_i - sum_j (k_i + k_j) / 2 a_ij (T_i - T_j) - sum_walls k_i a_ik (T_i - T_k) with
+/// k_i = kappa S_i / (S_i^2 + sum_k a_ik^2), the walls only when they are fixed.
+pub fn smooth_temperature_conservative(input: &SmoothInput) -> Vec<f64> {
+    let p = input.params;
+    let kappa = p.kappa as f64;
+    let k: Vec<f64> = (0..input.pos.len())
+        .map(|i| {
+            let (s, s2, _) = constraint_terms(input, i);
+            let g = s * s + s2;
+            if g > 0.0 {
+                kappa * s / g
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let bpos: Vec<[f64; 3]> = input.boundary.iter().map(|b| [b[0], b[1], b[2]]).collect();
+    (0..input.pos.len())
+        .map(|i| {
+            let hi = radius_of_level(p, input.level[i]);
+            let ti = input.temperature[i];
+            let mut flux = 0.0;
+            for_each_neighbor(
+                input.grid,
+                input.cell_start,
+                input.pos,
+                input.pos[i],
+                |j, xij| {
+                    if j == i {
+                        return;
+                    }
+                    let lj = input.level[j];
+                    let volume = p.volume0 as f64 * (-(lj as f64)).exp2();
+                    let a = laplacian_coefficient(p, xij, hi, radius_of_level(p, lj), volume);
+                    flux += 0.5 * (k[i] + k[j]) * a * (ti - input.temperature[j]);
+                },
+            );
+            if p.fixed_walls != 0 {
+                let (grid, cells) = (input.grid, input.boundary_cell_start);
+                for_each_wall_neighbor(grid, cells, &bpos, input.pos[i], |w, xik| {
+                    let a = laplacian_coefficient(p, xik, hi, p.h0 as f64, p.volume0 as f64);
+                    flux += k[i] * a * (ti - input.boundary[w][3]);
+                });
+            }
+            ti - flux
+        })
+        .collect()
+}
+
 /// The SPH Laplacian of the temperature of every particle (eq. 13, with the volumes V_j).
 pub fn temperature_laplacian(input: &SmoothInput) -> Vec<f64> {
     (0..input.pos.len())
@@ -233,7 +283,7 @@ mod tests {
             volume0: 1.0,
             fixed_walls: 1,
             vapor_rate: 0.0,
-            _pad2: 0,
+            conservative: 0,
         }
     }
 

@@ -5,10 +5,15 @@
 pub use crate::sim::source_field::{heat_factor, heat_map, shape_factor, source_rates};
 use crate::sim::thermo::ThermoParams;
 
-/// Saturation limit gamma of eq. 10: `min(A exp(B / (T + C)), v + w)`.
-pub fn saturation_limit(p: &ThermoParams, temperature: f64, vapor: f64, cloud: f64) -> f64 {
-    let sat = p.saturation_a as f64
+/// Saturation limit gamma of eq. 10 at height y: `min(A exp(B / (T + C)), v + w)`, the
+/// saturation times p0 / p(y) with atmospheric thermodynamics.
+pub fn saturation_limit(p: &ThermoParams, temperature: f64, y: f64, vapor: f64, cloud: f64) -> f64 {
+    let mut sat = p.saturation_a as f64
         * (p.saturation_b as f64 / (temperature + p.saturation_c as f64).max(1e-3)).exp();
+    if p.atmospheric != 0 {
+        sat *= p.pressure_surface as f64
+            * (1.0 - y / p.pressure_top as f64).powf(-(p.pressure_exponent as f64));
+    }
     sat.min(vapor + cloud)
 }
 
@@ -125,7 +130,7 @@ pub fn thermo_step_particle(
     // eqs. 8-10
     let (v, w) = (th[1], th[2]);
     let s = v + w;
-    let gamma = saturation_limit(p, temp, v, w);
+    let gamma = saturation_limit(p, temp, pos[1], v, w);
     let w_new = (w + p.phase_fraction as f64 * (v - gamma)).clamp(0.0, s);
     let v_new = s - w_new;
     // eq. 11
@@ -286,19 +291,60 @@ mod tests {
         );
         for t in [250.0, 273.15, 285.0, 293.15, 305.0] {
             let sat = a * (b / (t + c)).exp();
-            assert!((saturation(&cfg.physics, t) - sat).abs() <= 1e-6 * sat);
+            assert!((saturation(&cfg.physics, t, 0.0) - sat).abs() <= 1e-6 * sat);
             // Plenty of water: gamma is the saturation value.
-            assert!((saturation_limit(&p, t, 0.05, 0.02) - sat).abs() <= 1e-12 * sat);
+            assert!((saturation_limit(&p, t, 0.0, 0.05, 0.02) - sat).abs() <= 1e-12 * sat);
             // Little water: gamma is v + w.
-            assert_eq!(saturation_limit(&p, t, 1e-4, 2e-4), 1e-4 + 2e-4);
+            assert_eq!(saturation_limit(&p, t, 0.0, 1e-4, 2e-4), 1e-4 + 2e-4);
             let magnus = 380.0 / 1.0e5 * (17.67 * (t - 273.15) / (t - 29.65)).exp();
             assert!(
                 (sat - magnus).abs() < 2e-3 * magnus,
                 "T {t}: {sat} vs {magnus}"
             );
         }
-        let s20 = saturation(&cfg.physics, 293.15);
+        let s20 = saturation(&cfg.physics, 293.15, 0.0);
         assert!((s20 - 0.0145).abs() < 0.0002, "{s20}");
+    }
+
+    /// With atmospheric thermodynamics the saturation goes as 1 / p(y): p(y) is the standard
+    /// atmosphere's within 1% up to 3 km (the dry adiabat over 288 K is colder than 6.5 K/km:
+    /// 695.4 hPa at 3 km against the U.S. Standard Atmosphere's 701.2), and gamma of the
+    /// mirror is the host's saturation at that height; `paper` is unchanged by height.
+    #[test]
+    fn atmospheric_saturation_goes_as_one_over_the_pressure() {
+        let mut cfg = shot();
+        cfg.physics.ground_temperature = 288.15;
+        let paper = saturation(&cfg.physics, 280.0, 2000.0);
+        assert_eq!(paper, saturation(&cfg.physics, 280.0, 0.0));
+        cfg.physics.thermodynamics = crate::config::Thermodynamics::Atmospheric;
+        cfg.physics.surface_pressure = Some(101_325.0);
+        let q = crate::sim::thermo::Pressure::of(&cfg.physics).unwrap();
+        for (y, standard) in [(0.0, 1013.25), (1000.0, 898.76), (3000.0, 701.21)] {
+            let hpa = q.at(y) / 100.0;
+            assert!(
+                (hpa / standard - 1.0).abs() < 1e-2,
+                "{y} m: {hpa} hPa vs {standard}"
+            );
+        }
+        let p = ThermoParams::new(&cfg, 1.0, 0.0);
+        for y in [0.0, 500.0, 1500.0, 2900.0] {
+            let host = saturation(&cfg.physics, 285.0, y);
+            let expect = paper_at(&cfg, 285.0) * 1.0e5 / q.at(y);
+            assert!(
+                (host / expect - 1.0).abs() < 1e-12,
+                "{y}: {host} vs {expect}"
+            );
+            let mirror = saturation_limit(&p, 285.0, y, 1.0, 0.0);
+            assert!(
+                (mirror / host - 1.0).abs() < 1e-5,
+                "{y}: {mirror} vs {host}"
+            );
+        }
+    }
+
+    fn paper_at(cfg: &crate::config::ShotConfig, t: f64) -> f64 {
+        let p = &cfg.physics;
+        p.saturation_a * (p.saturation_b / (t + p.saturation_c)).exp()
     }
 
     /// One parcel (a single particle, no neighbours, moved by its own velocity): heated near the
