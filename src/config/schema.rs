@@ -223,6 +223,17 @@ impl DomainConfig {
     pub fn kernel_radius(&self) -> f64 {
         self.spacing * self.kernel_ratio
     }
+
+    /// Particles per axis of the initial lattice and its spacing per axis, defined here alone:
+    /// `round(size / spacing)` cells (at least 1) of edge `size / n` (= spacing when it divides
+    /// the box, as validation asks for periodic axes).
+    pub fn lattice(&self) -> ([usize; 3], [f64; 3]) {
+        let n = self
+            .size
+            .map(|s| ((s / self.spacing).round() as usize).max(1));
+        let d = [0, 1, 2].map(|a| self.size[a] / n[a] as f64);
+        (n, d)
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -284,6 +295,14 @@ impl Default for SolverConfig {
             gravity: 0.0,
             max_speed: 30.0,
         }
+    }
+}
+impl SolverConfig {
+    /// The share of `reference_step` a substep of `dt` seconds is, dt / reference_step, defined
+    /// here alone: the solver's per-reference-step rates (the density iterations, XSPH, s_corr)
+    /// scale by it, so a frame does as much at 2 substeps as at 8 (docs/PHYSICS.md "Substeps").
+    pub fn step_share(&self, dt: f64) -> f64 {
+        dt / self.reference_step
     }
 }
 
@@ -599,6 +618,17 @@ impl Default for AdaptiveConfig {
             capacity_factor: 2.0,
             min_distance: 0.3,
             split_offset: 0.25,
+        }
+    }
+}
+impl AdaptiveConfig {
+    /// Particle slots per particle of a run, defined here alone: `capacity_factor` when
+    /// adaptive (split adds particles), else 1 (`sim::footprint::ShotSize::capacity` rounds).
+    pub fn slots_per_particle(&self) -> f64 {
+        if self.enabled {
+            self.capacity_factor.max(1.0)
+        } else {
+            1.0
         }
     }
 }
@@ -1011,6 +1041,12 @@ impl Default for CheckpointConfig {
 }
 
 impl OutputConfig {
+    /// The substep of a frame of `substeps` substeps, frame_seconds / substeps (s), defined here
+    /// alone (`output.substeps` gives the longest, which the config's checks bound).
+    pub fn substep_dt(&self, substeps: u32) -> f64 {
+        self.frame_seconds / substeps as f64
+    }
+
     /// Frames simulated before `frames.start` and not written: `preroll` rounded up to whole
     /// frames of `frame_seconds` (a part frame would need a frame of another length).
     pub fn preroll_frames(&self) -> u32 {

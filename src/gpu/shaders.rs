@@ -22,12 +22,9 @@ pub const WG_SCAN_GPU: u32 = WG_BLOCK;
 /// docs/PERFORMANCE.md "Table 1 / Session 10").
 pub const WG_SCAN_CPU: u32 = 8;
 
-/// The finest adaptive particle level, defined here alone: the config's range of
-/// `adaptive.max_level`, the level tables of the PBF and smoothing programs (`MAX_LEVEL + 1` rows;
-/// `MAX_LEVEL` in WGSL), and the level clamps host and GPU apply. The tables are read by select
-/// chains unrolled for 8 rows (pbf.wgsl `lv_of`, smoothing.wgsl `level_row`); a test holds the
-/// two together.
-pub const MAX_LEVEL: u32 = 7;
+/// The finest adaptive particle level (`ground::levels`, its one definition), `MAX_LEVEL` in
+/// the prelude.
+use crate::ground::levels::MAX_LEVEL;
 
 /// Loop iterations an invocation may run on llvmpipe, with a margin below its 65535.
 pub const CPU_LOOP_BUDGET: u32 = 60_000;

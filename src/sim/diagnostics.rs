@@ -4,6 +4,7 @@
 //! neighbour counts of the isolation measure are integers computed per particle in parallel
 //! (order-free) on the CPU cell table.
 use crate::config::ShotConfig;
+use crate::ground::levels;
 use crate::ground::ParticleState;
 use crate::sim::cell_table::{build_cell_table, for_each_neighbor};
 use crate::sim::grid_params::GridParams;
@@ -34,8 +35,8 @@ pub fn cloud_diagnostics(state: &ParticleState, cfg: &ShotConfig) -> CloudDiagno
     let n = state.len();
     let m0 = particle_mass0(cfg);
     let h0 = cfg.domain.kernel_radius();
-    let mass = |i: usize| m0 * (-(state.info[i][1] as f64)).exp2();
-    let radius = |i: usize| h0 * (-(state.info[i][1] as f64) / 3.0).exp2();
+    let mass = |i: usize| levels::mass(m0, state.info[i][1]);
+    let radius = |i: usize| levels::radius(h0, state.info[i][1]);
     let cloudy = |i: usize| state.thermo[i][2] as f64 > CLOUDY_THRESHOLD;
 
     let mut total_water = 0.0;
@@ -140,10 +141,10 @@ impl CloudDiagnostics {
 pub const MASS_LAYERS: usize = 10;
 
 /// Initial mass of each of [`MASS_LAYERS`] equal horizontal layers (units of m0), from the
-/// initial lattice (`sim::init::lattice`) spread as in [`spread_over_layers`]: the reference of
+/// initial lattice (`DomainConfig::lattice`) spread as in [`spread_over_layers`]: the reference of
 /// `layer_mass_ratio_*`.
 pub fn initial_layer_mass(cfg: &ShotConfig) -> Vec<f64> {
-    let (n, d) = crate::sim::init::lattice(cfg);
+    let (n, d) = cfg.domain.lattice();
     let mut out = vec![0.0; MASS_LAYERS];
     let per_row = (n[0] * n[2]) as f64;
     for j in 0..n[1] {
@@ -188,14 +189,13 @@ fn spread_over_layers(layers: &mut [f64], height: f64, y: f64, s: f64, mass: f64
 pub fn layer_mass_ratios(state: &ParticleState, cfg: &ShotConfig, initial: &[f64]) -> Vec<f64> {
     let mut layers = vec![0.0; MASS_LAYERS];
     for (p, info) in state.pos.iter().zip(&state.info) {
-        let level = info[1] as f64;
-        let spacing = cfg.domain.spacing * (-level / 3.0).exp2();
+        let spacing = levels::radius(cfg.domain.spacing, info[1]);
         spread_over_layers(
             &mut layers,
             cfg.domain.size[1],
             p[1] as f64,
             spacing,
-            (-level).exp2(),
+            levels::mass(1.0, info[1]),
         );
     }
     layers
@@ -259,7 +259,7 @@ pub fn atmosphere_diagnostics(
     let mut clamped = 0usize;
     let mut cloud_pts = Vec::new();
     for i in 0..state.len() {
-        let m = (-(state.info[i][1] as f64)).exp2();
+        let m = levels::mass(1.0, state.info[i][1]);
         let q = Vec4::from(state.pos[i]).truncate().as_dvec3();
         let th = state.thermo[i].map(|v| v as f64);
         let v = Vec4::from(state.vel[i]).truncate().as_dvec3();

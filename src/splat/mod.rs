@@ -30,7 +30,7 @@ pub use detail::{DetailParams, RestInput};
 
 use crate::config::{Axis, ShotConfig};
 use crate::error::{Error, Result};
-use crate::ground::ParticleState;
+use crate::ground::{levels, ParticleState};
 use rayon::prelude::*;
 
 /// Which grids to produce.
@@ -102,7 +102,7 @@ impl SplatParams {
         let d = cfg.domain.spacing;
         let p = Self {
             transform: Self::domain_transform(cfg.export.voxel_size),
-            h0: cfg.domain.kernel_ratio * d,
+            h0: cfg.domain.kernel_radius(),
             m0: cfg.solver.rest_density * d * d * d,
             rest_density: cfg.solver.rest_density,
             domain_size: cfg.domain.size,
@@ -343,8 +343,8 @@ pub fn splat_with_rest(
                 // No simulation splits that deep; h^9 would underflow.
                 return Vec::new();
             }
-            let h = params.h0 * (-level / 3.0).exp2();
-            let m = params.m0 * (-level).exp2();
+            let h = levels::radius(params.h0, state.info[j][1]);
+            let m = levels::mass(params.m0, state.info[j][1]);
             let rho = (state.density[j] as f64).max(rho_min);
             let rho = if rho.is_finite() { rho } else { rho_min };
             let vol = m / rho;
