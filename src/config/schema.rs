@@ -623,10 +623,11 @@ impl Default for AdaptiveConfig {
 }
 impl AdaptiveConfig {
     /// Particle slots per particle of a run, defined here alone: `capacity_factor` when
-    /// adaptive (split adds particles), else 1 (`sim::footprint::ShotSize::capacity` rounds).
+    /// adaptive (split adds particles; its range starts at 1), else 1
+    /// (`sim::footprint::ShotSize::capacity` rounds).
     pub fn slots_per_particle(&self) -> f64 {
         if self.enabled {
-            self.capacity_factor.max(1.0)
+            self.capacity_factor
         } else {
             1.0
         }

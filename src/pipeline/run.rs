@@ -537,7 +537,7 @@ fn write_checkpoint(
         // rest positions when the run tracks them.
         extra,
     };
-    checkpoint::write_and_prune(dir, &ck, cfg.checkpoint.keep.max(1) as usize)
+    checkpoint::write_and_prune(dir, &ck, cfg.checkpoint.keep as usize)
 }
 
 /// SIGINT/SIGTERM/SIGHUP set a flag: the loop finishes the frame, checkpoints and exits 130.

@@ -28,14 +28,15 @@ fn a_missing_heat_map_is_placed_at_its_key() {
     );
 }
 
-/// `AdaptiveParams::new`, `AdaptiveStage::new` and `Simulation::from_state` no longer check
-/// these: a shot that breaks them is never prepared.
+/// `AdaptiveParams::new`, `AdaptiveStage::new`, `Simulation::from_state`, the smoothing's
+/// parameters, the capacity and the checkpoint pruning no longer check or clamp these: a shot
+/// that breaks them is never prepared.
 #[test]
 fn the_keys_the_stages_trust_are_refused_here() {
     let ok = load_str(BASE, "t.yaml", &[]).unwrap().into_config();
     assert!(Shot::prepare(ok.clone()).is_ok());
     type Edit = fn(&mut ShotConfig);
-    let breakers: [(Edit, &str); 6] = [
+    let breakers: [(Edit, &str); 9] = [
         (
             |c| c.adaptive.merge_threshold = c.adaptive.split_threshold,
             "adaptive.merge_threshold",
@@ -44,6 +45,18 @@ fn the_keys_the_stages_trust_are_refused_here() {
         (|c| c.adaptive.split_offset = 0.0, "adaptive.split_offset"),
         (|c| c.adaptive.kc = f64::NAN, "adaptive.kc"),
         (|c| c.output.substeps = 0, "output.substeps"),
+        (
+            |c| c.physics.smoothing.iterations = 0,
+            "physics.smoothing.iterations",
+        ),
+        (
+            |c| {
+                c.adaptive.enabled = true;
+                c.adaptive.capacity_factor = 0.5;
+            },
+            "adaptive.capacity_factor",
+        ),
+        (|c| c.checkpoint.keep = 0, "checkpoint.keep"),
         (
             |c| {
                 c.domain.size[0] = 250.0;
