@@ -20,8 +20,8 @@ pub use crate::ground::levels::MAX_LEVEL;
 /// adaptive stage's room check needs: |midpoint - x_i| < h_l / 2 <= 2^(-1/3) L / 2 and
 /// h_new <= L.
 pub const MAX_MIN_DISTANCE: f64 = 0.6;
-/// Most entries of `physics.sources` (the thermo stage's uniform table, `sim::sources`).
-pub const MAX_SOURCES: usize = 8;
+/// Most entries of `physics.sources` (the thermo stage's uniform table; `ground::limits`).
+pub use crate::ground::limits::MAX_SOURCES;
 /// Longest grid name NanoVDB stores in the grid itself (255 bytes and a NUL; `io::nanovdb`).
 pub const MAX_NANOVDB_NAME_BYTES: usize = 255;
 

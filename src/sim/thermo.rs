@@ -119,10 +119,10 @@ pub struct ThermoParams {
     pub control_pull: [f32; 4],
 }
 
+/// Most layers of the horizontal-mean buoyancy profile (`ground::limits`).
+pub use crate::ground::limits::MAX_LAYERS;
 pub use crate::sim::sources::{HeatMaps, SourceGpu, MAX_SOURCES};
 pub use crate::sim::wind::MAX_WIND_LEVELS;
-/// Most layers of the horizontal-mean buoyancy profile.
-pub const MAX_LAYERS: usize = 32;
 
 impl ThermoParams {
     /// Parameters of one substep of length `dt` (s) starting at simulated time `time` (s).
