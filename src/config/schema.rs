@@ -33,6 +33,20 @@ fn d_seed() -> u64 {
     1
 }
 
+impl ShotConfig {
+    /// The air a level-0 particle stands for, rho0 d^3 (kg), defined here alone: the box at
+    /// rest density shared among the lattice's particles. The reported masses (stats.jsonl's
+    /// `total_water`, `cloud_mass`, `water_input`) and the splat's particle volumes (V = m / rho,
+    /// d^3 at rest) use it. It is not the solver's m0 (`shot::Shot::m0`, rho0 over the lattice's
+    /// poly6 sum: 0.97% less at h0 = 2d), and must not become it: m0 corrects the discrete kernel
+    /// sum so that the lattice sits at rest density (docs/ARCHITECTURE.md "Units and choices"),
+    /// it does not make the box hold 1% less air.
+    pub fn cell_mass(&self) -> f64 {
+        let d = self.domain.spacing;
+        self.solver.rest_density * d * d * d
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OutputConfig {

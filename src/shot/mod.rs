@@ -32,8 +32,14 @@ pub struct Shot {
     target: Option<TargetVoxels>,
     /// Level-0 kernel radius h0 = spacing * kernel_ratio (m).
     h0: f64,
-    /// Level-0 particle mass of the solver, m0 (kg; [`pbf_mass`]).
+    /// The two level-0 masses, each with one job, and distinct on purpose. `m0`, the solver's
+    /// ([`pbf_mass`]: rho0 over the lattice's poly6 sum), normalises the discrete kernel sum so
+    /// that the lattice sits at rest density: the PBF and wall densities and the particle caches
+    /// (which carry the solver's densities) use it. `cell_mass` (`ShotConfig::cell_mass`,
+    /// rho0 d^3) is the air a particle stands for: the reported masses and the splat's volumes
+    /// use it. At h0 = 2d, m0 = 0.990 cell_mass, the kernel's discretisation error.
     m0: f64,
+    cell_mass: f64,
     /// Particles of the initial lattice.
     particles: u64,
 }
@@ -72,6 +78,7 @@ impl Shot {
         Ok(Self {
             h0: cfg.domain.kernel_radius(),
             m0: pbf_mass(&cfg),
+            cell_mass: cfg.cell_mass(),
             particles: config::lattice_count(&cfg.domain) as u64,
             config: cfg,
             heat_maps,
@@ -106,6 +113,11 @@ impl Shot {
     /// Level-0 particle mass m0 of the solver (kg; [`pbf_mass`]).
     pub fn m0(&self) -> f64 {
         self.m0
+    }
+
+    /// The air a level-0 particle stands for, rho0 d^3 (kg; not [`Self::m0`], see the field).
+    pub fn cell_mass(&self) -> f64 {
+        self.cell_mass
     }
 
     /// Kernel radius of a level-`level` particle, h0 2^(-level/3) (m).

@@ -21,19 +21,16 @@ pub const CLOUDY_THRESHOLD: f64 = 1.0e-5;
 /// h = 2 d; 4 flags lone particles and thin strings.
 pub const ISOLATION_NEIGHBORS: usize = 4;
 
-/// Mass of a level-0 particle m0 = rest_density * spacing^3 (kg); level l has m0 2^-l.
-pub fn particle_mass0(cfg: &ShotConfig) -> f64 {
-    cfg.solver.rest_density * cfg.domain.spacing.powi(3)
-}
-
-/// Keys: `total_water` = sum m (v + w) (kg), `cloud_mass` = sum m w (kg), `cloudy_particles`
+/// Keys, with m = the cell mass 2^-level (`ShotConfig::cell_mass`): `total_water` =
+/// sum m (v + w) (kg), `cloud_mass` = sum m w (kg), `cloudy_particles`
 /// (w > [`CLOUDY_THRESHOLD`]), `temperature_mean` (mass-weighted, K), `temperature_max` (K),
 /// `isolation` = fraction of the cloud mass held by cloudy particles with fewer than
 /// [`ISOLATION_NEIGHBORS`] cloudy neighbours within their kernel radius h_i (0 when there is
 /// no cloud).
 pub fn cloud_diagnostics(state: &ParticleState, cfg: &ShotConfig) -> CloudDiagnostics {
     let n = state.len();
-    let m0 = particle_mass0(cfg);
+    // the air a particle stands for (`ShotConfig::cell_mass`), not the solver's m0
+    let m0 = cfg.cell_mass();
     let h0 = cfg.domain.kernel_radius();
     let mass = |i: usize| levels::mass(m0, state.info[i][1]);
     let radius = |i: usize| levels::radius(h0, state.info[i][1]);
@@ -312,7 +309,7 @@ pub fn atmosphere_diagnostics(
         static_energy_mean: mean(energy),
         heat_input_mean: mean(heating) * cfg.output.frame_seconds,
         water_input: (heating * heat.ground_vapor as f64 + moisture)
-            * particle_mass0(cfg)
+            * cfg.cell_mass()
             * cfg.output.frame_seconds,
         clamped_particles: clamped as u64,
     }
@@ -386,7 +383,7 @@ mod tests {
     #[test]
     fn sums_counts_and_isolation() {
         let cfg = shot();
-        let m0 = particle_mass0(&cfg);
+        let m0 = cfg.cell_mass();
         // A compact blob of 9 cloudy particles (8 neighbours each within h = 20 m), one lone
         // cloudy particle far away, one clear particle at level 1 (half mass).
         let mut pts = Vec::new();

@@ -97,13 +97,14 @@ impl SplatParams {
         }
     }
 
-    /// Parameters of a shot: m0 = rho0 d^3, h0 = kernel_ratio * d (as the simulation sets them).
+    /// Parameters of a shot: h0 = kernel_ratio * d, and m0 the lattice cell's mass rho0 d^3
+    /// (`ShotConfig::cell_mass`), so that V = m / rho is a particle's share of the box, d^3 at
+    /// rest.
     pub fn from_config(cfg: &ShotConfig) -> Result<Self> {
-        let d = cfg.domain.spacing;
         let p = Self {
             transform: Self::domain_transform(cfg.export.voxel_size),
             h0: cfg.domain.kernel_radius(),
-            m0: cfg.solver.rest_density * d * d * d,
+            m0: cfg.cell_mass(),
             rest_density: cfg.solver.rest_density,
             domain_size: cfg.domain.size,
             periodic: [
