@@ -28,10 +28,10 @@ fn adaptive_split(@builtin(global_invocation_id) gid: vec3<u32>,
     let inf = info[i];
     let k = scan[i];
     if ((flags[i] & FLAG_SPLIT) == 0u || k >= atomicLoad(&counters[C_SPLITS])) {
-        atomicAdd(&counters[C_LEVELS + min(inf.y, MAX_LEVELS - 1u)], 1u);
+        atomicAdd(&counters[C_LEVELS + min(inf.y, MAX_LEVEL)], 1u);
         return;
     }
-    atomicAdd(&counters[C_LEVELS + min(inf.y + 1u, MAX_LEVELS - 1u)], 2u);
+    atomicAdd(&counters[C_LEVELS + min(inf.y + 1u, MAX_LEVEL)], 2u);
     let slot = newcount + k;
     let p = pos[i];
     let hc = level_radius(params.h0, inf.y + 1u);

@@ -37,7 +37,7 @@ fn totals_split() {
     atomicStore(&counters[C_SKIPPED], wanted - done);
     atomicStore(&counters[C_FINAL], final_count);
     atomicStore(&counters[C_NEXT_ID], live.next_id + done);
-    for (var l = 0u; l < MAX_LEVELS; l++) {
+    for (var l = 0u; l <= MAX_LEVEL; l++) {
         atomicStore(&counters[C_LEVELS + l], 0u);
     }
     // the live state after this run (shared/live.wgsl `Live`, word for word)

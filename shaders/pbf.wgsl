@@ -97,7 +97,7 @@ fn lv_of(l: u32) -> vec4<f32> {
     v = select(v, prm.lv[4], l == 4u);
     v = select(v, prm.lv[5], l == 5u);
     v = select(v, prm.lv[6], l == 6u);
-    v = select(v, prm.lv[7], l >= MAX_LEVEL);
+    v = select(v, prm.lv[MAX_LEVEL], l >= MAX_LEVEL);
     return v;
 }
 // poly6 and spiky gradient of a level from its table row lv = lv_of(l) (same values as
@@ -519,6 +519,7 @@ fn lambda_out(i: u32, me: Me, a: LamAcc) {
 // lambda passes to the delta passes, which then gather a neighbour's level with its lambda
 // instead of loading info[j] (lambda loses 3 bits: under 1e-6 of itself). One level: lambda whole.
 const LAM_LEVEL_MASK: u32 = 7u;
+const_assert MAX_LEVEL <= LAM_LEVEL_MASK;
 fn lam_pack(lam: f32, li: u32, single: bool) -> f32 {
     return select(bitcast<f32>((bitcast<u32>(lam) & ~LAM_LEVEL_MASK) | li), lam, single);
 }

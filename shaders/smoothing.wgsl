@@ -89,7 +89,7 @@ fn level_row(pc: Pc, l: u32) -> vec3<f32> {
     v = select(v, pc.lv[4], l == 4u);
     v = select(v, pc.lv[5], l == 5u);
     v = select(v, pc.lv[6], l == 6u);
-    return select(v, pc.lv[7], l >= MAX_LEVEL);
+    return select(v, pc.lv[MAX_LEVEL], l >= MAX_LEVEL);
 }
 // Spiky gradient factor -45 / (pi h^6) of level 0 (once per particle, not per pair).
 fn spiky_factor0() -> f32 {

@@ -56,11 +56,11 @@ struct ThermoParams {
     pressure_exponent: f32,
     pressure_surface: f32,
     // the profile (m/s^2) at the layer centres, four a row (sim::thermo::LayerBuoyancy)
-    layers: array<vec4<f32>, 8>,
+    layers: array<vec4<f32>, MAX_LAYERS / 4u>,
     // --- art direction (sim::wind, sim::sources) ---
     // (height m, speed m/s, heading rad unwrapped along the profile, -) by increasing height
-    wind: array<vec4<f32>, 16>,
-    sources: array<Source, 8>,
+    wind: array<vec4<f32>, MAX_WIND_LEVELS>,
+    sources: array<Source, MAX_SOURCES>,
     // --- target-shape control (sim::control) ---
     // (1 when on, offset of the supply map in heat_maps, columns along x, along z); the
     // footprint mask follows the supply map

@@ -139,7 +139,7 @@ fn budget(extra: &str) -> (f64, f64) {
     ));
     let shot = nimbus::shot::Shot::prepare(cfg.clone()).unwrap();
     let mut sim = Simulation::new(harness::context(), &shot).unwrap();
-    let m0 = nimbus::sim::diagnostics::particle_mass0(&cfg);
+    let m0 = cfg.cell_mass();
     let water = |s: &ParticleState| -> f64 {
         (0..s.len())
             .map(|i| {

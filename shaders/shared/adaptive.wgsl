@@ -33,10 +33,11 @@ const C_SPLITS: u32 = 3u;
 const C_SKIPPED: u32 = 4u;
 const C_FINAL: u32 = 5u;
 const C_NEXT_ID: u32 = 6u;
+// the particles per level, MAX_LEVEL + 1 words (the prelude's MAX_LEVEL, `ground::levels`)
 const C_LEVELS: u32 = 8u;
-const MAX_LEVELS: u32 = 24u;
 // the next `Live` (12 words), copied over `live` after the split
 const C_LIVE: u32 = 32u;
+const_assert C_LEVELS + MAX_LEVEL < C_LIVE;
 // merges, splits and skipped splits summed over the frame's substeps
 const C_FRAME_MERGES: u32 = 44u;
 const C_FRAME_SPLITS: u32 = 45u;

@@ -26,8 +26,8 @@ use crate::config::ShotConfig;
 use crate::error::{Error, Result};
 use crate::export::ExportSpace;
 use crate::ground::rest::{RestCodec, RestFrame};
-use crate::ground::ParticleState;
 use crate::ground::SparseGrid;
+use crate::ground::{levels, ParticleState};
 use crate::pipeline::records::Manifest;
 use crate::pipeline::writer::{FrameJob, FrameWriter};
 use crate::splat::detail::{DetailNoise, EdgeSums, NoiseSpace};
@@ -65,7 +65,8 @@ pub fn bench_detail(
     let manifest = Manifest::load(run_dir)?;
     let text =
         serde_json::to_string(&manifest.config).map_err(|e| Error::Runtime(e.to_string()))?;
-    let mut cfg: ShotConfig = crate::shot::load_str(&text, "manifest.json", sets)?.into_config();
+    let shot = crate::shot::load_str(&text, "manifest.json", sets)?;
+    let mut cfg: ShotConfig = shot.config().clone();
     if !cfg.export.particles || !cfg.export.tracks_rest() {
         return Err(Error::InvalidInput(format!(
             "{}: needs a run with export.particles and export.detail.enabled (or export.grids.rest): its caches hold the rest positions",
@@ -144,12 +145,11 @@ pub fn bench_detail(
     for d in crate::pipeline::naming::DIRS {
         std::fs::create_dir_all(scratch.join(d)).map_err(|e| Error::io(scratch.join(d), e))?;
     }
-    // previews are off: no source overlay, so no heat maps
-    let writer = FrameWriter::new(&wcfg, &[], &scratch)?;
+    let writer = FrameWriter::new(&shot, &wcfg, &scratch)?;
     let mut plain_cfg = wcfg.clone();
     plain_cfg.export.detail.enabled = false;
     plain_cfg.export.grids.rest = String::new();
-    let plain_writer = FrameWriter::new(&plain_cfg, &[], &scratch)?;
+    let plain_writer = FrameWriter::new(&shot, &plain_cfg, &scratch)?;
 
     let sim_ms = sim_ms_per_frame(run_dir);
     let mut rows = Vec::new();
@@ -640,8 +640,8 @@ impl PointSplat {
             if level > 60.0 {
                 continue;
             }
-            let h = p.h0 * (-level / 3.0).exp2();
-            let m = p.m0 * (-level).exp2();
+            let h = levels::radius(p.h0, fr.state.info[j][1]);
+            let m = levels::mass(p.m0, fr.state.info[j][1]);
             let rho = (fr.state.density[j] as f64).max(rho_min);
             let rho = if rho.is_finite() { rho } else { rho_min };
             let c = m / rho * 315.0 / (64.0 * std::f64::consts::PI * h.powi(9));

@@ -6,8 +6,8 @@
 use super::schema::*;
 use super::validate::Issue;
 
-/// Most levels of `physics.wind.profile` (the uniform's table, `sim::thermo::MAX_WIND_LEVELS`).
-pub const MAX_WIND_LEVELS: usize = 16;
+/// Most levels of `physics.wind.profile` (the thermo uniform's table; `ground::limits`).
+pub use crate::ground::limits::MAX_WIND_LEVELS;
 
 fn num(x: f64) -> String {
     super::node::fmt_float(x)

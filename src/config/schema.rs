@@ -33,6 +33,20 @@ fn d_seed() -> u64 {
     1
 }
 
+impl ShotConfig {
+    /// The air a level-0 particle stands for, rho0 d^3 (kg), defined here alone: the box at
+    /// rest density shared among the lattice's particles. The reported masses (stats.jsonl's
+    /// `total_water`, `cloud_mass`, `water_input`) and the splat's particle volumes (V = m / rho,
+    /// d^3 at rest) use it. It is not the solver's m0 (`shot::Shot::m0`, rho0 over the lattice's
+    /// poly6 sum: 0.97% less at h0 = 2d), and must not become it: m0 corrects the discrete kernel
+    /// sum so that the lattice sits at rest density (docs/ARCHITECTURE.md "Units and choices"),
+    /// it does not make the box hold 1% less air.
+    pub fn cell_mass(&self) -> f64 {
+        let d = self.domain.spacing;
+        self.solver.rest_density * d * d * d
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OutputConfig {
@@ -223,6 +237,17 @@ impl DomainConfig {
     pub fn kernel_radius(&self) -> f64 {
         self.spacing * self.kernel_ratio
     }
+
+    /// Particles per axis of the initial lattice and its spacing per axis, defined here alone:
+    /// `round(size / spacing)` cells (at least 1) of edge `size / n` (= spacing when it divides
+    /// the box, as validation asks for periodic axes).
+    pub fn lattice(&self) -> ([usize; 3], [f64; 3]) {
+        let n = self
+            .size
+            .map(|s| ((s / self.spacing).round() as usize).max(1));
+        let d = [0, 1, 2].map(|a| self.size[a] / n[a] as f64);
+        (n, d)
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -284,6 +309,14 @@ impl Default for SolverConfig {
             gravity: 0.0,
             max_speed: 30.0,
         }
+    }
+}
+impl SolverConfig {
+    /// The share of `reference_step` a substep of `dt` seconds is, dt / reference_step, defined
+    /// here alone: the solver's per-reference-step rates (the density iterations, XSPH, s_corr)
+    /// scale by it, so a frame does as much at 2 substeps as at 8 (docs/PHYSICS.md "Substeps").
+    pub fn step_share(&self, dt: f64) -> f64 {
+        dt / self.reference_step
     }
 }
 
@@ -687,6 +720,18 @@ impl Default for AdaptiveConfig {
             capacity_factor: 2.0,
             min_distance: 0.3,
             split_offset: 0.25,
+        }
+    }
+}
+impl AdaptiveConfig {
+    /// Particle slots per particle of a run, defined here alone: `capacity_factor` when
+    /// adaptive (split adds particles; its range starts at 1), else 1
+    /// (`sim::footprint::ShotSize::capacity` rounds).
+    pub fn slots_per_particle(&self) -> f64 {
+        if self.enabled {
+            self.capacity_factor
+        } else {
+            1.0
         }
     }
 }
@@ -1099,6 +1144,12 @@ impl Default for CheckpointConfig {
 }
 
 impl OutputConfig {
+    /// The substep of a frame of `substeps` substeps, frame_seconds / substeps (s), defined here
+    /// alone (`output.substeps` gives the longest, which the config's checks bound).
+    pub fn substep_dt(&self, substeps: u32) -> f64 {
+        self.frame_seconds / substeps as f64
+    }
+
     /// Frames simulated before `frames.start` and not written: `preroll` rounded up to whole
     /// frames of `frame_seconds` (a part frame would need a frame of another length).
     pub fn preroll_frames(&self) -> u32 {

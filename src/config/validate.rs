@@ -14,14 +14,14 @@ pub const MAX_FRAME: u32 = 999_999_999;
 pub const MAX_SHOT_BYTES: usize = 200;
 /// Voxels per axis of the export grid above which a shot is refused.
 pub const MAX_VOXELS_PER_AXIS: f64 = 65536.0;
-/// Highest adaptive level (`gpu::shaders::MAX_LEVEL`: the level tables' rows).
-pub const MAX_LEVEL: u32 = crate::gpu::shaders::MAX_LEVEL;
+/// Highest adaptive level (`ground::levels`, its one definition).
+pub use crate::ground::levels::MAX_LEVEL;
 /// Largest `min_distance` for which the 27 cells around a merging cell hold every particle the
 /// adaptive stage's room check needs: |midpoint - x_i| < h_l / 2 <= 2^(-1/3) L / 2 and
 /// h_new <= L.
 pub const MAX_MIN_DISTANCE: f64 = 0.6;
-/// Most entries of `physics.sources` (the thermo stage's uniform table, `sim::sources`).
-pub const MAX_SOURCES: usize = 8;
+/// Most entries of `physics.sources` (the thermo stage's uniform table; `ground::limits`).
+pub use crate::ground::limits::MAX_SOURCES;
 /// Longest grid name NanoVDB stores in the grid itself (255 bytes and a NUL; `io::nanovdb`).
 pub const MAX_NANOVDB_NAME_BYTES: usize = 255;
 
@@ -506,7 +506,7 @@ fn digits(n: u32) -> u32 {
 }
 
 /// Initial lattice particle count: round(size/spacing), at least 1, per axis (what
-/// `sim::init::lattice` seeds; a unit test keeps the two equal).
+/// `DomainConfig::lattice` seeds; a unit test keeps the two equal).
 pub fn lattice_count(d: &DomainConfig) -> f64 {
     d.size
         .iter()
@@ -845,7 +845,7 @@ fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
     }
     // eq. 9 is integrated explicitly: alpha * dt > 1 overshoots saturation.
     if c.output.substeps > 0 && c.output.frame_seconds > 0.0 {
-        let dt = c.output.frame_seconds / c.output.substeps as f64;
+        let dt = c.output.substep_dt(c.output.substeps);
         if p.phase_rate.is_finite() && p.phase_rate * dt > 1.0 {
             k.fail(
                 &["physics.phase_rate", "output.substeps"],
@@ -886,7 +886,7 @@ fn check_adaptive(k: &mut Checks, a: &AdaptiveConfig, c: &ShotConfig) {
         );
     }
     if a.enabled && a.capacity_factor.is_finite() {
-        let cap = lattice_count(&c.domain) * a.capacity_factor;
+        let cap = lattice_count(&c.domain) * a.slots_per_particle();
         if cap > MAX_CAPACITY && lattice_count(&c.domain) <= MAX_PARTICLES {
             k.fail(
                 &["adaptive.capacity_factor"],
@@ -1179,7 +1179,7 @@ mod tests {
         for size in [[100.0, 53.0, 100.0], [107.0, 48.0, 102.6], [3.0, 2.0, 4.0]] {
             let mut c = base();
             c.domain.size = size;
-            let (n, _) = crate::sim::init::lattice(&c);
+            let (n, _) = c.domain.lattice();
             assert_eq!(
                 lattice_count(&c.domain),
                 (n[0] * n[1] * n[2]) as f64,
@@ -1190,7 +1190,8 @@ mod tests {
 
     #[test]
     fn max_level_matches_the_pbf_level_table() {
-        let p = crate::sim::pbf::PbfParams::for_shot(&base());
+        let shot = crate::shot::Shot::prepare(base()).expect("the base shot");
+        let p = crate::sim::pbf::PbfParams::for_shot(&shot);
         assert_eq!(p.levels.len() as u32, MAX_LEVEL + 1);
     }
 

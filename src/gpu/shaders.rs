@@ -22,12 +22,11 @@ pub const WG_SCAN_GPU: u32 = WG_BLOCK;
 /// docs/PERFORMANCE.md "Table 1 / Session 10").
 pub const WG_SCAN_CPU: u32 = 8;
 
-/// The finest adaptive particle level, defined here alone: the config's range of
-/// `adaptive.max_level`, the level tables of the PBF and smoothing programs (`MAX_LEVEL + 1` rows;
-/// `MAX_LEVEL` in WGSL), and the level clamps host and GPU apply. The tables are read by select
-/// chains unrolled for 8 rows (pbf.wgsl `lv_of`, smoothing.wgsl `level_row`); a test holds the
-/// two together.
-pub const MAX_LEVEL: u32 = 7;
+/// The finest adaptive particle level (`ground::levels`, its one definition), `MAX_LEVEL` in
+/// the prelude.
+use crate::ground::levels::MAX_LEVEL;
+/// The thermo uniform's table sizes (`ground::limits`), in the prelude as well.
+use crate::ground::limits::{MAX_LAYERS, MAX_SOURCES, MAX_WIND_LEVELS};
 
 /// Loop iterations an invocation may run on llvmpipe, with a margin below its 65535.
 pub const CPU_LOOP_BUDGET: u32 = 60_000;
@@ -108,14 +107,17 @@ impl Prelude {
 
     fn wgsl(&self) -> String {
         format!(
-            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst WG_SCAN: u32 = {}u;\nconst SCAN_ITEMS: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\nconst MAX_LEVEL: u32 = {}u;\n",
+            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst WG_SCAN: u32 = {}u;\nconst SCAN_ITEMS: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\nconst MAX_LEVEL: u32 = {}u;\nconst MAX_SOURCES: u32 = {}u;\nconst MAX_WIND_LEVELS: u32 = {}u;\nconst MAX_LAYERS: u32 = {}u;\n",
             self.wg_particles,
             self.wg_block,
             self.wg_scan,
             SCAN_BLOCK / self.wg_scan,
             self.max_groups_x,
             self.loop_budget,
-            MAX_LEVEL
+            MAX_LEVEL,
+            MAX_SOURCES,
+            MAX_WIND_LEVELS,
+            MAX_LAYERS
         )
     }
 }

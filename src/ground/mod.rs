@@ -6,10 +6,15 @@
 //! - `grid`: sparse voxel grids of 8^3 leaves and their world transform;
 //! - `noise`: the hash and value noise both the GPU step and the detail evaluate;
 //! - `heat_map`: a decoded heat map of an image source;
+//! - `limits`: the sizes of the thermo uniform's tables (sources, wind levels, layers);
+//! - `levels`: the adaptive levels (the finest, a level's kernel radius and mass) and the poly6
+//!   kernel they are measured with;
 //! - `voxels`: the coarse voxel grid of `control.target` and the target's voxels on it.
 pub mod clock;
 pub mod grid;
 pub mod heat_map;
+pub mod levels;
+pub mod limits;
 pub mod noise;
 pub mod particles;
 pub mod rest;

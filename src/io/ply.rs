@@ -14,7 +14,7 @@
 use crate::error::{Error, Result};
 use crate::export::ExportSpace;
 use crate::ground::rest::{RestCodec, RestFrame};
-use crate::ground::ParticleState;
+use crate::ground::{levels, ParticleState};
 use std::path::Path;
 
 /// Per-vertex properties, in file order: (PLY type, name).
@@ -91,8 +91,8 @@ pub fn encode(state: &ParticleState, info: &CacheInfo) -> Result<Vec<u8>> {
             Error::InvalidInput(format!("particle cache: level {level} does not fit a byte"))
         })?;
         out.push(lv);
-        let h = info.h0 * (-(level as f64) / 3.0).exp2() / s.scale;
-        let m = info.m0 * (-(level as f64)).exp2();
+        let h = levels::radius(info.h0, level) / s.scale;
+        let m = levels::mass(info.m0, level);
         out.extend_from_slice(&(h as f32).to_le_bytes());
         out.extend_from_slice(&(m as f32).to_le_bytes());
         out.extend_from_slice(&id.to_le_bytes());

@@ -159,7 +159,7 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
     // The writer never writes caches again: it splats the ones it reads.
     let mut wcfg = cfg.clone();
     wcfg.export.particles = false;
-    let writer = FrameWriter::new(&wcfg, shot.heat_maps(), &dest)?;
+    let writer = FrameWriter::new(&shot, &wcfg, &dest)?;
     for d in super::naming::DIRS.iter().filter(|d| **d != "checkpoints") {
         std::fs::create_dir_all(dest.join(d)).map_err(|e| Error::io(dest.join(d), e))?;
     }

@@ -172,9 +172,9 @@ pub fn run(shot: &Shot, opts: &RunOptions, lock: &RunLock) -> Result<()> {
             cfg.domain.periodic.contains(&config::Axis::Z),
         ],
     );
-    let h0 = cfg.domain.kernel_radius();
+    let h0 = shot.h0();
 
-    let writer = FrameWriter::new(cfg, shot.heat_maps(), run_dir)?;
+    let writer = FrameWriter::new(shot, cfg, run_dir)?;
     let mut manifest = match (&resumed, Manifest::load(run_dir)) {
         (Some(_), Ok(m)) => m,
         (Some(_), Err(_)) => {
@@ -537,7 +537,7 @@ fn write_checkpoint(
         // rest positions when the run tracks them.
         extra,
     };
-    checkpoint::write_and_prune(dir, &ck, cfg.checkpoint.keep.max(1) as usize)
+    checkpoint::write_and_prune(dir, &ck, cfg.checkpoint.keep as usize)
 }
 
 /// SIGINT/SIGTERM/SIGHUP set a flag: the loop finishes the frame, checkpoints and exits 130.

@@ -6,10 +6,10 @@ use crate::config::ShotConfig;
 use crate::error::Result;
 use crate::export::ExportSpace;
 use crate::ground::rest::{RestClock, RestCodec, RestFrame};
-use crate::ground::HeatMap;
 use crate::ground::ParticleState;
 use crate::ground::{GridTransform, SparseGrid};
 use crate::io::vdb::{VdbFile, VdbGrid, VdbOptions};
+use crate::shot::Shot;
 use crate::splat::SplatGrids;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -42,8 +42,9 @@ pub struct FrameWriter {
     /// The VDB files' frame (scale, axis, velocity basis) and grid aliases.
     space: ExportSpace,
     aliases: BTreeMap<String, String>,
-    /// Level-0 particle mass (kg), for the particle cache.
-    particle_mass: f64,
+    /// The shot's level-0 kernel radius (m) and mass (kg), for the particle cache.
+    h0: f64,
+    m0: f64,
     splat: crate::splat::SplatParams,
     preview: Option<crate::preview::PreviewParams>,
     /// `output.preview.source_overlay`: the sources drawn into the previews.
@@ -53,9 +54,11 @@ pub struct FrameWriter {
 }
 
 impl FrameWriter {
-    /// The writer of `cfg`'s frames into `run_dir`; `heat_maps` are the shot's (`shot::Shot`),
-    /// drawn by the source overlay.
-    pub fn new(cfg: &ShotConfig, heat_maps: &[Option<HeatMap>], run_dir: &Path) -> Result<Self> {
+    /// The writer of `cfg`'s frames into `run_dir`: `cfg` is `shot`'s config, or it with other
+    /// export or preview keys (a re-export, a bench); the particle caches' h0 and m0 and the
+    /// heat maps the source overlay draws are the shot's.
+    pub fn new(shot: &Shot, cfg: &ShotConfig, run_dir: &Path) -> Result<Self> {
+        let heat_maps = shot.heat_maps();
         if cfg.output.preview.enabled && cfg.output.preview.movie {
             crate::preview::movie::require_ffmpeg()?;
         }
@@ -78,11 +81,8 @@ impl FrameWriter {
             transform: splat.transform,
             space: ExportSpace::from_config(cfg),
             aliases: ExportSpace::aliases(cfg),
-            particle_mass: if cfg.export.particles {
-                crate::sim::init::particle_mass(cfg)
-            } else {
-                0.0
-            },
+            h0: shot.h0(),
+            m0: shot.m0(),
             rest_codec: RestCodec::new(cfg.domain.size, splat.periodic),
             splat,
             preview,
@@ -277,8 +277,8 @@ impl FrameWriter {
         let info = crate::io::ply::CacheInfo {
             space: s,
             rest: rest.map(|r| (r, self.rest_codec)),
-            h0: self.cfg.domain.kernel_radius(),
-            m0: self.particle_mass,
+            h0: self.h0,
+            m0: self.m0,
             comments: vec![
                 format!("nimbus {} shot {} frame {frame}", crate::VERSION, self.cfg.shot),
                 format!(

@@ -89,7 +89,7 @@ fn draw(
         let px = (u + 1.0) * 0.5 * w as f64;
         let py = (1.0 - v) * 0.5 * h as f64;
         let level = state.info.get(j).map_or(0, |i| i[1]);
-        let hj = h0 * (-(level as f64) / 3.0).exp2();
+        let hj = crate::ground::levels::radius(h0, level);
         let rad = (0.5 * hj / (z * th) * 0.5 * h as f64).max(0.5);
         if !(px.is_finite() && py.is_finite()) || px + rad < 0.0 || py + rad < 0.0 {
             continue;

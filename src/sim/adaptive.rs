@@ -52,8 +52,6 @@ entry_points! {
     }
 }
 
-/// Levels the counters buffer has room for (`MAX_LEVELS` in shaders/shared/adaptive.wgsl).
-pub const MAX_LEVELS: u32 = 24;
 /// Largest `min_distance` the room check's 27 cells allow (a limit of the config's range).
 pub use crate::config::MAX_MIN_DISTANCE;
 

@@ -17,7 +17,7 @@
 //! continues byte for byte. The same binning gives `target_iou`, the intersection over union of
 //! the cloud voxels and the target voxels.
 use crate::config::{ShotConfig, TargetConfig};
-use crate::ground::{ParticleState, TargetVoxels, VoxelGrid};
+use crate::ground::{levels, ParticleState, TargetVoxels, VoxelGrid};
 
 /// Intersection over union of two voxel sets (0 when both are empty).
 pub fn iou(a: &[bool], b: &[bool]) -> f64 {
@@ -99,7 +99,7 @@ impl Target {
             let p = state.pos[i];
             let [a, b, c] = self.grid.voxel_of([p[0] as f64, p[1] as f64, p[2] as f64]);
             let v = self.grid.index(a, b, c);
-            let m = (-(state.info[i][1].min(31) as f64)).exp2();
+            let m = levels::mass(1.0, state.info[i][1].min(levels::MAX_LEVEL));
             water[v] += m * state.thermo[i][2] as f64;
             mass[v] += m;
         }

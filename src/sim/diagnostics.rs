@@ -4,6 +4,7 @@
 //! neighbour counts of the isolation measure are integers computed per particle in parallel
 //! (order-free) on the CPU cell table.
 use crate::config::ShotConfig;
+use crate::ground::levels;
 use crate::ground::ParticleState;
 use crate::sim::cell_table::{build_cell_table, for_each_neighbor};
 use crate::sim::grid_params::GridParams;
@@ -20,22 +21,19 @@ pub const CLOUDY_THRESHOLD: f64 = 1.0e-5;
 /// h = 2 d; 4 flags lone particles and thin strings.
 pub const ISOLATION_NEIGHBORS: usize = 4;
 
-/// Mass of a level-0 particle m0 = rest_density * spacing^3 (kg); level l has m0 2^-l.
-pub fn particle_mass0(cfg: &ShotConfig) -> f64 {
-    cfg.solver.rest_density * cfg.domain.spacing.powi(3)
-}
-
-/// Keys: `total_water` = sum m (v + w) (kg), `cloud_mass` = sum m w (kg), `cloudy_particles`
+/// Keys, with m = the cell mass 2^-level (`ShotConfig::cell_mass`): `total_water` =
+/// sum m (v + w) (kg), `cloud_mass` = sum m w (kg), `cloudy_particles`
 /// (w > [`CLOUDY_THRESHOLD`]), `temperature_mean` (mass-weighted, K), `temperature_max` (K),
 /// `isolation` = fraction of the cloud mass held by cloudy particles with fewer than
 /// [`ISOLATION_NEIGHBORS`] cloudy neighbours within their kernel radius h_i (0 when there is
 /// no cloud).
 pub fn cloud_diagnostics(state: &ParticleState, cfg: &ShotConfig) -> CloudDiagnostics {
     let n = state.len();
-    let m0 = particle_mass0(cfg);
+    // the air a particle stands for (`ShotConfig::cell_mass`), not the solver's m0
+    let m0 = cfg.cell_mass();
     let h0 = cfg.domain.kernel_radius();
-    let mass = |i: usize| m0 * (-(state.info[i][1] as f64)).exp2();
-    let radius = |i: usize| h0 * (-(state.info[i][1] as f64) / 3.0).exp2();
+    let mass = |i: usize| levels::mass(m0, state.info[i][1]);
+    let radius = |i: usize| levels::radius(h0, state.info[i][1]);
     let cloudy = |i: usize| state.thermo[i][2] as f64 > CLOUDY_THRESHOLD;
 
     let mut total_water = 0.0;
@@ -140,10 +138,10 @@ impl CloudDiagnostics {
 pub const MASS_LAYERS: usize = 10;
 
 /// Initial mass of each of [`MASS_LAYERS`] equal horizontal layers (units of m0), from the
-/// initial lattice (`sim::init::lattice`) spread as in [`spread_over_layers`]: the reference of
+/// initial lattice (`DomainConfig::lattice`) spread as in [`spread_over_layers`]: the reference of
 /// `layer_mass_ratio_*`.
 pub fn initial_layer_mass(cfg: &ShotConfig) -> Vec<f64> {
-    let (n, d) = crate::sim::init::lattice(cfg);
+    let (n, d) = cfg.domain.lattice();
     let mut out = vec![0.0; MASS_LAYERS];
     let per_row = (n[0] * n[2]) as f64;
     for j in 0..n[1] {
@@ -188,14 +186,13 @@ fn spread_over_layers(layers: &mut [f64], height: f64, y: f64, s: f64, mass: f64
 pub fn layer_mass_ratios(state: &ParticleState, cfg: &ShotConfig, initial: &[f64]) -> Vec<f64> {
     let mut layers = vec![0.0; MASS_LAYERS];
     for (p, info) in state.pos.iter().zip(&state.info) {
-        let level = info[1] as f64;
-        let spacing = cfg.domain.spacing * (-level / 3.0).exp2();
+        let spacing = levels::radius(cfg.domain.spacing, info[1]);
         spread_over_layers(
             &mut layers,
             cfg.domain.size[1],
             p[1] as f64,
             spacing,
-            (-level).exp2(),
+            levels::mass(1.0, info[1]),
         );
     }
     layers
@@ -259,7 +256,7 @@ pub fn atmosphere_diagnostics(
     let mut clamped = 0usize;
     let mut cloud_pts = Vec::new();
     for i in 0..state.len() {
-        let m = (-(state.info[i][1] as f64)).exp2();
+        let m = levels::mass(1.0, state.info[i][1]);
         let q = Vec4::from(state.pos[i]).truncate().as_dvec3();
         let th = state.thermo[i].map(|v| v as f64);
         let v = Vec4::from(state.vel[i]).truncate().as_dvec3();
@@ -312,7 +309,7 @@ pub fn atmosphere_diagnostics(
         static_energy_mean: mean(energy),
         heat_input_mean: mean(heating) * cfg.output.frame_seconds,
         water_input: (heating * heat.ground_vapor as f64 + moisture)
-            * particle_mass0(cfg)
+            * cfg.cell_mass()
             * cfg.output.frame_seconds,
         clamped_particles: clamped as u64,
     }
@@ -386,7 +383,7 @@ mod tests {
     #[test]
     fn sums_counts_and_isolation() {
         let cfg = shot();
-        let m0 = particle_mass0(&cfg);
+        let m0 = cfg.cell_mass();
         // A compact blob of 9 cloudy particles (8 neighbours each within h = 20 m), one lone
         // cloudy particle far away, one clear particle at level 1 (half mass).
         let mut pts = Vec::new();

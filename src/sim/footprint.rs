@@ -35,7 +35,7 @@ pub const MEMORY_SHARE: f64 = 0.9;
 #[derive(Debug, Clone)]
 pub struct ShotSize {
     pub particles: u64,
-    /// Slots per particle (`adaptive.capacity_factor` when adaptive, else 1).
+    /// Slots per particle (`AdaptiveConfig::slots_per_particle`).
     pub capacity_factor: f64,
     pub adaptive: bool,
     pub grid: GridParams,
@@ -60,11 +60,7 @@ impl ShotSize {
         let grid = GridParams::for_shot(cfg);
         Self {
             particles,
-            capacity_factor: if cfg.adaptive.enabled {
-                cfg.adaptive.capacity_factor.max(1.0)
-            } else {
-                1.0
-            },
+            capacity_factor: cfg.adaptive.slots_per_particle(),
             adaptive: cfg.adaptive.enabled,
             boundary: crate::sim::init::boundary_count(cfg) as u64,
             grid,

@@ -8,39 +8,7 @@
 use crate::config::ShotConfig;
 use crate::ground::ParticleState;
 use crate::sim::grid_params::GridParams;
-use crate::sim::kernels::poly6;
 use crate::sim::thermo::{environment_temperature, initial_thermo};
-use glam::DVec3;
-
-/// Particles per axis of the initial lattice and its spacing per axis: `round(size / d)` cells
-/// of edge `size / n` (= d when d divides the box, as validation asks for periodic axes).
-pub fn lattice(cfg: &ShotConfig) -> ([usize; 3], [f64; 3]) {
-    let n = cfg
-        .domain
-        .size
-        .map(|s| ((s / cfg.domain.spacing).round() as usize).max(1));
-    let d = [0, 1, 2].map(|a| cfg.domain.size[a] / n[a] as f64);
-    (n, d)
-}
-
-/// Level-0 mass m0: rho0 divided by the poly6 sum over the initial lattice, so that the lattice
-/// (and a fluid particle next to the wall particles, which continue the lattice) is exactly at
-/// rest density. With h0 = 2d this differs from rho0 d^3 by the kernel's discretisation error.
-pub fn particle_mass(cfg: &ShotConfig) -> f64 {
-    let (_, d) = lattice(cfg);
-    let h = cfg.domain.kernel_radius();
-    let r = [0, 1, 2].map(|a| (h / d[a]).ceil() as i64);
-    let mut sum = 0.0;
-    for k in -r[2]..=r[2] {
-        for j in -r[1]..=r[1] {
-            for i in -r[0]..=r[0] {
-                let x = DVec3::new(i as f64, j as f64, k as f64) * DVec3::from(d);
-                sum += poly6(x.length_squared(), h);
-            }
-        }
-    }
-    cfg.solver.rest_density / sum
-}
 
 /// splitmix64 finaliser.
 fn mix(mut z: u64) -> u64 {
@@ -59,7 +27,7 @@ pub fn hash_uniform(seed: u64, index: u64, draw: u64) -> f64 {
 /// The fluid particles: a uniform lattice filling the box, random velocity directions with speeds
 /// uniform in [0, initial_speed], T = T0(y), cloud w = 0, vapor v = kv * gamma(T), level 0, id = index.
 pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
-    let (n, d) = lattice(cfg);
+    let (n, d) = cfg.domain.lattice();
     let count = n[0] * n[1] * n[2];
     let mut s = ParticleState {
         pos: Vec::with_capacity(count),
@@ -98,13 +66,13 @@ pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
 
 /// Layers of wall particles at the floor and at the ceiling: spaced d, down to depth h0.
 fn wall_layers(cfg: &ShotConfig) -> usize {
-    let (_, d) = lattice(cfg);
+    let (_, d) = cfg.domain.lattice();
     ((cfg.domain.kernel_radius() / d[1] - 0.5).ceil() as usize).max(1)
 }
 
 /// How many wall particles [`boundary_particles`] makes (without making them).
 pub fn boundary_count(cfg: &ShotConfig) -> usize {
-    let (n, _) = lattice(cfg);
+    let (n, _) = cfg.domain.lattice();
     2 * wall_layers(cfg) * n[0] * n[2]
 }
 
@@ -113,7 +81,7 @@ pub fn boundary_count(cfg: &ShotConfig) -> usize {
 /// environment temperature of the floor (ceiling). Returned in cell order with their wall table
 /// (`build_wall_table`: the first and last y rows of cells only).
 pub fn boundary_particles(cfg: &ShotConfig, grid: &GridParams) -> (Vec<[f32; 4]>, Vec<u32>) {
-    let (n, d) = lattice(cfg);
+    let (n, d) = cfg.domain.lattice();
     let layers = wall_layers(cfg);
     let size_y = cfg.domain.size[1];
     let t_floor = environment_temperature(&cfg.physics, 0.0);

@@ -3,17 +3,8 @@
 //! shaders have their f32 twins in shaders/shared/common.wgsl.
 use crate::sim::grid_params::GridParams;
 use glam::DVec3;
-use std::f64::consts::PI;
 
-/// Poly6 kernel (Mueller et al. 2003) of radius `h` at squared distance `r2`.
-pub fn poly6(r2: f64, h: f64) -> f64 {
-    let h2 = h * h;
-    if r2 >= h2 {
-        return 0.0;
-    }
-    let d = h2 - r2;
-    315.0 / (64.0 * PI * h.powi(9)) * d * d * d
-}
+pub use crate::ground::levels::poly6;
 
 /// Minimum-image displacement; `periodic` = [x, z].
 pub fn min_image(d: impl Into<DVec3>, size: impl Into<DVec3>, periodic: [bool; 2]) -> DVec3 {

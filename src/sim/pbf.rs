@@ -6,6 +6,7 @@ use crate::gpu::buffers::ParamSlots;
 use crate::gpu::live::LiveBuffer;
 use crate::gpu::program::{entry_points, Dispatch, Program};
 use crate::gpu::Context;
+use crate::shot::Shot;
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::phase::{Phase, Recorder};
 use crate::sim::stage::{Setup, Stage, Substep};
@@ -34,21 +35,22 @@ pub struct PbfParams {
     /// The share of that correction split particles get (`solver.split_expansion_weight`).
     pub split_expansion_weight: f32,
     /// Per level l (0..8): (h_l, 315 / (64 pi h_l^9), -45 / (pi h_l^6), m_l).
-    pub levels: [[f32; 4]; crate::gpu::shaders::MAX_LEVEL as usize + 1],
+    pub levels: [[f32; 4]; crate::ground::levels::MAX_LEVEL as usize + 1],
 }
 
 impl PbfParams {
     /// The parameters at the shot's fewest substeps (`output.substeps`); [`Self::set_dt`]
-    /// changes the substep.
-    pub fn for_shot(cfg: &ShotConfig) -> Self {
+    /// changes the substep. h0, m0 and the level table are the shot's.
+    pub fn for_shot(shot: &Shot) -> Self {
+        let cfg = shot.config();
         let s = &cfg.solver;
-        let h0 = cfg.domain.kernel_radius();
-        let dt = cfg.output.frame_seconds / cfg.output.substeps as f64;
+        let h0 = shot.h0();
+        let dt = cfg.output.substep_dt(cfg.output.substeps);
         let mut p = Self {
             dt: dt as f32,
             inv_dt: (1.0 / dt) as f32,
             rest_density: s.rest_density as f32,
-            m0: crate::sim::init::particle_mass(cfg) as f32,
+            m0: shot.m0() as f32,
             h0: h0 as f32,
             eps: (s.relaxation / (h0 * h0)) as f32,
             scorr_k: s.scorr_k as f32,
@@ -62,13 +64,13 @@ impl PbfParams {
             expansion_tolerance: s.expansion_tolerance as f32,
             split_expansion_weight: s.split_expansion_weight as f32,
             levels: std::array::from_fn(|l| {
-                let h = h0 * (-(l as f64) / 3.0).exp2();
+                let h = shot.level_radius(l as u32);
                 let pi = std::f64::consts::PI;
                 [
                     h as f32,
                     (315.0 / (64.0 * pi * h.powi(9))) as f32,
                     (-45.0 / (pi * h.powi(6))) as f32,
-                    (crate::sim::init::particle_mass(cfg) * (-(l as f64)).exp2()) as f32,
+                    shot.level_mass(l as u32) as f32,
                 ]
             }),
         };
@@ -82,7 +84,7 @@ impl PbfParams {
     pub fn set_dt(&mut self, cfg: &ShotConfig, dt: f64) {
         self.dt = dt as f32;
         self.inv_dt = (1.0 / dt) as f32;
-        let share = dt / cfg.solver.reference_step;
+        let share = cfg.solver.step_share(dt);
         self.xsph = crate::sim::smoothing::rate_share(cfg.solver.xsph, share) as f32;
         // s_corr acts in every iteration of every substep, and its pushes add up like a
         // stiffness: at 4x the substeps the same k held a heated layer in place (docs/PHYSICS.md
@@ -191,7 +193,7 @@ impl PbfStage {
 
 impl Stage for PbfStage {
     fn from_setup(setup: &Setup) -> Result<Self> {
-        let params = PbfParams::for_shot(setup.shot.config());
+        let params = PbfParams::for_shot(setup.shot);
         Self::new(setup.ctx, &params, setup.buffers)
     }
 

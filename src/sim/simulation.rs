@@ -105,7 +105,7 @@ impl Simulation {
         let mut grid = GridParams::for_shot(cfg);
         let boundary = crate::sim::init::boundary_particles(cfg, &grid);
         grid.n_boundary = boundary.0.len() as u32;
-        let params = PbfParams::for_shot(cfg);
+        let params = PbfParams::for_shot(shot);
         let b = ParticleBuffers::new(&ctx, state, capacity, &grid, &boundary, clock.next_id)?;
         let mut s = Stages::new(&Setup {
             ctx: &ctx,
@@ -230,7 +230,7 @@ impl Simulation {
         let waits_before = ctx.waits();
         let mut report = FrameReport::default();
         let substeps = self.substeps_for_next_frame();
-        let dt = self.cfg.output.frame_seconds / substeps as f64;
+        let dt = self.cfg.output.substep_dt(substeps);
         self.iterations = iterations_per_substep(&self.cfg, dt);
         if self.params.dt != dt as f32 {
             self.params.set_dt(&self.cfg, dt);
@@ -462,7 +462,7 @@ struct StateParts {
 /// buoyant motion, so a fixed count per substep made more substeps a stiffer, slower air
 /// (quickstart at 8 substeps x 8 iterations: 17 t of cloud at frame 48 against 96 t at 2).
 pub fn iterations_per_substep(cfg: &ShotConfig, dt: f64) -> u32 {
-    let share = (dt / cfg.solver.reference_step).min(1.0);
+    let share = cfg.solver.step_share(dt).min(1.0);
     ((cfg.solver.iterations as f64 * share).round() as u32).max(1)
 }
 
@@ -473,7 +473,7 @@ pub fn speed_ratio(vel: &[[f32; 4]], info: &[[u32; 2]], h0: f64) -> f64 {
         .zip(info)
         .map(|(v, i)| {
             let s = (v[0] as f64).hypot(v[1] as f64).hypot(v[2] as f64);
-            s / (h0 * (-(i[1] as f64) / 3.0).exp2())
+            s / crate::ground::levels::radius(h0, i[1])
         })
         .fold(0.0, f64::max)
 }

@@ -64,7 +64,7 @@ impl SmoothParams {
     /// substeps as at 8 (docs/PHYSICS.md "Substeps").
     pub fn new(cfg: &ShotConfig, dt: f64) -> Self {
         let s = &cfg.physics.smoothing;
-        let iterations = s.iterations.max(1) as f64;
+        let iterations = s.iterations as f64;
         let share = dt / (cfg.solver.reference_step * iterations);
         Self {
             _pad0: 0,

@@ -30,7 +30,7 @@ use crate::gpu::buffers::ParamSlots;
 use crate::gpu::live::LiveBuffer;
 use crate::gpu::program::{entry_points, Dispatch, Program};
 use crate::gpu::Context;
-use crate::ground::noise;
+use crate::ground::{levels, noise};
 use crate::sim::buffers::ParticleBuffers;
 use crate::sim::phase::{Phase, Recorder};
 use crate::sim::stage::{Setup, Stage, Substep};
@@ -125,10 +125,10 @@ pub struct ThermoParams {
     pub control_pull: [f32; 4],
 }
 
+/// Most layers of the horizontal-mean buoyancy profile (`ground::limits`).
+pub use crate::ground::limits::MAX_LAYERS;
 pub use crate::sim::sources::{HeatMaps, SourceGpu, MAX_SOURCES};
 pub use crate::sim::wind::MAX_WIND_LEVELS;
-/// Most layers of the horizontal-mean buoyancy profile.
-pub const MAX_LAYERS: usize = 32;
 
 impl ThermoParams {
     /// Parameters of one substep of length `dt` (s) starting at simulated time `time` (s).
@@ -245,7 +245,7 @@ impl LayerBuoyancy {
             let th = state.thermo[i];
             let t0 = environment_temperature(p, y);
             let force = p.buoyancy * (th[0] as f64 - t0) / t0 - p.cloud_weight * th[2] as f64;
-            let m = (-(state.info[i][1].min(crate::gpu::shaders::MAX_LEVEL) as f64)).exp2();
+            let m = levels::mass(1.0, state.info[i][1].min(levels::MAX_LEVEL));
             let (k0, k1, f) = layer_weights(y, layer_height, n);
             for (k, w) in [(k0, 1.0 - f), (k1, f)] {
                 sum[k] += w * m * force;

@@ -30,7 +30,7 @@ pub use detail::{DetailParams, RestInput};
 
 use crate::config::{Axis, ShotConfig};
 use crate::error::{Error, Result};
-use crate::ground::ParticleState;
+use crate::ground::{levels, ParticleState};
 use rayon::prelude::*;
 
 /// Which grids to produce.
@@ -97,13 +97,14 @@ impl SplatParams {
         }
     }
 
-    /// Parameters of a shot: m0 = rho0 d^3, h0 = kernel_ratio * d (as the simulation sets them).
+    /// Parameters of a shot: h0 = kernel_ratio * d, and m0 the lattice cell's mass rho0 d^3
+    /// (`ShotConfig::cell_mass`), so that V = m / rho is a particle's share of the box, d^3 at
+    /// rest.
     pub fn from_config(cfg: &ShotConfig) -> Result<Self> {
-        let d = cfg.domain.spacing;
         let p = Self {
             transform: Self::domain_transform(cfg.export.voxel_size),
-            h0: cfg.domain.kernel_ratio * d,
-            m0: cfg.solver.rest_density * d * d * d,
+            h0: cfg.domain.kernel_radius(),
+            m0: cfg.cell_mass(),
             rest_density: cfg.solver.rest_density,
             domain_size: cfg.domain.size,
             periodic: [
@@ -343,8 +344,8 @@ pub fn splat_with_rest(
                 // No simulation splits that deep; h^9 would underflow.
                 return Vec::new();
             }
-            let h = params.h0 * (-level / 3.0).exp2();
-            let m = params.m0 * (-level).exp2();
+            let h = levels::radius(params.h0, state.info[j][1]);
+            let m = levels::mass(params.m0, state.info[j][1]);
             let rho = (state.density[j] as f64).max(rho_min);
             let rho = if rho.is_finite() { rho } else { rho_min };
             let vol = m / rho;

@@ -14,7 +14,7 @@
 //! particles of a cell in index order, whatever the number of threads.
 use super::detail::RestInput;
 use super::{SplatParams, MIN_DENSITY_RATIO};
-use crate::ground::ParticleState;
+use crate::ground::{levels, ParticleState};
 use rayon::prelude::*;
 use std::collections::HashMap;
 
@@ -50,10 +50,10 @@ pub fn smoothed_displacements(
             if !x.iter().all(|v| v.is_finite()) || level > 60.0 {
                 return None;
             }
-            let r = params.h0 * (-level / 3.0).exp2() * s;
+            let r = levels::radius(params.h0, state.info[j][1]) * s;
             let rho = (state.density[j] as f64).max(rho_min);
             let rho = if rho.is_finite() { rho } else { rho_min };
-            let vol = params.m0 * (-level).exp2() / rho;
+            let vol = levels::mass(params.m0, state.info[j][1]) / rho;
             let q = rest.rest[j];
             Some(Particle {
                 x: [0, 1, 2].map(|a| wrap(x[a], a, &codec)),

@@ -93,7 +93,7 @@ fn profile_at(levels: &[ForcingLevel], y: f64, field: fn(&ForcingLevel) -> f64) 
 
 /// Mass of particle i relative to m0 (2^-level).
 fn relative_mass(state: &ParticleState, i: usize) -> f64 {
-    (-(state.info[i][1].min(crate::gpu::shaders::MAX_LEVEL) as f64)).exp2()
+    (-(state.info[i][1].min(crate::ground::levels::MAX_LEVEL) as f64)).exp2()
 }
 
 impl ForcingTable {
@@ -233,7 +233,7 @@ pub fn stage(setup: &Setup) -> Result<Option<Box<dyn Stage>>> {
 
 impl ForcingStage {
     fn m0(&self) -> f64 {
-        crate::sim::diagnostics::particle_mass0(&self.cfg)
+        self.cfg.cell_mass()
     }
 
     /// Records the pass with explicit parameters (the tests share them with the mirror).
@@ -398,7 +398,7 @@ mod tests {
             .collect();
         let s = state(&pts);
         let t = ForcingTable::of_state(&c, f, &s);
-        let m0 = crate::sim::diagnostics::particle_mass0(&c);
+        let m0 = c.cell_mass();
         let seconds = 60.0;
         let [heat, water] = frame_input(&t.params(seconds), &s, m0);
         let area = 100.0 * 100.0;
@@ -423,7 +423,7 @@ mod tests {
         let f = c.physics.forcing.as_ref().unwrap();
         let s = state(&[(500.0, [290.0, 1.0e-4, 0.0])]);
         let p = ForcingTable::of_state(&c, f, &s).params(60.0);
-        let m0 = crate::sim::diagnostics::particle_mass0(&c);
+        let m0 = c.cell_mass();
         let [_, water] = frame_input(&p, &s, m0);
         assert!((water + m0 * 1.0e-4).abs() < 1e-9 * m0, "{water}");
     }

@@ -1,7 +1,8 @@
 //! f64 mirror of shaders/adaptive_split.wgsl (`adaptive_split`), with its count per level.
 use super::adaptive::{Counters, RefParticles};
 use super::common::children;
-use crate::sim::adaptive::{AdaptiveParams, FLAG_SPLIT, MAX_LEVELS};
+use crate::ground::levels::MAX_LEVEL;
+use crate::sim::adaptive::{AdaptiveParams, FLAG_SPLIT};
 use crate::sim::grid_params::GridParams;
 
 /// Splits the marked particles below `newcount` whose rank fits the free capacity, and counts
@@ -14,7 +15,7 @@ pub fn adaptive_split(
     flags: &[u32],
     p: &mut RefParticles,
 ) {
-    let bin = |level: u32| level.min(MAX_LEVELS - 1) as usize;
+    let bin = |level: u32| level.min(MAX_LEVEL) as usize;
     for i in 0..c.newcount as usize {
         if flags[i] & FLAG_SPLIT == 0 || scan[i] >= c.splits {
             c.levels[bin(p.info[i][1])] += 1;

@@ -1,7 +1,8 @@
 //! f64 mirror of shaders/adaptive_stats.wgsl (`totals_merge`, `totals_split`):
 //! the counters after the scans (adaptive_split counts the particles per level).
 use super::adaptive::Counters;
-use crate::sim::adaptive::{AdaptiveParams, FLAG_DEAD, FLAG_SPLIT, MAX_LEVELS};
+use crate::ground::levels::MAX_LEVEL;
+use crate::sim::adaptive::{AdaptiveParams, FLAG_DEAD, FLAG_SPLIT};
 
 /// Total of an exclusive scan over the first n flags for the given bit.
 fn scan_total(scan: &[u32], flags: &[u32], n: usize, bit: u32) -> u32 {
@@ -26,5 +27,5 @@ pub fn totals_split(prm: &AdaptiveParams, scan: &[u32], flags: &[u32], c: &mut C
     c.skipped = wanted - done;
     c.final_count = c.newcount + done;
     c.next_id = prm.next_id + done;
-    c.levels = vec![0; MAX_LEVELS as usize];
+    c.levels = vec![0; MAX_LEVEL as usize + 1];
 }
