@@ -29,6 +29,7 @@ use crate::ground::rest::{RestCodec, RestFrame};
 use crate::ground::ParticleState;
 use crate::ground::SparseGrid;
 use crate::pipeline::records::Manifest;
+use crate::pipeline::run_dir::RunDir;
 use crate::pipeline::writer::{FrameJob, FrameWriter};
 use crate::splat::detail::{DetailNoise, EdgeSums, NoiseSpace};
 use crate::splat::{splat_with_rest, RestInput, SplatFields, SplatParams};
@@ -62,10 +63,10 @@ pub fn bench_detail(
 ) -> Result<serde_json::Value> {
     let (frames, voxel) = (opts.frames, opts.voxel);
     crate::pipeline::reexport::check_sets(sets)?;
-    let manifest = Manifest::load(run_dir)?;
+    let manifest = Manifest::load(&RunDir::new(run_dir))?;
     let text =
         serde_json::to_string(&manifest.config).map_err(|e| Error::Runtime(e.to_string()))?;
-    let mut cfg: ShotConfig = crate::shot::load_str(&text, "manifest.json", sets)?.into_config();
+    let mut cfg: ShotConfig = crate::shot::load_str(&text, RunDir::MANIFEST, sets)?.into_config();
     if !cfg.export.particles || !cfg.export.tracks_rest() {
         return Err(Error::InvalidInput(format!(
             "{}: needs a run with export.particles and export.detail.enabled (or export.grids.rest): its caches hold the rest positions",
@@ -141,15 +142,14 @@ pub fn bench_detail(
     wcfg.export.exr.enabled = false;
     wcfg.output.preview.enabled = false;
     wcfg.export.particles = false;
-    for d in crate::pipeline::naming::DIRS {
-        std::fs::create_dir_all(scratch.join(d)).map_err(|e| Error::io(scratch.join(d), e))?;
-    }
+    let scratch_run = RunDir::new(&scratch);
+    scratch_run.create_dirs(true)?;
     // previews are off: no source overlay, so no heat maps
-    let writer = FrameWriter::new(&wcfg, &[], &scratch)?;
+    let writer = FrameWriter::new(&wcfg, &[], &scratch_run)?;
     let mut plain_cfg = wcfg.clone();
     plain_cfg.export.detail.enabled = false;
     plain_cfg.export.grids.rest = String::new();
-    let plain_writer = FrameWriter::new(&plain_cfg, &[], &scratch)?;
+    let plain_writer = FrameWriter::new(&plain_cfg, &[], &scratch_run)?;
 
     let sim_ms = sim_ms_per_frame(run_dir);
     let mut rows = Vec::new();
@@ -365,7 +365,7 @@ pub fn bench_detail(
 /// Mean simulation milliseconds per frame from the run's stats.jsonl (the GPU phases: every
 /// phase but the writer's).
 fn sim_ms_per_frame(run_dir: &Path) -> Option<f64> {
-    let text = std::fs::read_to_string(run_dir.join("stats.jsonl")).ok()?;
+    let text = std::fs::read_to_string(RunDir::new(run_dir).stats()).ok()?;
     let writer = [
         "splat",
         "write_exr",

@@ -5,9 +5,9 @@
 //! and it is the file the run wrote, else from the frame's checkpoint; a frame with neither is
 //! skipped with a note, and a run with none at all is an input error before anything is
 //! written.
-use super::naming::frame_file;
 use super::records::Manifest;
 use super::rerender::{check_recorded, remove_if_present};
+use super::run_dir::{FrameFile, RunDir};
 use crate::config::ShotConfig;
 use crate::error::{Error, Result};
 use crate::ground::ParticleState;
@@ -27,16 +27,17 @@ enum Source {
 /// Renders the view of every frame that has particles into `dir` and its contact sheet;
 /// returns the number of frames rendered.
 pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
-    let manifest = Manifest::load(run_dir)?;
+    let run = RunDir::new(run_dir);
+    let manifest = Manifest::load(&run)?;
     let params = crate::preview::PreviewParams::for_shot(cfg)?;
     let pad = cfg.output.frame_padding;
     let checkpoints: BTreeMap<u32, PathBuf> =
-        crate::io::checkpoint::list_checkpoints(&run_dir.join("checkpoints"))?
+        crate::io::checkpoint::list_checkpoints(&run.checkpoints())?
             .into_iter()
             .collect();
     let mut plan: Vec<(u32, Option<Source>)> = Vec::new();
     for rec in &manifest.frames {
-        let ply = frame_file(run_dir, "particles", &cfg.shot, rec.frame, pad, "ply");
+        let ply = run.frame_file(FrameFile::Particles, &cfg.shot, rec.frame, pad);
         let source = if check_recorded(run_dir, rec, &ply).is_ok() {
             Some(Source::Cache(ply))
         } else {
@@ -93,6 +94,6 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
             super::naming::frame_ranges(&skipped)
         );
     }
-    crate::preview::sheet::write_contact_sheet_in(dir, &pngs)?;
+    crate::preview::sheet::write_contact_sheet(&RunDir::contact_sheet_in(dir), &pngs)?;
     Ok(pngs.len())
 }

@@ -1,15 +1,13 @@
 //! Run records: `manifest.json` (the farm's hand-off) and `stats.jsonl` (one line per frame).
 //! Both are rewritten whole and atomically after every frame, so a reader (or a resume after a
 //! crash) never sees half a record.
+use super::run_dir::RunDir;
 use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-
-pub const MANIFEST: &str = "manifest.json";
-pub const STATS: &str = "stats.jsonl";
 
 /// One output file of a frame, path relative to the run directory.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -66,8 +64,8 @@ pub struct Manifest {
 }
 
 impl Manifest {
-    pub fn load(run_dir: &Path) -> Result<Self> {
-        let path = run_dir.join(MANIFEST);
+    pub fn load(run_dir: &RunDir) -> Result<Self> {
+        let path = run_dir.manifest();
         let text = std::fs::read_to_string(&path)
             .map_err(|e| Error::InvalidInput(format!("{}: {e}", path.display())))?;
         serde_json::from_str(&text).map_err(|e| {
@@ -75,11 +73,11 @@ impl Manifest {
         })
     }
 
-    pub fn save(&self, run_dir: &Path) -> Result<()> {
+    pub fn save(&self, run_dir: &RunDir) -> Result<()> {
         let mut text =
             serde_json::to_string_pretty(self).map_err(|e| Error::Runtime(e.to_string()))?;
         text.push('\n');
-        write_atomic(&run_dir.join(MANIFEST), text.as_bytes())
+        write_atomic(&run_dir.manifest(), text.as_bytes())
     }
 
     /// Records a frame's files, replacing an earlier record of the same frame; frames stay sorted.
@@ -137,8 +135,8 @@ pub struct StatsLog {
 
 impl StatsLog {
     /// Loads the lines of frames before `before_frame` (a resume drops what comes after).
-    pub fn load_until(run_dir: &Path, before_frame: u32) -> Result<Self> {
-        let path = run_dir.join(STATS);
+    pub fn load_until(run_dir: &RunDir, before_frame: u32) -> Result<Self> {
+        let path = run_dir.stats();
         let text = match std::fs::read_to_string(&path) {
             Ok(t) => t,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Self::default()),
@@ -160,13 +158,13 @@ impl StatsLog {
         self.lines.push(s);
     }
 
-    pub fn save(&self, run_dir: &Path) -> Result<()> {
+    pub fn save(&self, run_dir: &RunDir) -> Result<()> {
         let mut text = String::new();
         for l in &self.lines {
             text += &serde_json::to_string(l).map_err(|e| Error::Runtime(e.to_string()))?;
             text.push('\n');
         }
-        write_atomic(&run_dir.join(STATS), text.as_bytes())
+        write_atomic(&run_dir.stats(), text.as_bytes())
     }
 
     pub fn lines(&self) -> &[FrameStats] {
@@ -258,8 +256,9 @@ mod tests {
                 diagnostics: Default::default(),
             });
         }
-        log.save(dir.path()).unwrap();
-        let back = StatsLog::load_until(dir.path(), 4).unwrap();
+        let run = RunDir::new(dir.path());
+        log.save(&run).unwrap();
+        let back = StatsLog::load_until(&run, 4).unwrap();
         assert_eq!(
             back.lines().iter().map(|l| l.frame).collect::<Vec<_>>(),
             [1, 2, 3]

@@ -4,8 +4,9 @@
 //! a library caller gets the same refusals as the command line.
 use super::lock::{Create, RunLock};
 use super::progress::LogFormat;
-use super::records::{Manifest, MANIFEST};
+use super::records::Manifest;
 use super::run::{run, RunOptions, Start};
+use super::run_dir::RunDir;
 use crate::config::{self, ShotConfig};
 use crate::error::{Error, Result};
 use crate::io::checkpoint::{self, Checkpoint, ResumeScan, SkipReason};
@@ -39,16 +40,17 @@ fn resume_options(out_dir: &Path, log: LogFormat) -> RunOptions {
 /// The shot of the resolved config a run recorded in its manifest, with overrides applied
 /// (JSON is YAML).
 pub fn shot_of_run(out_dir: &Path, set: &[String]) -> Result<Shot> {
-    let manifest = Manifest::load(out_dir)?;
+    let run = RunDir::new(out_dir);
+    let manifest = Manifest::load(&run)?;
     let text = serde_json::to_string_pretty(&manifest.config)
         .map_err(|e| Error::Runtime(e.to_string()))?;
-    let origin = out_dir.join(MANIFEST);
+    let origin = run.manifest();
     crate::shot::load_str(&text, &origin.to_string_lossy(), set)
 }
 
 /// The run's shot: its manifest's config, or its newest checkpoint's when the manifest is lost.
 pub fn recorded_shot(out_dir: &Path) -> Result<Shot> {
-    if out_dir.join(MANIFEST).exists() {
+    if RunDir::new(out_dir).manifest().exists() {
         shot_of_run(out_dir, &[])
     } else {
         shot_of_checkpoints(out_dir)
@@ -58,7 +60,8 @@ pub fn recorded_shot(out_dir: &Path) -> Result<Shot> {
 /// The shot of the config recorded in the newest valid checkpoint (a run whose manifest.json
 /// was lost).
 fn shot_of_checkpoints(out_dir: &Path) -> Result<Shot> {
-    let Some((path, cfg)) = checkpoint::newest_config(&out_dir.join("checkpoints"))? else {
+    let run = RunDir::new(out_dir);
+    let Some((path, cfg)) = checkpoint::newest_config(&run.checkpoints())? else {
         return Err(Error::InvalidInput(format!(
             "{}: not a nimbus run directory: no manifest.json, and no checkpoint that records its config",
             out_dir.display()
@@ -69,7 +72,7 @@ fn shot_of_checkpoints(out_dir: &Path) -> Result<Shot> {
     let shot = crate::shot::load_str(&text, &path.to_string_lossy(), &[])?;
     eprintln!(
         "note: {} is missing; resuming with the config recorded in {}",
-        out_dir.join(MANIFEST).display(),
+        run.manifest().display(),
         path.display()
     );
     Ok(shot)
@@ -209,7 +212,7 @@ mod tests {
             state: Default::default(),
             extra: [(CONFIG_SECTION.into(), serde_json::to_vec(cfg).unwrap())].into(),
         };
-        write_checkpoint(&dir.path().join("checkpoints"), &ck).unwrap();
+        write_checkpoint(&RunDir::new(dir.path()).checkpoints(), &ck).unwrap();
         dir
     }
 

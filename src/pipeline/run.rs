@@ -2,9 +2,10 @@
 //! (a bounded queue of one frame keeps memory bounded). Checkpoints are written after the writer
 //! has caught up, so every frame up to a checkpoint is on disk before the checkpoint exists.
 use super::lock::{Create, RunLock};
-use super::naming::{self, resume_command};
+use super::naming::resume_command;
 use super::progress::{LogFormat, Progress};
 use super::records::{FrameStats, Manifest, StatsLog};
+use super::run_dir::RunDir;
 use super::writer::{FrameJob, FrameWriter, WrittenFrame};
 use crate::config::{self, ShotConfig};
 use crate::error::{Error, Result};
@@ -76,12 +77,11 @@ pub fn run(shot: &Shot, opts: &RunOptions, lock: &RunLock) -> Result<()> {
             crate::io::atomic::remove_temp_files(run_dir)?;
         }
     }
-    for d in naming::DIRS {
-        std::fs::create_dir_all(run_dir.join(d)).map_err(|e| Error::io(run_dir.join(d), e))?;
-    }
+    let run = RunDir::new(run_dir);
+    run.create_dirs(true)?;
     let interrupted = install_signal_handlers()?;
     let sim_hash = config::sim_hash(cfg);
-    let ckpt_dir = run_dir.join("checkpoints");
+    let ckpt_dir = run.checkpoints();
 
     // What to resume from, decided before the GPU is opened (bad input fails fast).
     let resumed = match opts.start {
@@ -174,8 +174,8 @@ pub fn run(shot: &Shot, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     );
     let h0 = cfg.domain.kernel_radius();
 
-    let writer = FrameWriter::new(cfg, shot.heat_maps(), run_dir)?;
-    let mut manifest = match (&resumed, Manifest::load(run_dir)) {
+    let writer = FrameWriter::new(cfg, shot.heat_maps(), &run)?;
+    let mut manifest = match (&resumed, Manifest::load(&run)) {
         (Some(_), Ok(m)) => m,
         (Some(_), Err(_)) => {
             // Resuming without a manifest: rebuild it from the frame files on disk.
@@ -183,7 +183,7 @@ pub fn run(shot: &Shot, opts: &RunOptions, lock: &RunLock) -> Result<()> {
             let rebuilt = writer.records_on_disk(cfg.output.frames.start, first_frame)?;
             eprintln!(
                 "note: {} rebuilt from the files on disk ({} frames found)",
-                run_dir.join(super::records::MANIFEST).display(),
+                run.manifest().display(),
                 rebuilt.len()
             );
             for rec in rebuilt {
@@ -199,13 +199,13 @@ pub fn run(shot: &Shot, opts: &RunOptions, lock: &RunLock) -> Result<()> {
     manifest.frame_end = cfg.output.frames.end;
     manifest.complete = false;
     let stats = match resumed {
-        Some(_) => StatsLog::load_until(run_dir, first_frame)?,
+        Some(_) => StatsLog::load_until(&run, first_frame)?,
         None => StatsLog::default(),
     };
     // A resumed run's layer holds what the manifest records (a lost or stale one is re-made).
     let layer = super::usd_layer::LayerWriter::new(cfg);
     layer.update(run_dir, &mut manifest)?;
-    manifest.save(run_dir)?;
+    manifest.save(&run)?;
 
     let end = cfg.output.frames.end;
     let progress = Progress::new(opts.log, cfg.output.frames.start, end, first_frame);
@@ -354,13 +354,13 @@ pub fn run(shot: &Shot, opts: &RunOptions, lock: &RunLock) -> Result<()> {
                 },
             )?;
             loop_state.in_flight += 1;
-            loop_state.collect(&done_rx, run_dir, &progress, false)?;
+            loop_state.collect(&done_rx, &run, &progress, false)?;
 
             let stop = interrupted.load(Ordering::SeqCst);
             let due = cfg.checkpoint.every > 0
                 && (frame - cfg.output.frames.start + 1).is_multiple_of(cfg.checkpoint.every);
             if due || stop || frame == end {
-                loop_state.collect(&done_rx, run_dir, &progress, true)?;
+                loop_state.collect(&done_rx, &run, &progress, true)?;
                 let path = write_checkpoint(
                     cfg,
                     &ckpt_dir,
@@ -384,14 +384,14 @@ pub fn run(shot: &Shot, opts: &RunOptions, lock: &RunLock) -> Result<()> {
         Ok(())
     })();
     drop(job_tx);
-    let drained = loop_state.collect(&done_rx, run_dir, &progress, true);
+    let drained = loop_state.collect(&done_rx, &run, &progress, true);
     let _ = worker.join();
     progress.finish();
     result?;
     drained?;
     loop_state.manifest.complete = true;
     loop_state.layer.update(run_dir, &mut loop_state.manifest)?;
-    loop_state.manifest.save(run_dir)?;
+    loop_state.manifest.save(&run)?;
     writer.finish_run(&loop_state.manifest)?;
     progress.note(
         "done",
@@ -419,7 +419,7 @@ impl LoopState {
     fn collect(
         &mut self,
         rx: &Receiver<Result<WrittenFrame>>,
-        run_dir: &Path,
+        run_dir: &RunDir,
         progress: &Progress,
         wait: bool,
     ) -> Result<()> {
@@ -444,7 +444,7 @@ impl LoopState {
                 s.phase_ms.extend(done.phase_ms);
                 self.stats.push(s);
             }
-            self.layer.update(run_dir, &mut self.manifest)?;
+            self.layer.update(run_dir.root(), &mut self.manifest)?;
             self.manifest.save(run_dir)?;
             self.stats.save(run_dir)?;
             progress.frame_done(done.frame, done.particles, done.wall_ms);

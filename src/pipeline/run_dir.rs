@@ -1,4 +1,5 @@
-//! What a run directory holds, and preparing one for a fresh `run` without losing work.
+//! The run directory: [`RunDir`] names every path in it (README "A run directory"), and the
+//! survey of what it holds prepares it for a fresh `run` without losing work.
 //!
 //! nimbus's own files in a run directory are: `.lock`; `manifest.json` when it parses as a
 //! nimbus manifest; then, by that manifest, every file it lists, every frame file named by its
@@ -14,14 +15,172 @@
 //! A fresh `run` into a directory holding a run is refused (resume it, or `--force`); with
 //! `--force` only nimbus's own files are removed. A directory holding any foreign file is
 //! refused with or without `--force`: nothing nimbus did not write is ever deleted.
-use super::lock::LOCK_FILE;
+use super::lock;
 use super::naming::resume_command;
-use super::records::{FrameStats, Manifest, MANIFEST, STATS};
+use super::records::{FrameStats, Manifest};
 use crate::error::{Error, Result};
 use crate::io::atomic::TMP_SUFFIX;
 use crate::io::checkpoint;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
+
+/// A run directory (or an export directory, `exports/<name>/`, which has the same layout
+/// without checkpoints): the one place its file and folder names are written.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RunDir {
+    root: PathBuf,
+}
+
+/// The kinds of per-frame file: `<folder>/<shot>.<frame, zero-padded>.<ext>`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameFile {
+    Vdb,
+    NanoVdb,
+    Exr,
+    PreviewPng,
+    PreviewExr,
+    Particles,
+}
+
+impl FrameFile {
+    pub const ALL: [FrameFile; 6] = [
+        FrameFile::Vdb,
+        FrameFile::NanoVdb,
+        FrameFile::Exr,
+        FrameFile::PreviewPng,
+        FrameFile::PreviewExr,
+        FrameFile::Particles,
+    ];
+
+    /// The folder under the run directory.
+    pub fn folder(self) -> &'static str {
+        match self {
+            FrameFile::Vdb => "vdb",
+            FrameFile::NanoVdb => "nvdb",
+            FrameFile::Exr => "exr",
+            FrameFile::PreviewPng | FrameFile::PreviewExr => RunDir::PREVIEW,
+            FrameFile::Particles => "particles",
+        }
+    }
+
+    pub fn ext(self) -> &'static str {
+        match self {
+            FrameFile::Vdb => "vdb",
+            FrameFile::NanoVdb => "nvdb",
+            FrameFile::Exr | FrameFile::PreviewExr => "exr",
+            FrameFile::PreviewPng => "png",
+            FrameFile::Particles => "ply",
+        }
+    }
+}
+
+impl RunDir {
+    /// The lock file (`super::lock`).
+    pub const LOCK: &'static str = ".lock";
+    /// The run's record for the farm (`super::records::Manifest`).
+    pub const MANIFEST: &'static str = "manifest.json";
+    /// One line of stats per written frame (`super::records::StatsLog`).
+    pub const STATS: &'static str = "stats.jsonl";
+    const CHECKPOINTS: &'static str = "checkpoints";
+    const PREVIEW: &'static str = "preview";
+    const EXPORTS: &'static str = "exports";
+    const CONTACT_SHEET: &'static str = "contact_sheet.png";
+    /// The farm's Blender renders (`nimbus farm --render`), written by its job scripts, not by
+    /// nimbus: foreign to the survey.
+    pub const RENDER: &'static str = "render";
+    /// The folders made before the first frame: the frame folders written from the writer's
+    /// first frame on (the particle and NanoVDB folders are made when first written), then
+    /// the checkpoints'.
+    const FRAME_DIRS: [&'static str; 3] = ["vdb", "exr", Self::PREVIEW];
+
+    pub fn new(root: impl Into<PathBuf>) -> Self {
+        Self { root: root.into() }
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    pub fn lock_file(&self) -> PathBuf {
+        self.root.join(Self::LOCK)
+    }
+
+    pub fn manifest(&self) -> PathBuf {
+        self.root.join(Self::MANIFEST)
+    }
+
+    pub fn stats(&self) -> PathBuf {
+        self.root.join(Self::STATS)
+    }
+
+    pub fn checkpoints(&self) -> PathBuf {
+        self.root.join(Self::CHECKPOINTS)
+    }
+
+    pub fn preview(&self) -> PathBuf {
+        self.root.join(Self::PREVIEW)
+    }
+
+    /// `preview/<folder>/`, the images of a debug view of `nimbus preview --view`.
+    pub fn preview_view(&self, folder: &str) -> PathBuf {
+        self.preview().join(folder)
+    }
+
+    /// The contact sheet of the previews in `dir` (`preview/` or a view's folder).
+    pub fn contact_sheet_in(dir: &Path) -> PathBuf {
+        dir.join(Self::CONTACT_SHEET)
+    }
+
+    /// `preview/contact_sheet.png`.
+    pub fn contact_sheet(&self) -> PathBuf {
+        Self::contact_sheet_in(&self.preview())
+    }
+
+    /// `preview/<shot>.mp4`, the dailies (`output.preview.movie`).
+    pub fn movie(&self, shot: &str) -> PathBuf {
+        self.preview().join(format!("{shot}.mp4"))
+    }
+
+    /// `exports/<name>/`, a `nimbus export` directory.
+    pub fn export_dir(&self, name: &str) -> RunDir {
+        RunDir::new(self.root.join(Self::EXPORTS).join(name))
+    }
+
+    /// `<folder>/<shot>.<frame, zero-padded>.<ext>`
+    pub fn frame_file(&self, kind: FrameFile, shot: &str, frame: u32, padding: u32) -> PathBuf {
+        self.root.join(kind.folder()).join(format!(
+            "{shot}.{frame:0width$}.{ext}",
+            width = padding as usize,
+            ext = kind.ext()
+        ))
+    }
+
+    /// The frames of `kind` as an ffmpeg input pattern (`<shot>.%0<padding>d.<ext>`).
+    pub fn frame_pattern(&self, kind: FrameFile, shot: &str, padding: u32) -> PathBuf {
+        self.root
+            .join(kind.folder())
+            .join(format!("{shot}.%0{}d.{}", padding.max(1), kind.ext()))
+    }
+
+    /// `render/<shot>.<frame, zero-padded>.png`, a farm render of a frame.
+    pub fn render_frame(&self, shot: &str, frame: u32, padding: u32) -> PathBuf {
+        self.root.join(Self::RENDER).join(format!(
+            "{shot}.{frame:0width$}.png",
+            width = padding as usize
+        ))
+    }
+
+    /// Makes the folders of the frame files (`vdb`, `exr`, `preview`) and, with `checkpoints`,
+    /// `checkpoints` (an export directory has none).
+    pub fn create_dirs(&self, checkpoints: bool) -> Result<()> {
+        let extra = checkpoints.then_some(Self::CHECKPOINTS);
+        for d in Self::FRAME_DIRS.into_iter().chain(extra) {
+            let p = self.root.join(d);
+            std::fs::create_dir_all(&p).map_err(|e| Error::io(&p, e))?;
+        }
+        Ok(())
+    }
+}
 
 /// The files of a run directory, sorted into nimbus's own and foreign ones (paths relative to
 /// the directory, `/`-separated).
@@ -40,22 +199,23 @@ impl Contents {
     pub fn holds_run(&self) -> bool {
         self.manifest.is_some()
             || !self.checkpoints.is_empty()
-            || self.own.iter().any(|p| p == STATS)
+            || self.own.iter().any(|p| p == RunDir::STATS)
     }
 }
 
 /// Sorts every file under `dir` (symlinks are not followed, and are foreign).
 pub fn survey(dir: &Path) -> Result<Contents> {
     let files = walk(dir)?;
+    let run = RunDir::new(dir);
     let mut c = Contents {
-        manifest: Manifest::load(dir).ok().filter(|m| m.tool == "nimbus"),
+        manifest: Manifest::load(&run).ok().filter(|m| m.tool == "nimbus"),
         ..Default::default()
     };
     // The shot whose frame files are nimbus's: the manifest's, or (manifest lost) the one the
     // newest checkpoint records.
     let shot = match &c.manifest {
         Some(m) => Some(m.shot.clone()),
-        None => checkpoint::newest_config(&dir.join("checkpoints"))?.map(|(_, cfg)| cfg.shot),
+        None => checkpoint::newest_config(&run.checkpoints())?.map(|(_, cfg)| cfg.shot),
     };
     let listed: BTreeSet<&str> = c
         .manifest
@@ -66,7 +226,7 @@ pub fn survey(dir: &Path) -> Result<Contents> {
     // `nimbus export` directories (`exports/<name>/`) are surveyed the same way, by their own
     // manifests.
     let mut exported: BTreeSet<String> = BTreeSet::new();
-    if let Ok(entries) = std::fs::read_dir(dir.join("exports")) {
+    if let Ok(entries) = std::fs::read_dir(dir.join(RunDir::EXPORTS)) {
         for e in entries.flatten() {
             let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
             if let (true, Some(name)) = (is_dir, e.file_name().to_str()) {
@@ -81,13 +241,13 @@ pub fn survey(dir: &Path) -> Result<Contents> {
     for (rel, is_file) in files {
         let mine = is_file
             && (exported.contains(&rel)
-                || rel == LOCK_FILE
+                || rel == RunDir::LOCK
                 || rel.ends_with(TMP_SUFFIX)
-                || (rel == MANIFEST && c.manifest.is_some())
-                || (rel == STATS && (c.manifest.is_some() || stats_only(&dir.join(&rel))))
+                || (rel == RunDir::MANIFEST && c.manifest.is_some())
+                || (rel == RunDir::STATS && (c.manifest.is_some() || stats_only(&run.stats())))
                 || listed.contains(rel.as_str())
-                || shot.as_ref().is_some_and(|s| frame_file_of(s, &rel))
-                || own_checkpoint(dir, &rel, &mut c.checkpoints));
+                || shot.as_ref().is_some_and(|s| frame_file_of(&run, s, &rel))
+                || own_checkpoint(&run, &rel, &mut c.checkpoints));
         if mine {
             own.push(rel);
         } else {
@@ -106,7 +266,7 @@ pub fn prepare_fresh(dir: &Path, force: bool) -> Result<()> {
     let c = check_fresh(dir, force)?;
     let mut removed = 0;
     for rel in &c.own {
-        if rel == LOCK_FILE {
+        if rel == RunDir::LOCK {
             continue;
         }
         let p = dir.join(rel);
@@ -130,7 +290,7 @@ pub fn prepare_fresh(dir: &Path, force: bool) -> Result<()> {
 pub fn check_fresh_out(out: &Path, force: bool) -> Result<()> {
     match std::fs::metadata(out) {
         Ok(m) if m.is_dir() => {
-            super::lock::check_not_in_use(out)?;
+            lock::check_not_in_use(out)?;
             check_fresh(out, force).map(|_| ())
         }
         Ok(_) => Err(Error::InvalidInput(format!(
@@ -187,24 +347,19 @@ fn check_fresh(dir: &Path, force: bool) -> Result<Contents> {
     Ok(c)
 }
 
-/// `kind/<shot>.<digits>.<ext>` with the extensions nimbus writes there, or the contact sheet.
-fn frame_file_of(shot: &str, rel: &str) -> bool {
-    if rel == "preview/contact_sheet.png"
-        || rel == format!("preview/{shot}.mp4")
-        || rel == crate::export::usd::layer_name(shot)
+/// `<folder>/<shot>.<digits>.<ext>` of a [`FrameFile`] kind, the contact sheet, the movie or
+/// the USD layer of `shot`.
+fn frame_file_of(run: &RunDir, shot: &str, rel: &str) -> bool {
+    let is = |p: PathBuf| {
+        p.strip_prefix(run.root())
+            .is_ok_and(|r| r == Path::new(rel))
+    };
+    if is(run.contact_sheet()) || is(run.movie(shot)) || rel == crate::export::usd::layer_name(shot)
     {
         return true;
     }
-    let Some((kind, name)) = rel.split_once('/') else {
+    let Some((folder, name)) = rel.split_once('/') else {
         return false;
-    };
-    let exts: &[&str] = match kind {
-        "vdb" => &["vdb"],
-        "exr" => &["exr"],
-        "preview" => &["png", "exr"],
-        "particles" => &["ply"],
-        "nvdb" => &["nvdb"],
-        _ => return false,
     };
     let Some(rest) = name.strip_prefix(shot).and_then(|r| r.strip_prefix('.')) else {
         return false;
@@ -212,18 +367,25 @@ fn frame_file_of(shot: &str, rel: &str) -> bool {
     let Some((digits, ext)) = rest.split_once('.') else {
         return false;
     };
-    !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()) && exts.contains(&ext)
+    !digits.is_empty()
+        && digits.bytes().all(|b| b.is_ascii_digit())
+        && FrameFile::ALL
+            .iter()
+            .any(|k| k.folder() == folder && k.ext() == ext)
 }
 
-fn own_checkpoint(dir: &Path, rel: &str, frames: &mut Vec<u32>) -> bool {
-    let Some(name) = rel.strip_prefix("checkpoints/") else {
+fn own_checkpoint(run: &RunDir, rel: &str, frames: &mut Vec<u32>) -> bool {
+    let Some(name) = rel
+        .strip_prefix(RunDir::CHECKPOINTS)
+        .and_then(|r| r.strip_prefix('/'))
+    else {
         return false;
     };
     let Some(frame) = checkpoint::frame_of_name(name) else {
         return false;
     };
     let mut head = [0u8; 8];
-    let ok = std::fs::File::open(dir.join(rel))
+    let ok = std::fs::File::open(run.root().join(rel))
         .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
         .is_ok()
         && checkpoint::is_checkpoint(&head);
@@ -269,20 +431,62 @@ mod tests {
 
     #[test]
     fn frame_files_follow_the_naming() {
-        assert!(frame_file_of("tiny", "vdb/tiny.0003.vdb"));
-        assert!(frame_file_of("tiny", "preview/tiny.0003.exr"));
-        assert!(frame_file_of("tiny", "preview/contact_sheet.png"));
-        assert!(!frame_file_of("tiny", "vdb/tiny.0003.exr"));
-        assert!(!frame_file_of("tiny", "vdb/other.0003.vdb"));
-        assert!(!frame_file_of("tiny", "vdb/tiny.x3.vdb"));
-        assert!(!frame_file_of("tiny", "notes/tiny.0003.vdb"));
+        let run = RunDir::new("out");
+        let of = |rel| frame_file_of(&run, "tiny", rel);
+        assert!(of("vdb/tiny.0003.vdb"));
+        assert!(of("preview/tiny.0003.exr"));
+        assert!(of("preview/contact_sheet.png"));
+        assert!(of("preview/tiny.mp4"));
+        assert!(!of("vdb/tiny.0003.exr"));
+        assert!(!of("vdb/other.0003.vdb"));
+        assert!(!of("vdb/tiny.x3.vdb"));
+        assert!(!of("notes/tiny.0003.vdb"));
+    }
+
+    #[test]
+    fn paths_follow_the_documented_layout() {
+        let run = RunDir::new("out");
+        let p = |s: &str| PathBuf::from(s);
+        assert_eq!(
+            run.frame_file(FrameFile::Vdb, "shot", 7, 4),
+            p("out/vdb/shot.0007.vdb")
+        );
+        assert_eq!(
+            run.frame_file(FrameFile::NanoVdb, "shot", 7, 4),
+            p("out/nvdb/shot.0007.nvdb")
+        );
+        assert_eq!(
+            run.frame_file(FrameFile::Exr, "shot", 12, 1),
+            p("out/exr/shot.12.exr")
+        );
+        assert_eq!(
+            run.frame_file(FrameFile::PreviewExr, "shot", 7, 4),
+            p("out/preview/shot.0007.exr")
+        );
+        assert_eq!(
+            run.frame_file(FrameFile::Particles, "shot", 7, 4),
+            p("out/particles/shot.0007.ply")
+        );
+        assert_eq!(
+            run.frame_pattern(FrameFile::PreviewPng, "shot", 4),
+            p("out/preview/shot.%04d.png")
+        );
+        assert_eq!(run.manifest(), p("out/manifest.json"));
+        assert_eq!(run.stats(), p("out/stats.jsonl"));
+        assert_eq!(run.lock_file(), p("out/.lock"));
+        assert_eq!(run.checkpoints(), p("out/checkpoints"));
+        assert_eq!(run.contact_sheet(), p("out/preview/contact_sheet.png"));
+        assert_eq!(run.movie("shot"), p("out/preview/shot.mp4"));
+        assert_eq!(run.preview_view("target"), p("out/preview/target"));
+        assert_eq!(run.export_dir("a").root(), p("out/exports/a"));
+        assert_eq!(run.render_frame("s", 3, 2), p("out/render/s.03.png"));
     }
 
     #[test]
     fn empty_and_new_dirs_are_ready() {
         let dir = tempfile::tempdir().unwrap();
         std::fs::create_dir_all(dir.path().join("vdb")).unwrap();
-        std::fs::write(dir.path().join(LOCK_FILE), "").unwrap();
+        std::fs::write(dir.path().join(RunDir::LOCK), "").unwrap();
         prepare_fresh(dir.path(), false).unwrap();
     }
 

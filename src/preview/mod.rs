@@ -595,12 +595,12 @@ pub fn write_exr(path: &Path, img: &LinearImage) -> Result<()> {
     })
 }
 
-/// Renders one frame's preview to `<out>/preview/<shot>.<frame>.png` (and `.exr` when `exr`),
-/// returning the PNG path.
+/// Renders one frame's preview to `<dir>/<shot>.<frame>.png` (and `.exr` when `exr`),
+/// returning the PNG path (`dir`: a run's `preview/`).
 pub fn write_frame_preview(
     grid: &SparseGrid<f32>,
     params: &PreviewParams,
-    out_dir: &Path,
+    dir: &Path,
     shot: &str,
     frame: u32,
     padding: u32,
@@ -610,7 +610,7 @@ pub fn write_frame_preview(
     write_image(
         &img,
         params.exposure,
-        &out_dir.join("preview"),
+        dir,
         &frame_stem(shot, frame, padding),
         exr,
     )
