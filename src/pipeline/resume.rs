@@ -1,15 +1,16 @@
 //! The resume policy: the config a run resumes with (its manifest's, or its newest checkpoint's
-//! when the manifest is lost), the refusal of changed simulation keys, and the checkpoint it
-//! resumes from. `nimbus resume` and `nimbus run --resume` are [`resume`] and [`resume_with`], so
+//! when the manifest is lost) and the refusal of changed simulation keys (the checkpoint it
+//! resumes from is `super::checkpoints`'). `nimbus resume` and `nimbus run --resume` are [`resume`] and [`resume_with`], so
 //! a library caller gets the same refusals as the command line.
 use super::lock::{Create, RunLock};
+use super::open::{RunOptions, Start};
 use super::progress::LogFormat;
 use super::records::Manifest;
-use super::run::{run, RunOptions, Start};
+use super::run::run;
 use super::run_dir::RunDir;
 use crate::config::{self, ShotConfig};
 use crate::error::{Error, Result};
-use crate::io::checkpoint::{self, Checkpoint, ResumeScan, SkipReason};
+use crate::io::checkpoint;
 use crate::shot::Shot;
 use std::path::Path;
 
@@ -94,98 +95,10 @@ pub fn refuse_changed_simulation(cfg: &ShotConfig, out_dir: &Path) -> Result<()>
     }
 }
 
-/// The checkpoint of `ckpt_dir` a run of `cfg` (sim hash `sim_hash`) resumes from: the newest
-/// valid one of the same simulation config whose frame lies in the config's frame range. The
-/// files passed over are warned about on stderr.
-pub fn checkpoint_to_resume(
-    cfg: &ShotConfig,
-    ckpt_dir: &Path,
-    sim_hash: &str,
-) -> Result<Checkpoint> {
-    let scan = checkpoint::scan_resumable(ckpt_dir, sim_hash)?;
-    let skipped: Vec<String> = scan.skipped.iter().map(|s| s.to_string()).collect();
-    for s in &skipped {
-        eprintln!("warning: skipped checkpoint: {s}");
-    }
-    if scan.found.is_none() && scan.config_changed() {
-        return Err(changed_keys_error(cfg, &scan));
-    }
-    match scan.found {
-        Some((path, ck)) => {
-            check_resume_frame(cfg, &path, ck.header.frame)?;
-            eprintln!(
-                "resuming from {} (frame {})",
-                path.display(),
-                ck.header.frame
-            );
-            Ok(ck)
-        }
-        None => Err(Error::InvalidInput(format!(
-            "{}: no usable checkpoint to resume from{}",
-            ckpt_dir.display(),
-            if skipped.is_empty() {
-                ""
-            } else {
-                " (see the warnings above)"
-            }
-        ))),
-    }
-}
-
-/// No checkpoint matches the config's simulation keys: name every key that differs from the
-/// newest checkpoint that records its config.
-fn changed_keys_error(cfg: &ShotConfig, scan: &ResumeScan) -> Error {
-    for s in &scan.skipped {
-        if !matches!(s.reason, SkipReason::ConfigMismatch { .. }) {
-            continue;
-        }
-        if let Some(recorded) = checkpoint::read_checkpoint(&s.path)
-            .ok()
-            .and_then(|ck| checkpoint::config_of(&ck))
-        {
-            let diff = config::sim_key_diff(&recorded, cfg);
-            if !diff.is_empty() {
-                return Error::InvalidInput(format!(
-                    "{}: cannot resume: simulation keys differ from the checkpoint's: {}",
-                    s.path.display(),
-                    diff.join(", ")
-                ));
-            }
-        }
-    }
-    Error::InvalidInput(
-        "cannot resume: the simulation config differs from every checkpoint's (see the warnings above)"
-            .into(),
-    )
-}
-
-/// A checkpoint resumes only inside the frame range: one past `frames.end` (the range was
-/// lowered after it was written) or before `frames.start` is refused before anything is written.
-fn check_resume_frame(cfg: &ShotConfig, path: &Path, frame: u32) -> Result<()> {
-    let (start, end) = (cfg.output.frames.start, cfg.output.frames.end);
-    if frame > end {
-        return Err(Error::InvalidInput(format!(
-            "{}: cannot resume: the newest usable checkpoint holds frame {frame}, past \
-             output.frames.end = {end}; the run already went beyond that end: raise \
-             output.frames.end to {frame} or more (nimbus run CONFIG --out DIR --resume --set \
-             output.frames.end=N)",
-            path.display()
-        )));
-    }
-    if frame < start {
-        return Err(Error::InvalidInput(format!(
-            "{}: cannot resume: the checkpoint holds frame {frame}, before output.frames.start = \
-             {start}",
-            path.display()
-        )));
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::io::checkpoint::{write_checkpoint, CheckpointHeader, CONFIG_SECTION};
+    use crate::io::checkpoint::{write_checkpoint, Checkpoint, CheckpointHeader, CONFIG_SECTION};
 
     fn tiny(set: &[&str]) -> Shot {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny.yaml");
