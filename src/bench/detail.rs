@@ -296,8 +296,8 @@ pub fn bench_detail(
                     started: Instant::now(),
                     rest: Some(Arc::new(fr.rest.clone())),
                 })?;
-                let s = out.phase_ms.get("splat").copied().unwrap_or(0.0);
-                let v = out.phase_ms.get("write_vdb").copied().unwrap_or(0.0);
+                let s = out.phase_ms.splat.unwrap_or(0.0);
+                let v = out.phase_ms.write_vdb.unwrap_or(0.0);
                 if s + v < best.0 + best.1 {
                     best = (s, v);
                 }

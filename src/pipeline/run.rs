@@ -267,9 +267,6 @@ impl FrameLoop<'_> {
                 clock.time,
                 self.sim.heat_maps(),
             );
-            let mut diagnostics = report.diagnostics.to_map();
-            cloud.insert_into(&mut diagnostics);
-            atmosphere.insert_into(&mut diagnostics);
             let clamped = atmosphere.clamped_particles;
             if let Some(msg) = time_step_warning(frame, &report.diagnostics, clamped, cfg) {
                 self.progress.note("warning", &msg);
@@ -278,8 +275,11 @@ impl FrameLoop<'_> {
                 frame,
                 sim_time: clock.time,
                 particles: state.len() as u64,
-                phase_ms: report.phases.by_key(),
-                diagnostics,
+                phases: report.phases,
+                writer: Default::default(),
+                step: report.diagnostics,
+                cloud,
+                atmosphere,
             });
             let skip_write = self.records.manifest.frame(frame).is_some_and(|rec| {
                 self.writer.has_all_files(rec)
@@ -378,8 +378,8 @@ impl Records {
                 .position(|s| s.frame == done.frame)
             {
                 let mut s = self.pending_stats.remove(i);
-                s.phase_ms.extend(done.phase_ms);
-                self.stats.push(s);
+                s.writer = done.phase_ms;
+                self.stats.push(&s);
             }
             self.layer.update(run_dir.root(), &mut self.manifest)?;
             self.manifest.save(run_dir)?;

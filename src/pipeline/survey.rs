@@ -16,7 +16,7 @@
 //! refused with or without `--force`: nothing nimbus did not write is ever deleted.
 use super::lock;
 use super::naming::resume_command;
-use super::records::{FrameStats, Manifest};
+use super::records::{Manifest, StatsLine};
 use super::run_dir::{FrameFile, RunDir};
 use crate::error::{Error, Result};
 use crate::io::atomic::TMP_SUFFIX;
@@ -241,7 +241,7 @@ fn own_checkpoint(run: &RunDir, rel: &str, frames: &mut Vec<u32>) -> bool {
 fn stats_only(p: &Path) -> bool {
     std::fs::read_to_string(p).is_ok_and(|t| {
         t.lines()
-            .all(|l| serde_json::from_str::<FrameStats>(l).is_ok())
+            .all(|l| serde_json::from_str::<StatsLine>(l).is_ok())
     })
 }
 

@@ -1,6 +1,6 @@
 //! The CPU side of a frame: splat the particles, write VDB, EXR and preview files atomically,
 //! and return their records for the manifest.
-use super::records::{file_record, FrameRecord, Manifest};
+use super::records::{file_record, FrameRecord, Manifest, WriterTimes};
 use super::run_dir::{FrameFile, RunDir};
 use crate::config::ShotConfig;
 use crate::error::Result;
@@ -31,7 +31,7 @@ pub struct WrittenFrame {
     pub frame: u32,
     pub particles: u64,
     pub record: Option<FrameRecord>,
-    pub phase_ms: BTreeMap<String, f64>,
+    pub phase_ms: WriterTimes,
     pub wall_ms: f64,
 }
 
@@ -121,7 +121,7 @@ impl FrameWriter {
     }
 
     pub fn write(&self, job: FrameJob) -> Result<WrittenFrame> {
-        let mut phase_ms = BTreeMap::new();
+        let mut phase_ms = WriterTimes::default();
         let particles = job.state.len() as u64;
         if job.skip_write {
             return Ok(WrittenFrame {
@@ -144,7 +144,7 @@ impl FrameWriter {
             dual: self.rest_clock.dual(),
         });
         let grids = crate::splat::splat_with_rest(&state, &self.splat, rest)?;
-        phase_ms.insert("splat".into(), ms(t));
+        phase_ms.splat = Some(ms(t));
         let mut files = Vec::new();
         let c = &self.cfg;
         let pad = c.output.frame_padding;
@@ -166,7 +166,7 @@ impl FrameWriter {
             };
             crate::io::exr::write_density_atlas(&path, density, c.export.exr.half)?;
             files.push(file_record(self.run_dir.root(), &path)?);
-            phase_ms.insert("write_exr".into(), ms(t));
+            phase_ms.write_exr = Some(ms(t));
         }
         if let (Some(params), Some(density)) = (&self.preview, &grids.density) {
             let t = Instant::now();
@@ -188,14 +188,14 @@ impl FrameWriter {
                     &png.with_extension("exr"),
                 )?);
             }
-            phase_ms.insert("preview".into(), ms(t));
+            phase_ms.preview = Some(ms(t));
         }
         if c.export.particles {
             let t = Instant::now();
             let path = self.file(FrameFile::Particles, job.frame);
             self.write_particles(&path, &job.state, job.rest.as_deref(), job.frame)?;
             files.push(file_record(self.run_dir.root(), &path)?);
-            phase_ms.insert("write_particles".into(), ms(t));
+            phase_ms.write_particles = Some(ms(t));
         }
         // Last, so the grids move into the file instead of being copied; listed first, then
         // the NanoVDB file made from the same grids.
@@ -207,14 +207,14 @@ impl FrameWriter {
                 let path = self.file(FrameFile::Vdb, job.frame);
                 crate::io::vdb::write_file(&path, &file, &self.vdb_options())?;
                 head.push(file_record(self.run_dir.root(), &path)?);
-                phase_ms.insert("write_vdb".into(), ms(t));
+                phase_ms.write_vdb = Some(ms(t));
             }
             if c.export.nanovdb.enabled {
                 let t = Instant::now();
                 let path = self.file(FrameFile::NanoVdb, job.frame);
                 self.write_nanovdb(&path, &file)?;
                 head.push(file_record(self.run_dir.root(), &path)?);
-                phase_ms.insert("write_nanovdb".into(), ms(t));
+                phase_ms.write_nanovdb = Some(ms(t));
             }
             files.splice(0..0, head);
         }
