@@ -28,7 +28,7 @@ use crate::export::ExportSpace;
 use crate::ground::rest::{RestCodec, RestFrame};
 use crate::ground::ParticleState;
 use crate::ground::SparseGrid;
-use crate::pipeline::records::Manifest;
+use crate::pipeline::records::{Manifest, StatsLine, WriterTimes};
 use crate::pipeline::run_dir::RunDir;
 use crate::pipeline::writer::{FrameJob, FrameWriter};
 use crate::splat::detail::{DetailNoise, EdgeSums, NoiseSpace};
@@ -366,21 +366,14 @@ pub fn bench_detail(
 /// phase but the writer's).
 fn sim_ms_per_frame(run_dir: &Path) -> Option<f64> {
     let text = std::fs::read_to_string(RunDir::new(run_dir).stats()).ok()?;
-    let writer = [
-        "splat",
-        "write_exr",
-        "write_vdb",
-        "preview",
-        "write_particles",
-    ];
     let mut v = Vec::new();
     for line in text.lines() {
-        let s: serde_json::Value = serde_json::from_str(line).ok()?;
-        let ms: f64 = s["phase_ms"]
-            .as_object()?
+        let s: StatsLine = serde_json::from_str(line).ok()?;
+        let ms: f64 = s
+            .phase_ms
             .iter()
-            .filter(|(k, _)| !writer.contains(&k.as_str()))
-            .filter_map(|(_, x)| x.as_f64())
+            .filter(|(k, _)| !WriterTimes::KEYS.contains(&k.as_str()))
+            .map(|(_, x)| x)
             .sum();
         v.push(ms);
     }
@@ -920,6 +913,22 @@ fn pearson(x: &[f64], y: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The simulation's time of a frame is its phases but every one of the writer's.
+    #[test]
+    fn sim_time_leaves_every_writer_phase_out() {
+        let dir = tempfile::tempdir().unwrap();
+        let line = |f: u32, pbf: f64| {
+            format!(
+                "{{\"frame\":{f},\"sim_time\":1.0,\"particles\":1,\"phase_ms\":{{\"pbf\":{pbf},\
+                 \"grid\":1.0,\"splat\":5.0,\"write_vdb\":6.0,\"write_nanovdb\":7.0}},\
+                 \"diagnostics\":{{}}}}\n"
+            )
+        };
+        let text = line(1, 2.0) + &line(2, 4.0);
+        std::fs::write(RunDir::new(dir.path()).stats(), text).unwrap();
+        assert_eq!(sim_ms_per_frame(dir.path()), Some(4.0));
+    }
 
     #[test]
     fn fft_of_a_cosine_has_its_two_peaks() {

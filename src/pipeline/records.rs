@@ -165,16 +165,30 @@ pub struct WriterTimes {
 }
 
 impl WriterTimes {
+    /// The steps' stats.jsonl `phase_ms` names, in the order of [`WriterTimes::values`].
+    pub const KEYS: [&'static str; 6] = [
+        "splat",
+        "write_exr",
+        "preview",
+        "write_particles",
+        "write_vdb",
+        "write_nanovdb",
+    ];
+
+    fn values(&self) -> [Option<f64>; 6] {
+        [
+            self.splat,
+            self.write_exr,
+            self.preview,
+            self.write_particles,
+            self.write_vdb,
+            self.write_nanovdb,
+        ]
+    }
+
     /// Adds the steps that ran under their stats.jsonl `phase_ms` names.
     pub fn insert_into(&self, out: &mut BTreeMap<String, f64>) {
-        for (k, v) in [
-            ("splat", self.splat),
-            ("write_exr", self.write_exr),
-            ("preview", self.preview),
-            ("write_particles", self.write_particles),
-            ("write_vdb", self.write_vdb),
-            ("write_nanovdb", self.write_nanovdb),
-        ] {
+        for (k, v) in Self::KEYS.iter().zip(self.values()) {
             if let Some(v) = v {
                 out.insert(k.to_string(), v);
             }

@@ -1,7 +1,8 @@
 //! The resume policy: the config a run resumes with (its manifest's, or its newest checkpoint's
 //! when the manifest is lost) and the refusal of changed simulation keys (the checkpoint it
-//! resumes from is `super::checkpoints`'). `nimbus resume` and `nimbus run --resume` are [`resume`] and [`resume_with`], so
-//! a library caller gets the same refusals as the command line.
+//! resumes from is `super::checkpoints`'). `nimbus resume` and `nimbus run --resume` are
+//! [`resume`] and [`resume_with`], so a library caller gets the same refusals as the command
+//! line.
 use super::lock::{Create, RunLock};
 use super::open::{RunOptions, Start};
 use super::progress::LogFormat;
