@@ -156,7 +156,13 @@ fn previews_are_deterministic_and_decode() {
     // The files: PNG and linear EXR under <out>/preview, readable back.
     let dir = tempfile::tempdir().unwrap();
     let run = nimbus::pipeline::run_dir::RunDir::new(dir.path());
-    let png = write_frame_preview(&g, &p, &run.preview(), "shot", 7, 4, true).unwrap();
+    let at = run.frame_file(
+        nimbus::pipeline::run_dir::FrameFile::PreviewPng,
+        "shot",
+        7,
+        4,
+    );
+    let png = write_frame_preview(&g, &p, &at, true).unwrap();
     assert_eq!(png, dir.path().join("preview/shot.0007.png"));
     assert_eq!(std::fs::read(&png).unwrap(), pa);
     let exr = exr::prelude::read_first_rgba_layer_from_file(

@@ -63,7 +63,7 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
     let mut pngs = Vec::new();
     let mut skipped = Vec::new();
     for (frame, source) in plan {
-        let stem = crate::preview::frame_stem(&cfg.shot, frame, pad);
+        let png = RunDir::preview_frame_in(dir, &cfg.shot, frame, pad);
         let state: ParticleState = match source {
             Some(Source::Cache(p)) => {
                 crate::io::ply::read(&p, &space, cfg.solver.rest_density as f32)?
@@ -71,7 +71,7 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
             Some(Source::Checkpoint(p)) => crate::io::checkpoint::read_checkpoint(&p)?.state,
             None => {
                 skipped.push(frame);
-                remove_if_present(&dir.join(format!("{stem}.png")))?;
+                remove_if_present(&png)?;
                 continue;
             }
         };
@@ -83,7 +83,6 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
         let mut rgb = img.to_srgb8_standard();
         draw_level_legend(&mut rgb, max_level);
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-        let png = dir.join(format!("{stem}.png"));
         crate::io::atomic::write_atomic(&png, &crate::preview::png_bytes(&rgb)?)?;
         pngs.push((frame, png));
     }

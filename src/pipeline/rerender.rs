@@ -130,13 +130,12 @@ fn rerender_into(
     let mut failed: Vec<String> = Vec::new();
     for rec in &manifest.frames {
         let vdb = run.frame_file(FrameFile::Vdb, &cfg.shot, rec.frame, pad);
-        let stem = crate::preview::frame_stem(&cfg.shot, rec.frame, pad);
+        let png = RunDir::preview_frame_in(dir, &cfg.shot, rec.frame, pad);
         if let Err(why) = check_recorded(run_dir, rec, &vdb) {
             eprintln!("frame {}: {why}", rec.frame);
             failed.push(format!("frame {}", rec.frame));
-            for ext in ["png", "exr"] {
-                remove_if_present(&dir.join(format!("{stem}.{ext}")))?;
-            }
+            remove_if_present(&png)?;
+            remove_if_present(&png.with_extension("exr"))?;
             continue;
         }
         let file = read_file(&vdb)?;
@@ -154,7 +153,7 @@ fn rerender_into(
         if let Some(draw) = decorate {
             draw(&mut img, rec.frame, &params);
         }
-        let png = crate::preview::write_image(&img, params.exposure, dir, &stem, exr)?;
+        let png = crate::preview::write_image(&img, params.exposure, &png, exr)?;
         pngs.push((rec.frame, png));
     }
     let sheet = RunDir::contact_sheet_in(dir);

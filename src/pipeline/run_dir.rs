@@ -128,10 +128,19 @@ impl RunDir {
 
     /// `<folder>/<shot>.<frame, zero-padded>.<ext>`
     pub fn frame_file(&self, kind: FrameFile, shot: &str, frame: u32, padding: u32) -> PathBuf {
-        self.root.join(kind.folder()).join(format!(
-            "{shot}.{frame:0width$}.{ext}",
-            width = padding as usize,
-            ext = kind.ext()
+        self.root
+            .join(kind.folder())
+            .join(frame_name(shot, frame, padding, kind.ext()))
+    }
+
+    /// `<dir>/<shot>.<frame, zero-padded>.png`, a preview image in `dir` (`preview/` or a
+    /// view's folder).
+    pub fn preview_frame_in(dir: &Path, shot: &str, frame: u32, padding: u32) -> PathBuf {
+        dir.join(frame_name(
+            shot,
+            frame,
+            padding,
+            FrameFile::PreviewPng.ext(),
         ))
     }
 
@@ -144,10 +153,9 @@ impl RunDir {
 
     /// `render/<shot>.<frame, zero-padded>.png`, a farm render of a frame.
     pub fn render_frame(&self, shot: &str, frame: u32, padding: u32) -> PathBuf {
-        self.root.join(Self::RENDER).join(format!(
-            "{shot}.{frame:0width$}.png",
-            width = padding as usize
-        ))
+        self.root
+            .join(Self::RENDER)
+            .join(frame_name(shot, frame, padding, "png"))
     }
 
     /// Makes the folders of the frame files (`vdb`, `exr`, `preview`) and, with `checkpoints`,
@@ -160,6 +168,11 @@ impl RunDir {
         }
         Ok(())
     }
+}
+
+/// `<shot>.<frame, zero-padded to padding digits>.<ext>`
+fn frame_name(shot: &str, frame: u32, padding: u32, ext: &str) -> String {
+    format!("{shot}.{frame:0width$}.{ext}", width = padding as usize)
 }
 
 #[cfg(test)]
@@ -201,6 +214,10 @@ mod tests {
         assert_eq!(run.contact_sheet(), p("out/preview/contact_sheet.png"));
         assert_eq!(run.movie("shot"), p("out/preview/shot.mp4"));
         assert_eq!(run.preview_view("target"), p("out/preview/target"));
+        assert_eq!(
+            RunDir::preview_frame_in(&run.preview_view("target"), "shot", 7, 4),
+            p("out/preview/target/shot.0007.png")
+        );
         assert_eq!(run.export_dir("a").root(), p("out/exports/a"));
         assert_eq!(run.render_frame("s", 3, 2), p("out/render/s.03.png"));
     }

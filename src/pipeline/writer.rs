@@ -147,7 +147,6 @@ impl FrameWriter {
         phase_ms.splat = Some(ms(t));
         let mut files = Vec::new();
         let c = &self.cfg;
-        let pad = c.output.frame_padding;
         if c.export.exr.enabled {
             let t = Instant::now();
             let path = self.file(FrameFile::Exr, job.frame);
@@ -177,8 +176,7 @@ impl FrameWriter {
             let png = crate::preview::write_image(
                 &img,
                 params.exposure,
-                &self.run_dir.preview(),
-                &crate::preview::frame_stem(&c.shot, job.frame, pad),
+                &self.file(FrameFile::PreviewPng, job.frame),
                 c.output.preview.exr,
             )?;
             files.push(file_record(self.run_dir.root(), &png)?);
