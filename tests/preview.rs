@@ -155,7 +155,14 @@ fn previews_are_deterministic_and_decode() {
     assert_eq!(img.dimensions(), (80, 45));
     // The files: PNG and linear EXR under <out>/preview, readable back.
     let dir = tempfile::tempdir().unwrap();
-    let png = write_frame_preview(&g, &p, dir.path(), "shot", 7, 4, true).unwrap();
+    let run = nimbus::pipeline::run_dir::RunDir::new(dir.path());
+    let at = run.frame_file(
+        nimbus::pipeline::run_dir::FrameFile::PreviewPng,
+        "shot",
+        7,
+        4,
+    );
+    let png = write_frame_preview(&g, &p, &at, true).unwrap();
     assert_eq!(png, dir.path().join("preview/shot.0007.png"));
     assert_eq!(std::fs::read(&png).unwrap(), pa);
     let exr = exr::prelude::read_first_rgba_layer_from_file(
@@ -205,11 +212,12 @@ fn contact_sheet_tiles_and_labels_frames() {
         std::fs::write(&path, png_bytes(img).unwrap()).unwrap();
         list.push((*f, path));
     }
-    let out = write_contact_sheet(dir.path(), &list).unwrap();
+    let run = nimbus::pipeline::run_dir::RunDir::new(dir.path());
+    let out = write_contact_sheet(&run.contact_sheet(), &list).unwrap();
     assert_eq!(out, dir.path().join("preview/contact_sheet.png"));
     let back = image::open(&out).unwrap().to_rgb8();
     assert_eq!(back.dimensions(), (320 * 3 + 8, 180 * 2 + 6));
-    let bad = write_contact_sheet(dir.path(), &[(1, dir.path().join("missing.png"))]);
+    let bad = write_contact_sheet(&run.contact_sheet(), &[(1, dir.path().join("missing.png"))]);
     assert_eq!(bad.unwrap_err().exit_code(), 2);
 }
 

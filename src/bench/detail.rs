@@ -28,7 +28,8 @@ use crate::export::ExportSpace;
 use crate::ground::rest::{RestCodec, RestFrame};
 use crate::ground::SparseGrid;
 use crate::ground::{levels, ParticleState};
-use crate::pipeline::records::Manifest;
+use crate::pipeline::records::{Manifest, StatsLine, WriterTimes};
+use crate::pipeline::run_dir::RunDir;
 use crate::pipeline::writer::{FrameJob, FrameWriter};
 use crate::splat::detail::{DetailNoise, EdgeSums, NoiseSpace};
 use crate::splat::{splat_with_rest, RestInput, SplatFields, SplatParams};
@@ -62,10 +63,10 @@ pub fn bench_detail(
 ) -> Result<serde_json::Value> {
     let (frames, voxel) = (opts.frames, opts.voxel);
     crate::pipeline::reexport::check_sets(sets)?;
-    let manifest = Manifest::load(run_dir)?;
+    let manifest = Manifest::load(&RunDir::new(run_dir))?;
     let text =
         serde_json::to_string(&manifest.config).map_err(|e| Error::Runtime(e.to_string()))?;
-    let shot = crate::shot::load_str(&text, "manifest.json", sets)?;
+    let shot = crate::shot::load_str(&text, RunDir::MANIFEST, sets)?;
     let mut cfg: ShotConfig = shot.config().clone();
     if !cfg.export.particles || !cfg.export.tracks_rest() {
         return Err(Error::InvalidInput(format!(
@@ -142,14 +143,13 @@ pub fn bench_detail(
     wcfg.export.exr.enabled = false;
     wcfg.output.preview.enabled = false;
     wcfg.export.particles = false;
-    for d in crate::pipeline::naming::DIRS {
-        std::fs::create_dir_all(scratch.join(d)).map_err(|e| Error::io(scratch.join(d), e))?;
-    }
-    let writer = FrameWriter::new(&shot, &wcfg, &scratch)?;
+    let scratch_run = RunDir::new(&scratch);
+    scratch_run.create_dirs(true)?;
+    let writer = FrameWriter::new(&shot, &wcfg, &scratch_run)?;
     let mut plain_cfg = wcfg.clone();
     plain_cfg.export.detail.enabled = false;
     plain_cfg.export.grids.rest = String::new();
-    let plain_writer = FrameWriter::new(&shot, &plain_cfg, &scratch)?;
+    let plain_writer = FrameWriter::new(&shot, &plain_cfg, &scratch_run)?;
 
     let sim_ms = sim_ms_per_frame(run_dir);
     let mut rows = Vec::new();
@@ -296,8 +296,8 @@ pub fn bench_detail(
                     started: Instant::now(),
                     rest: Some(Arc::new(fr.rest.clone())),
                 })?;
-                let s = out.phase_ms.get("splat").copied().unwrap_or(0.0);
-                let v = out.phase_ms.get("write_vdb").copied().unwrap_or(0.0);
+                let s = out.phase_ms.splat.unwrap_or(0.0);
+                let v = out.phase_ms.write_vdb.unwrap_or(0.0);
                 if s + v < best.0 + best.1 {
                     best = (s, v);
                 }
@@ -365,22 +365,15 @@ pub fn bench_detail(
 /// Mean simulation milliseconds per frame from the run's stats.jsonl (the GPU phases: every
 /// phase but the writer's).
 fn sim_ms_per_frame(run_dir: &Path) -> Option<f64> {
-    let text = std::fs::read_to_string(run_dir.join("stats.jsonl")).ok()?;
-    let writer = [
-        "splat",
-        "write_exr",
-        "write_vdb",
-        "preview",
-        "write_particles",
-    ];
+    let text = std::fs::read_to_string(RunDir::new(run_dir).stats()).ok()?;
     let mut v = Vec::new();
     for line in text.lines() {
-        let s: serde_json::Value = serde_json::from_str(line).ok()?;
-        let ms: f64 = s["phase_ms"]
-            .as_object()?
+        let s: StatsLine = serde_json::from_str(line).ok()?;
+        let ms: f64 = s
+            .phase_ms
             .iter()
-            .filter(|(k, _)| !writer.contains(&k.as_str()))
-            .filter_map(|(_, x)| x.as_f64())
+            .filter(|(k, _)| !WriterTimes::KEYS.contains(&k.as_str()))
+            .map(|(_, x)| x)
             .sum();
         v.push(ms);
     }
@@ -920,6 +913,22 @@ fn pearson(x: &[f64], y: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The simulation's time of a frame is its phases but every one of the writer's.
+    #[test]
+    fn sim_time_leaves_every_writer_phase_out() {
+        let dir = tempfile::tempdir().unwrap();
+        let line = |f: u32, pbf: f64| {
+            format!(
+                "{{\"frame\":{f},\"sim_time\":1.0,\"particles\":1,\"phase_ms\":{{\"pbf\":{pbf},\
+                 \"grid\":1.0,\"splat\":5.0,\"write_vdb\":6.0,\"write_nanovdb\":7.0}},\
+                 \"diagnostics\":{{}}}}\n"
+            )
+        };
+        let text = line(1, 2.0) + &line(2, 4.0);
+        std::fs::write(RunDir::new(dir.path()).stats(), text).unwrap();
+        assert_eq!(sim_ms_per_frame(dir.path()), Some(4.0));
+    }
 
     #[test]
     fn fft_of_a_cosine_has_its_two_peaks() {

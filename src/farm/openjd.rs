@@ -214,8 +214,10 @@ fn render_script(plan: &FarmPlan) -> Option<String> {
     );
     s += &wedge_case(plan);
     s += &format!(
-        "PNG=$RUN/render/{}.$(printf '%0{}d' \"$FRAME\").png\nmkdir -p \"$RUN/render\"\n",
-        plan.shot, r.frame_padding
+        "PNG=$RUN/{render}/{}.$(printf '%0{}d' \"$FRAME\").png\nmkdir -p \"$RUN/{render}\"\n",
+        plan.shot,
+        r.frame_padding,
+        render = crate::pipeline::run_dir::RunDir::RENDER
     );
     s += "RENDER=(\"$BLENDER\" -b --factory-startup --python-exit-code 1 -P \"$SCRIPT\" -- \"$RUN\" \"$PNG\" --frame \"$FRAME\" --min-coverage 0)\n";
     s += super::slurm::RENDER_BODY;

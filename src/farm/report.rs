@@ -9,6 +9,7 @@ use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
 use crate::pipeline::records::{sha256_hex, FrameRecord, Manifest};
 use crate::pipeline::reexport;
+use crate::pipeline::run_dir::RunDir;
 use serde::Serialize;
 use std::path::Path;
 
@@ -138,7 +139,7 @@ fn verify_run(plan: &FarmPlan, dir: &Path) -> (WedgeReport, Vec<(u32, String)>) 
         export_usd_layer: None,
         complete: false,
     };
-    let manifest = match Manifest::load(dir) {
+    let manifest = match Manifest::load(&RunDir::new(dir)) {
         Ok(m) => m,
         Err(e) => {
             rep.error = Some(e.to_string());
@@ -171,11 +172,7 @@ fn verify_run(plan: &FarmPlan, dir: &Path) -> (WedgeReport, Vec<(u32, String)>) 
     if let Some(r) = &plan.render {
         let rendered = (plan.frame_start..=plan.frame_end)
             .filter(|f| {
-                let png = dir.join("render").join(format!(
-                    "{}.{f:0width$}.png",
-                    plan.shot,
-                    width = r.frame_padding as usize
-                ));
+                let png = RunDir::new(dir).render_frame(&plan.shot, *f, r.frame_padding);
                 std::fs::read(png).is_ok_and(|b| b.starts_with(b"\x89PNG\r\n\x1a\n"))
             })
             .count() as u32;
@@ -250,7 +247,7 @@ fn verify_export(plan: &FarmPlan, dir: &Path, e: &ExportSettings, rep: &mut Wedg
         .map(|p| format!("{}/", p.display()))
         .unwrap_or_default();
     rep.export_dir = Some(dest.display().to_string());
-    let manifest = match Manifest::load(&dest) {
+    let manifest = match Manifest::load(&RunDir::new(&dest)) {
         Ok(m) => m,
         Err(err) => {
             rep.error.get_or_insert(format!("export: {err}"));

@@ -165,8 +165,10 @@ pub fn render_script(plan: &FarmPlan, job: &Job, farm_dir: &Path) -> Option<Stri
     s += "WEDGE=$((SLURM_ARRAY_TASK_ID / FRAMES))\nFRAME=$((START + SLURM_ARRAY_TASK_ID % FRAMES))\n";
     s += &wedge_case(plan, farm_dir).replace("\"$SLURM_ARRAY_TASK_ID\"", "\"$WEDGE\"");
     s += &format!(
-        "PNG=$RUN/render/{}.$(printf '%0{}d' $FRAME).png\nmkdir -p \"$RUN/render\"\n",
-        plan.shot, r.frame_padding
+        "PNG=$RUN/{render}/{}.$(printf '%0{}d' $FRAME).png\nmkdir -p \"$RUN/{render}\"\n",
+        plan.shot,
+        r.frame_padding,
+        render = crate::pipeline::run_dir::RunDir::RENDER
     );
     s += &format!(
         "RENDER=({} -b --factory-startup --python-exit-code 1 -P {} -- \"$RUN\" \"$PNG\" --frame $FRAME --min-coverage 0)\n",

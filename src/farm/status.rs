@@ -97,7 +97,7 @@ pub fn collect(plan: &FarmPlan, farm_dir: &Path) -> FarmStatus {
     let mut wedges = Vec::new();
     for w in &plan.wedges {
         let dir = run_dir(farm_dir, w);
-        let manifest = Manifest::load(&dir).ok();
+        let manifest = Manifest::load(&crate::pipeline::run_dir::RunDir::new(&dir)).ok();
         let frames_done = manifest.as_ref().map_or(0, |m| m.frames.len());
         let complete = manifest.as_ref().is_some_and(|m| m.complete);
         let job = plan.latest_job_for(JobKind::Simulation, w.index);

@@ -9,13 +9,11 @@
 //! - same host, that pid no longer runs nimbus: a note, and the lock is taken over;
 //! - same host, that pid still runs nimbus: refused (the file system did not enforce the lock);
 //! - another host: refused, since this host cannot tell whether it still runs.
+use super::run_dir::RunDir;
 use crate::error::{Error, Result};
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
-
-/// Name of the lock file inside the run directory.
-pub const LOCK_FILE: &str = ".lock";
 
 /// Whether the run directory may be created.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -214,7 +212,7 @@ pub fn parse_holder(text: &str) -> Holder {
 /// its lock file records, is refused as [`RunLock::acquire`] would refuse it. A holder on
 /// another host, or none, passes: the lock itself decides then.
 pub fn check_not_in_use(dir: &Path) -> Result<()> {
-    let Ok(text) = std::fs::read_to_string(dir.join(LOCK_FILE)) else {
+    let Ok(text) = std::fs::read_to_string(RunDir::new(dir).lock_file()) else {
         return Ok(());
     };
     let holder = parse_holder(&text);
@@ -229,7 +227,7 @@ pub fn check_not_in_use(dir: &Path) -> Result<()> {
 }
 
 fn open_lock_file(dir: &Path) -> Result<(PathBuf, File)> {
-    let path = dir.join(LOCK_FILE);
+    let path = RunDir::new(dir).lock_file();
     let file = OpenOptions::new()
         .read(true)
         .write(true)
@@ -302,7 +300,7 @@ mod tests {
         );
         assert_eq!(err.exit_code(), 2);
         drop(a);
-        let text = std::fs::read_to_string(dir.path().join(LOCK_FILE)).unwrap();
+        let text = std::fs::read_to_string(RunDir::new(dir.path()).lock_file()).unwrap();
         assert!(text.is_empty(), "{text:?}");
         RunLock::acquire(dir.path(), Create::No, "resume").unwrap();
     }
@@ -330,7 +328,11 @@ mod tests {
     #[test]
     fn another_hosts_lock_is_reported_not_broken() {
         let dir = tempfile::tempdir().unwrap();
-        std::fs::write(dir.path().join(LOCK_FILE), "pid 42\nhost elsewhere-xyz\n").unwrap();
+        std::fs::write(
+            RunDir::new(dir.path()).lock_file(),
+            "pid 42\nhost elsewhere-xyz\n",
+        )
+        .unwrap();
         let msg = RunLock::acquire(dir.path(), Create::No, "run")
             .unwrap_err()
             .to_string();

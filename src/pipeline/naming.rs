@@ -1,22 +1,5 @@
-//! Names of the files of a run directory.
-use std::path::{Path, PathBuf};
-
-pub const DIRS: [&str; 4] = ["vdb", "exr", "preview", "checkpoints"];
-
-/// `<run>/<kind>/<shot>.<frame, zero-padded>.<ext>`
-pub fn frame_file(
-    run_dir: &Path,
-    kind: &str,
-    shot: &str,
-    frame: u32,
-    padding: u32,
-    ext: &str,
-) -> PathBuf {
-    run_dir.join(kind).join(format!(
-        "{shot}.{frame:0width$}.{ext}",
-        width = padding as usize
-    ))
-}
+//! Names in messages about a run directory: the command that resumes it, frame ranges.
+use std::path::Path;
 
 /// The shell command that resumes the run in `run_dir`.
 pub fn resume_command(run_dir: &Path) -> String {
@@ -52,12 +35,6 @@ pub(crate) fn frame_ranges(frames: &[u32]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn names_are_padded() {
-        let p = frame_file(Path::new("out"), "vdb", "shot", 7, 4, "vdb");
-        assert_eq!(p, Path::new("out/vdb/shot.0007.vdb"));
-    }
 
     #[test]
     fn resume_command_quotes_odd_paths() {

@@ -5,9 +5,9 @@
 //! and it is the file the run wrote, else from the frame's checkpoint; a frame with neither is
 //! skipped with a note, and a run with none at all is an input error before anything is
 //! written.
-use super::naming::frame_file;
 use super::records::Manifest;
 use super::rerender::{check_recorded, remove_if_present};
+use super::run_dir::{FrameFile, RunDir};
 use crate::config::ShotConfig;
 use crate::error::{Error, Result};
 use crate::ground::ParticleState;
@@ -27,16 +27,17 @@ enum Source {
 /// Renders the view of every frame that has particles into `dir` and its contact sheet;
 /// returns the number of frames rendered.
 pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
-    let manifest = Manifest::load(run_dir)?;
+    let run = RunDir::new(run_dir);
+    let manifest = Manifest::load(&run)?;
     let params = crate::preview::PreviewParams::for_shot(cfg)?;
     let pad = cfg.output.frame_padding;
     let checkpoints: BTreeMap<u32, PathBuf> =
-        crate::io::checkpoint::list_checkpoints(&run_dir.join("checkpoints"))?
+        crate::io::checkpoint::list_checkpoints(&run.checkpoints())?
             .into_iter()
             .collect();
     let mut plan: Vec<(u32, Option<Source>)> = Vec::new();
     for rec in &manifest.frames {
-        let ply = frame_file(run_dir, "particles", &cfg.shot, rec.frame, pad, "ply");
+        let ply = run.frame_file(FrameFile::Particles, &cfg.shot, rec.frame, pad);
         let source = if check_recorded(run_dir, rec, &ply).is_ok() {
             Some(Source::Cache(ply))
         } else {
@@ -62,7 +63,7 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
     let mut pngs = Vec::new();
     let mut skipped = Vec::new();
     for (frame, source) in plan {
-        let stem = crate::preview::frame_stem(&cfg.shot, frame, pad);
+        let png = RunDir::preview_frame_in(dir, &cfg.shot, frame, pad);
         let state: ParticleState = match source {
             Some(Source::Cache(p)) => {
                 crate::io::ply::read(&p, &space, cfg.solver.rest_density as f32)?
@@ -70,7 +71,7 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
             Some(Source::Checkpoint(p)) => crate::io::checkpoint::read_checkpoint(&p)?.state,
             None => {
                 skipped.push(frame);
-                remove_if_present(&dir.join(format!("{stem}.png")))?;
+                remove_if_present(&png)?;
                 continue;
             }
         };
@@ -82,7 +83,6 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
         let mut rgb = img.to_srgb8_standard();
         draw_level_legend(&mut rgb, max_level);
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-        let png = dir.join(format!("{stem}.png"));
         crate::io::atomic::write_atomic(&png, &crate::preview::png_bytes(&rgb)?)?;
         pngs.push((frame, png));
     }
@@ -93,6 +93,6 @@ pub fn render(run_dir: &Path, cfg: &ShotConfig, dir: &Path) -> Result<usize> {
             super::naming::frame_ranges(&skipped)
         );
     }
-    crate::preview::sheet::write_contact_sheet_in(dir, &pngs)?;
+    crate::preview::sheet::write_contact_sheet(&RunDir::contact_sheet_in(dir), &pngs)?;
     Ok(pngs.len())
 }

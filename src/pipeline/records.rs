@@ -1,15 +1,16 @@
 //! Run records: `manifest.json` (the farm's hand-off) and `stats.jsonl` (one line per frame).
 //! Both are rewritten whole and atomically after every frame, so a reader (or a resume after a
 //! crash) never sees half a record.
+use super::run_dir::RunDir;
 use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
+use crate::sim::diagnostics::{AtmosphereDiagnostics, CloudDiagnostics};
+use crate::sim::phase::PhaseTimes;
+use crate::sim::StepDiagnostics;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-
-pub const MANIFEST: &str = "manifest.json";
-pub const STATS: &str = "stats.jsonl";
 
 /// One output file of a frame, path relative to the run directory.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -66,8 +67,8 @@ pub struct Manifest {
 }
 
 impl Manifest {
-    pub fn load(run_dir: &Path) -> Result<Self> {
-        let path = run_dir.join(MANIFEST);
+    pub fn load(run_dir: &RunDir) -> Result<Self> {
+        let path = run_dir.manifest();
         let text = std::fs::read_to_string(&path)
             .map_err(|e| Error::InvalidInput(format!("{}: {e}", path.display())))?;
         serde_json::from_str(&text).map_err(|e| {
@@ -75,11 +76,11 @@ impl Manifest {
         })
     }
 
-    pub fn save(&self, run_dir: &Path) -> Result<()> {
+    pub fn save(&self, run_dir: &RunDir) -> Result<()> {
         let mut text =
             serde_json::to_string_pretty(self).map_err(|e| Error::Runtime(e.to_string()))?;
         text.push('\n');
-        write_atomic(&run_dir.join(MANIFEST), text.as_bytes())
+        write_atomic(&run_dir.manifest(), text.as_bytes())
     }
 
     /// Records a frame's files, replacing an earlier record of the same frame; frames stay sorted.
@@ -117,13 +118,92 @@ impl PrerollRecord {
     }
 }
 
-/// One line of stats.jsonl.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// What a frame measured, typed: the line of stats.jsonl it becomes ([`StatsLine`]) names each
+/// figure under the key the typed source writes it with (`PhaseTimes::by_key`,
+/// `StepDiagnostics::insert_into`, ...), so a key is spelled in one place.
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct FrameStats {
     pub frame: u32,
     pub sim_time: f64,
     pub particles: u64,
-    /// Milliseconds per phase (GPU timestamps where the adapter has them).
+    /// The simulation's phases (GPU timestamps where the adapter has them).
+    pub phases: PhaseTimes,
+    /// The writer's phases, once the writer has written the frame.
+    pub writer: WriterTimes,
+    pub step: StepDiagnostics,
+    pub cloud: CloudDiagnostics,
+    pub atmosphere: AtmosphereDiagnostics,
+}
+
+impl FrameStats {
+    /// The frame's line of stats.jsonl.
+    pub fn line(&self) -> StatsLine {
+        let mut phase_ms = self.phases.by_key();
+        self.writer.insert_into(&mut phase_ms);
+        let mut diagnostics = self.step.to_map();
+        self.cloud.insert_into(&mut diagnostics);
+        self.atmosphere.insert_into(&mut diagnostics);
+        StatsLine {
+            frame: self.frame,
+            sim_time: self.sim_time,
+            particles: self.particles,
+            phase_ms,
+            diagnostics,
+        }
+    }
+}
+
+/// Milliseconds the writer spent on a frame, per step (`None`: the step did not run).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct WriterTimes {
+    pub splat: Option<f64>,
+    pub write_exr: Option<f64>,
+    pub preview: Option<f64>,
+    pub write_particles: Option<f64>,
+    pub write_vdb: Option<f64>,
+    pub write_nanovdb: Option<f64>,
+}
+
+impl WriterTimes {
+    /// The steps' stats.jsonl `phase_ms` names, in the order of [`WriterTimes::values`].
+    pub const KEYS: [&'static str; 6] = [
+        "splat",
+        "write_exr",
+        "preview",
+        "write_particles",
+        "write_vdb",
+        "write_nanovdb",
+    ];
+
+    fn values(&self) -> [Option<f64>; 6] {
+        [
+            self.splat,
+            self.write_exr,
+            self.preview,
+            self.write_particles,
+            self.write_vdb,
+            self.write_nanovdb,
+        ]
+    }
+
+    /// Adds the steps that ran under their stats.jsonl `phase_ms` names.
+    pub fn insert_into(&self, out: &mut BTreeMap<String, f64>) {
+        for (k, v) in Self::KEYS.iter().zip(self.values()) {
+            if let Some(v) = v {
+                out.insert(k.to_string(), v);
+            }
+        }
+    }
+}
+
+/// One line of stats.jsonl as written and read: the figures by name, keys sorted. A resume
+/// reads the lines of earlier frames (of this or an older nimbus) and writes them back as read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StatsLine {
+    pub frame: u32,
+    pub sim_time: f64,
+    pub particles: u64,
+    /// Milliseconds per phase.
     pub phase_ms: BTreeMap<String, f64>,
     /// Physical diagnostics (density error, water, cloud mass, ...).
     pub diagnostics: BTreeMap<String, f64>,
@@ -132,13 +212,13 @@ pub struct FrameStats {
 /// stats.jsonl held in memory and rewritten atomically.
 #[derive(Debug, Default)]
 pub struct StatsLog {
-    lines: Vec<FrameStats>,
+    lines: Vec<StatsLine>,
 }
 
 impl StatsLog {
     /// Loads the lines of frames before `before_frame` (a resume drops what comes after).
-    pub fn load_until(run_dir: &Path, before_frame: u32) -> Result<Self> {
-        let path = run_dir.join(STATS);
+    pub fn load_until(run_dir: &RunDir, before_frame: u32) -> Result<Self> {
+        let path = run_dir.stats();
         let text = match std::fs::read_to_string(&path) {
             Ok(t) => t,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Self::default()),
@@ -146,7 +226,7 @@ impl StatsLog {
         };
         let mut lines = Vec::new();
         for (n, line) in text.lines().enumerate() {
-            let s: FrameStats = serde_json::from_str(line)
+            let s: StatsLine = serde_json::from_str(line)
                 .map_err(|e| Error::InvalidInput(format!("{}:{}: {e}", path.display(), n + 1)))?;
             if s.frame < before_frame {
                 lines.push(s);
@@ -155,21 +235,21 @@ impl StatsLog {
         Ok(Self { lines })
     }
 
-    pub fn push(&mut self, s: FrameStats) {
+    pub fn push(&mut self, s: &FrameStats) {
         self.lines.retain(|l| l.frame != s.frame);
-        self.lines.push(s);
+        self.lines.push(s.line());
     }
 
-    pub fn save(&self, run_dir: &Path) -> Result<()> {
+    pub fn save(&self, run_dir: &RunDir) -> Result<()> {
         let mut text = String::new();
         for l in &self.lines {
             text += &serde_json::to_string(l).map_err(|e| Error::Runtime(e.to_string()))?;
             text.push('\n');
         }
-        write_atomic(&run_dir.join(STATS), text.as_bytes())
+        write_atomic(&run_dir.stats(), text.as_bytes())
     }
 
-    pub fn lines(&self) -> &[FrameStats] {
+    pub fn lines(&self) -> &[StatsLine] {
         &self.lines
     }
 }
@@ -250,16 +330,16 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut log = StatsLog::default();
         for f in 1..=5 {
-            log.push(FrameStats {
+            log.push(&FrameStats {
                 frame: f,
                 sim_time: f as f64,
                 particles: 10,
-                phase_ms: Default::default(),
-                diagnostics: Default::default(),
+                ..Default::default()
             });
         }
-        log.save(dir.path()).unwrap();
-        let back = StatsLog::load_until(dir.path(), 4).unwrap();
+        let run = RunDir::new(dir.path());
+        log.save(&run).unwrap();
+        let back = StatsLog::load_until(&run, 4).unwrap();
         assert_eq!(
             back.lines().iter().map(|l| l.frame).collect::<Vec<_>>(),
             [1, 2, 3]
@@ -279,6 +359,45 @@ mod tests {
         assert!(frame_intact(dir.path(), &rec));
         std::fs::write(&p, b"abd").unwrap();
         assert!(!frame_intact(dir.path(), &rec));
+    }
+
+    /// The typed record becomes the line of today's keys: phases under their stats keys
+    /// (predict and solve summed as "pbf"), the writer's steps that ran, every diagnostic.
+    #[test]
+    fn a_frame_becomes_the_line_of_its_keys() {
+        use crate::sim::Phase;
+        let mut s = FrameStats {
+            frame: 3,
+            sim_time: 0.5,
+            particles: 7,
+            ..Default::default()
+        };
+        s.phases.add(Phase::Predict, 1.0);
+        s.phases.add(Phase::Solve, 2.0);
+        s.writer.splat = Some(4.0);
+        s.step.cfl_max = 0.25;
+        s.atmosphere.clamped_particles = 2;
+        let line = s.line();
+        let keys: Vec<&str> = line.phase_ms.keys().map(String::as_str).collect();
+        assert_eq!(keys, ["pbf", "splat"]);
+        assert_eq!(line.phase_ms["pbf"], 3.0);
+        assert_eq!(line.diagnostics["cfl_max"], 0.25);
+        assert_eq!(line.diagnostics["clamped_particles"], 2.0);
+        assert!(line.diagnostics.contains_key("total_water"));
+        assert!(!line.diagnostics.contains_key("splits"));
+        let text = serde_json::to_string(&line).unwrap();
+        assert!(text.starts_with(r#"{"frame":3,"sim_time":0.5,"particles":7,"phase_ms":{"pbf":3.0,"splat":4.0},"diagnostics":{"cfl_max":0.25,"clamped_particles":2.0,"#), "{text}");
+    }
+
+    /// A resume writes the lines it read back as they were, keys it does not know included.
+    #[test]
+    fn read_lines_are_written_back_as_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::new(dir.path());
+        let text = "{\"frame\":1,\"sim_time\":0.25,\"particles\":5,\"phase_ms\":{\"grid\":1.5},\"diagnostics\":{\"a_retired_key\":1.0,\"cfl_max\":0.5}}\n";
+        std::fs::write(run.stats(), text).unwrap();
+        StatsLog::load_until(&run, 2).unwrap().save(&run).unwrap();
+        assert_eq!(std::fs::read_to_string(run.stats()).unwrap(), text);
     }
 
     /// A resumed run writes the earlier frames' stats lines again from what it read: every f64

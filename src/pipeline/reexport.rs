@@ -22,6 +22,7 @@
 //! "in use" by an export.
 use super::lock::RunLock;
 use super::records::{file_record, FileRecord, FrameRecord, Manifest};
+use super::run_dir::RunDir;
 use super::writer::{FrameJob, FrameWriter};
 use crate::config::ShotConfig;
 use crate::error::{Error, Result};
@@ -66,7 +67,7 @@ pub fn parse_frames(s: &str) -> Result<(u32, u32)> {
 fn shot_of(manifest: &Manifest, run_dir: &Path, sets: &[String]) -> Result<Shot> {
     let text = serde_json::to_string_pretty(&manifest.config)
         .map_err(|e| Error::Runtime(e.to_string()))?;
-    let origin = run_dir.join(super::records::MANIFEST);
+    let origin = RunDir::new(run_dir).manifest();
     crate::shot::load_str(&text, &origin.to_string_lossy(), sets)
 }
 
@@ -90,14 +91,15 @@ pub fn check_sets(sets: &[String]) -> Result<()> {
 
 pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
     check_sets(&req.sets)?;
-    let manifest = Manifest::load(run_dir)?;
+    let run = RunDir::new(run_dir);
+    let manifest = Manifest::load(&run)?;
     let run_cfg = shot_of(&manifest, run_dir, &[])?.into_config();
     let own = shot_of(&manifest, run_dir, &req.sets)?.config().export == run_cfg.export;
     // Own settings write into the run directory: held shared, and the manifest read again
     // under the lock. Another export directory needs no run lock (see the module's note).
     let (_lock, manifest) = if own {
         let lock = RunLock::acquire_shared(run_dir)?;
-        (Some(lock), Manifest::load(run_dir)?)
+        (Some(lock), Manifest::load(&run)?)
     } else {
         (None, manifest)
     };
@@ -150,19 +152,15 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
         )
     });
     let dest = if own {
-        run_dir.to_path_buf()
+        run.clone()
     } else {
-        run_dir
-            .join("exports")
-            .join(dir_name(&cfg, req.name.as_deref())?)
+        run.export_dir(&dir_name(&cfg, req.name.as_deref())?)
     };
     // The writer never writes caches again: it splats the ones it reads.
     let mut wcfg = cfg.clone();
     wcfg.export.particles = false;
     let writer = FrameWriter::new(&shot, &wcfg, &dest)?;
-    for d in super::naming::DIRS.iter().filter(|d| **d != "checkpoints") {
-        std::fs::create_dir_all(dest.join(d)).map_err(|e| Error::io(dest.join(d), e))?;
-    }
+    dest.create_dirs(false)?;
     let out_manifest = if own {
         None
     } else {
@@ -173,7 +171,7 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
             if there.config != m.config {
                 return Err(Error::InvalidInput(format!(
                     "{}: holds an export with other settings; choose another --name",
-                    dest.display()
+                    dest.root().display()
                 )));
             }
         }
@@ -223,7 +221,7 @@ pub fn export(run_dir: &Path, req: &ExportRequest) -> Result<ExportSummary> {
         })
         .collect();
     let mut summary = ExportSummary {
-        dir: dest.clone(),
+        dir: dest.root().to_path_buf(),
         written: Vec::new(),
         unchanged: Vec::new(),
     };
@@ -330,7 +328,7 @@ fn check_same(rec: &FrameRecord, new: &FrameRecord, ply: &FileRecord) -> Result<
 /// Adds a frame to the export's manifest on disk, under the export directory's lock (other
 /// processes may be exporting other frames into it).
 fn record(
-    dest: &Path,
+    dest: &RunDir,
     m: &Mutex<Manifest>,
     rec: FrameRecord,
     layer: &super::usd_layer::LayerWriter,
@@ -344,22 +342,22 @@ fn record(
     current.record_frame(rec);
     current.complete =
         (current.frame_start..=current.frame_end).all(|f| current.frame(f).is_some());
-    layer.update(dest, &mut current)?;
+    layer.update(dest.root(), &mut current)?;
     current.save(dest)?;
     *fresh = current;
     drop(lock);
     Ok(())
 }
 
-fn reload(dest: &Path, m: &Mutex<Manifest>) -> Result<Manifest> {
+fn reload(dest: &RunDir, m: &Mutex<Manifest>) -> Result<Manifest> {
     let fresh = m.lock().unwrap_or_else(|e| e.into_inner()).clone();
     let _lock = lock_file(dest)?;
     Ok(Manifest::load(dest).unwrap_or(fresh))
 }
 
 /// Blocking exclusive lock of `dest/.lock`, released on drop.
-fn lock_file(dest: &Path) -> Result<std::fs::File> {
-    let path = dest.join(".lock");
+fn lock_file(dest: &RunDir) -> Result<std::fs::File> {
+    let path = dest.lock_file();
     let f = std::fs::OpenOptions::new()
         .create(true)
         .truncate(false)
@@ -373,13 +371,16 @@ fn lock_file(dest: &Path) -> Result<std::fs::File> {
 /// `exports/<name>` under the run for `sets` (`--set export.key=value`) and `--name`, or `None`
 /// when the sets leave the run's own export settings (the files then go to the run itself).
 pub fn destination(run_dir: &Path, sets: &[String], name: Option<&str>) -> Result<Option<PathBuf>> {
-    let manifest = Manifest::load(run_dir)?;
+    let run = RunDir::new(run_dir);
+    let manifest = Manifest::load(&run)?;
     let run_cfg = shot_of(&manifest, run_dir, &[])?.into_config();
     let cfg = shot_of(&manifest, run_dir, sets)?.into_config();
     if cfg.export == run_cfg.export {
         return Ok(None);
     }
-    Ok(Some(run_dir.join("exports").join(dir_name(&cfg, name)?)))
+    Ok(Some(
+        run.export_dir(&dir_name(&cfg, name)?).root().to_path_buf(),
+    ))
 }
 
 fn dir_name(cfg: &ShotConfig, name: Option<&str>) -> Result<String> {

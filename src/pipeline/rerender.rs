@@ -6,8 +6,8 @@
 //! cloud rendered from the VDB files, `particles` from the particle caches or checkpoints
 //! (`super::particle_view`).
 use super::lock::{Create, RunLock};
-use super::naming::frame_file;
 use super::records::{sha256_hex, FrameRecord, Manifest};
+use super::run_dir::{FrameFile, RunDir};
 use crate::config::ShotConfig;
 use crate::error::{Error, Result};
 use crate::io::vdb::{read::read_file, GridData};
@@ -49,9 +49,10 @@ pub fn rerender_run(run_dir: &Path, set: &[String], view: View) -> Result<(usize
     let _lock = RunLock::acquire(run_dir, Create::No, "preview")?;
     let shot = super::resume::shot_of_run(run_dir, set)?;
     let cfg = shot.config().clone();
+    let run = RunDir::new(run_dir);
     let dir = match view.folder() {
-        Some(f) => run_dir.join("preview").join(f),
-        None => run_dir.join("preview"),
+        Some(f) => run.preview_view(f),
+        None => run.preview(),
     };
     let refused = |what: &str| {
         Error::InvalidInput(format!(
@@ -100,7 +101,7 @@ type Decorate<'a> = &'a dyn Fn(&mut LinearImage, u32, &crate::preview::PreviewPa
 /// are drawn in, as the run drew them.
 pub fn rerender_previews(run_dir: &Path, shot: &Shot) -> Result<usize> {
     let cfg = shot.config();
-    let dir = run_dir.join("preview");
+    let dir = RunDir::new(run_dir).preview();
     let exr = cfg.output.preview.exr;
     if cfg.output.preview.source_overlay {
         let overlay = SourceOverlay::new(cfg, shot.heat_maps())?;
@@ -119,7 +120,8 @@ fn rerender_into(
     exr: bool,
     decorate: Option<Decorate>,
 ) -> Result<usize> {
-    let manifest = Manifest::load(run_dir)?;
+    let run = RunDir::new(run_dir);
+    let manifest = Manifest::load(&run)?;
     let params = crate::preview::PreviewParams::for_shot(cfg)?;
     let grid_name = &cfg.export.grids.density;
     let space = crate::export::ExportSpace::from_config(cfg);
@@ -127,14 +129,13 @@ fn rerender_into(
     let mut pngs: Vec<(u32, PathBuf)> = Vec::new();
     let mut failed: Vec<String> = Vec::new();
     for rec in &manifest.frames {
-        let vdb = frame_file(run_dir, "vdb", &cfg.shot, rec.frame, pad, "vdb");
-        let stem = crate::preview::frame_stem(&cfg.shot, rec.frame, pad);
+        let vdb = run.frame_file(FrameFile::Vdb, &cfg.shot, rec.frame, pad);
+        let png = RunDir::preview_frame_in(dir, &cfg.shot, rec.frame, pad);
         if let Err(why) = check_recorded(run_dir, rec, &vdb) {
             eprintln!("frame {}: {why}", rec.frame);
             failed.push(format!("frame {}", rec.frame));
-            for ext in ["png", "exr"] {
-                remove_if_present(&dir.join(format!("{stem}.{ext}")))?;
-            }
+            remove_if_present(&png)?;
+            remove_if_present(&png.with_extension("exr"))?;
             continue;
         }
         let file = read_file(&vdb)?;
@@ -152,10 +153,10 @@ fn rerender_into(
         if let Some(draw) = decorate {
             draw(&mut img, rec.frame, &params);
         }
-        let png = crate::preview::write_image(&img, params.exposure, dir, &stem, exr)?;
+        let png = crate::preview::write_image(&img, params.exposure, &png, exr)?;
         pngs.push((rec.frame, png));
     }
-    let sheet = dir.join("contact_sheet.png");
+    let sheet = RunDir::contact_sheet_in(dir);
     if pngs.is_empty() {
         remove_if_present(&sheet)?;
         return Err(Error::InvalidInput(format!(
@@ -168,7 +169,7 @@ fn rerender_into(
             }
         )));
     }
-    crate::preview::sheet::write_contact_sheet_in(dir, &pngs)?;
+    crate::preview::sheet::write_contact_sheet(&sheet, &pngs)?;
     if !failed.is_empty() {
         return Err(Error::InvalidInput(format!(
             "{}: {} of {} frames could not be previewed ({}); the others were rendered",

@@ -1,14 +1,17 @@
 //! The resume policy: the config a run resumes with (its manifest's, or its newest checkpoint's
-//! when the manifest is lost), the refusal of changed simulation keys, and the checkpoint it
-//! resumes from. `nimbus resume` and `nimbus run --resume` are [`resume`] and [`resume_with`], so
-//! a library caller gets the same refusals as the command line.
+//! when the manifest is lost) and the refusal of changed simulation keys (the checkpoint it
+//! resumes from is `super::checkpoints`'). `nimbus resume` and `nimbus run --resume` are
+//! [`resume`] and [`resume_with`], so a library caller gets the same refusals as the command
+//! line.
 use super::lock::{Create, RunLock};
+use super::open::{RunOptions, Start};
 use super::progress::LogFormat;
-use super::records::{Manifest, MANIFEST};
-use super::run::{run, RunOptions, Start};
+use super::records::Manifest;
+use super::run::run;
+use super::run_dir::RunDir;
 use crate::config::{self, ShotConfig};
 use crate::error::{Error, Result};
-use crate::io::checkpoint::{self, Checkpoint, ResumeScan, SkipReason};
+use crate::io::checkpoint;
 use crate::shot::Shot;
 use std::path::Path;
 
@@ -39,16 +42,17 @@ fn resume_options(out_dir: &Path, log: LogFormat) -> RunOptions {
 /// The shot of the resolved config a run recorded in its manifest, with overrides applied
 /// (JSON is YAML).
 pub fn shot_of_run(out_dir: &Path, set: &[String]) -> Result<Shot> {
-    let manifest = Manifest::load(out_dir)?;
+    let run = RunDir::new(out_dir);
+    let manifest = Manifest::load(&run)?;
     let text = serde_json::to_string_pretty(&manifest.config)
         .map_err(|e| Error::Runtime(e.to_string()))?;
-    let origin = out_dir.join(MANIFEST);
+    let origin = run.manifest();
     crate::shot::load_str(&text, &origin.to_string_lossy(), set)
 }
 
 /// The run's shot: its manifest's config, or its newest checkpoint's when the manifest is lost.
 pub fn recorded_shot(out_dir: &Path) -> Result<Shot> {
-    if out_dir.join(MANIFEST).exists() {
+    if RunDir::new(out_dir).manifest().exists() {
         shot_of_run(out_dir, &[])
     } else {
         shot_of_checkpoints(out_dir)
@@ -58,7 +62,8 @@ pub fn recorded_shot(out_dir: &Path) -> Result<Shot> {
 /// The shot of the config recorded in the newest valid checkpoint (a run whose manifest.json
 /// was lost).
 fn shot_of_checkpoints(out_dir: &Path) -> Result<Shot> {
-    let Some((path, cfg)) = checkpoint::newest_config(&out_dir.join("checkpoints"))? else {
+    let run = RunDir::new(out_dir);
+    let Some((path, cfg)) = checkpoint::newest_config(&run.checkpoints())? else {
         return Err(Error::InvalidInput(format!(
             "{}: not a nimbus run directory: no manifest.json, and no checkpoint that records its config",
             out_dir.display()
@@ -69,7 +74,7 @@ fn shot_of_checkpoints(out_dir: &Path) -> Result<Shot> {
     let shot = crate::shot::load_str(&text, &path.to_string_lossy(), &[])?;
     eprintln!(
         "note: {} is missing; resuming with the config recorded in {}",
-        out_dir.join(MANIFEST).display(),
+        run.manifest().display(),
         path.display()
     );
     Ok(shot)
@@ -91,98 +96,10 @@ pub fn refuse_changed_simulation(cfg: &ShotConfig, out_dir: &Path) -> Result<()>
     }
 }
 
-/// The checkpoint of `ckpt_dir` a run of `cfg` (sim hash `sim_hash`) resumes from: the newest
-/// valid one of the same simulation config whose frame lies in the config's frame range. The
-/// files passed over are warned about on stderr.
-pub fn checkpoint_to_resume(
-    cfg: &ShotConfig,
-    ckpt_dir: &Path,
-    sim_hash: &str,
-) -> Result<Checkpoint> {
-    let scan = checkpoint::scan_resumable(ckpt_dir, sim_hash)?;
-    let skipped: Vec<String> = scan.skipped.iter().map(|s| s.to_string()).collect();
-    for s in &skipped {
-        eprintln!("warning: skipped checkpoint: {s}");
-    }
-    if scan.found.is_none() && scan.config_changed() {
-        return Err(changed_keys_error(cfg, &scan));
-    }
-    match scan.found {
-        Some((path, ck)) => {
-            check_resume_frame(cfg, &path, ck.header.frame)?;
-            eprintln!(
-                "resuming from {} (frame {})",
-                path.display(),
-                ck.header.frame
-            );
-            Ok(ck)
-        }
-        None => Err(Error::InvalidInput(format!(
-            "{}: no usable checkpoint to resume from{}",
-            ckpt_dir.display(),
-            if skipped.is_empty() {
-                ""
-            } else {
-                " (see the warnings above)"
-            }
-        ))),
-    }
-}
-
-/// No checkpoint matches the config's simulation keys: name every key that differs from the
-/// newest checkpoint that records its config.
-fn changed_keys_error(cfg: &ShotConfig, scan: &ResumeScan) -> Error {
-    for s in &scan.skipped {
-        if !matches!(s.reason, SkipReason::ConfigMismatch { .. }) {
-            continue;
-        }
-        if let Some(recorded) = checkpoint::read_checkpoint(&s.path)
-            .ok()
-            .and_then(|ck| checkpoint::config_of(&ck))
-        {
-            let diff = config::sim_key_diff(&recorded, cfg);
-            if !diff.is_empty() {
-                return Error::InvalidInput(format!(
-                    "{}: cannot resume: simulation keys differ from the checkpoint's: {}",
-                    s.path.display(),
-                    diff.join(", ")
-                ));
-            }
-        }
-    }
-    Error::InvalidInput(
-        "cannot resume: the simulation config differs from every checkpoint's (see the warnings above)"
-            .into(),
-    )
-}
-
-/// A checkpoint resumes only inside the frame range: one past `frames.end` (the range was
-/// lowered after it was written) or before `frames.start` is refused before anything is written.
-fn check_resume_frame(cfg: &ShotConfig, path: &Path, frame: u32) -> Result<()> {
-    let (start, end) = (cfg.output.frames.start, cfg.output.frames.end);
-    if frame > end {
-        return Err(Error::InvalidInput(format!(
-            "{}: cannot resume: the newest usable checkpoint holds frame {frame}, past \
-             output.frames.end = {end}; the run already went beyond that end: raise \
-             output.frames.end to {frame} or more (nimbus run CONFIG --out DIR --resume --set \
-             output.frames.end=N)",
-            path.display()
-        )));
-    }
-    if frame < start {
-        return Err(Error::InvalidInput(format!(
-            "{}: cannot resume: the checkpoint holds frame {frame}, before output.frames.start = \
-             {start}",
-            path.display()
-        )));
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::io::checkpoint::{write_checkpoint, CheckpointHeader, CONFIG_SECTION};
+    use crate::io::checkpoint::{write_checkpoint, Checkpoint, CheckpointHeader, CONFIG_SECTION};
 
     fn tiny(set: &[&str]) -> Shot {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny.yaml");
@@ -209,7 +126,7 @@ mod tests {
             state: Default::default(),
             extra: [(CONFIG_SECTION.into(), serde_json::to_vec(cfg).unwrap())].into(),
         };
-        write_checkpoint(&dir.path().join("checkpoints"), &ck).unwrap();
+        write_checkpoint(&RunDir::new(dir.path()).checkpoints(), &ck).unwrap();
         dir
     }
 

@@ -1,266 +1,178 @@
-//! What a run directory holds, and preparing one for a fresh `run` without losing work.
-//!
-//! nimbus's own files in a run directory are: `.lock`; `manifest.json` when it parses as a
-//! nimbus manifest; then, by that manifest, every file it lists, every frame file named by its
-//! shot (the shot the newest checkpoint records when the manifest is lost) (`vdb/<shot>.<digits>.vdb`, `exr/<shot>.<digits>.exr`, `preview/<shot>.<digits>.png|exr`, `particles/<shot>.<digits>.ply`,
-//! `nvdb/<shot>.<digits>.nvdb`; a frame written just before a kill is not listed yet),
-//! `preview/contact_sheet.png`, `preview/<shot>.mp4` and the USD layer `<shot>.usda`;
-//! `stats.jsonl` when the manifest is nimbus's or every line is a stats line; checkpoint files
-//! (`checkpoints/ckpt_<digits>.nck` starting with the checkpoint magic); and temporary files
-//! (`*.nimbus-tmp`, stale once the lock is held); and under `exports/<name>/` (`nimbus
-//! export`) what the same rules make own by that directory's manifest. Everything else is
-//! foreign.
-//!
-//! A fresh `run` into a directory holding a run is refused (resume it, or `--force`); with
-//! `--force` only nimbus's own files are removed. A directory holding any foreign file is
-//! refused with or without `--force`: nothing nimbus did not write is ever deleted.
-use super::lock::LOCK_FILE;
-use super::naming::resume_command;
-use super::records::{FrameStats, Manifest, MANIFEST, STATS};
+//! The run directory's layout (README "A run directory"): [`RunDir`] names every path in it,
+//! so no other file writes a folder or file name of a run directory. What a directory holds,
+//! and whether it can take a fresh run, is `super::survey`'s.
 use crate::error::{Error, Result};
-use crate::io::atomic::TMP_SUFFIX;
-use crate::io::checkpoint;
-use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
-/// The files of a run directory, sorted into nimbus's own and foreign ones (paths relative to
-/// the directory, `/`-separated).
-#[derive(Debug, Default)]
-pub struct Contents {
-    pub own: Vec<String>,
-    pub foreign: Vec<String>,
-    /// The manifest, when it is nimbus's.
-    pub manifest: Option<Manifest>,
-    /// Frames of the checkpoint files found.
-    pub checkpoints: Vec<u32>,
+/// A run directory (or an export directory, `exports/<name>/`, which has the same layout
+/// without checkpoints): the one place its file and folder names are written.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RunDir {
+    root: PathBuf,
 }
 
-impl Contents {
-    /// Whether the directory holds (part of) a nimbus run: a manifest, checkpoints or stats.
-    pub fn holds_run(&self) -> bool {
-        self.manifest.is_some()
-            || !self.checkpoints.is_empty()
-            || self.own.iter().any(|p| p == STATS)
-    }
+/// The kinds of per-frame file: `<folder>/<shot>.<frame, zero-padded>.<ext>`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameFile {
+    Vdb,
+    NanoVdb,
+    Exr,
+    PreviewPng,
+    PreviewExr,
+    Particles,
 }
 
-/// Sorts every file under `dir` (symlinks are not followed, and are foreign).
-pub fn survey(dir: &Path) -> Result<Contents> {
-    let files = walk(dir)?;
-    let mut c = Contents {
-        manifest: Manifest::load(dir).ok().filter(|m| m.tool == "nimbus"),
-        ..Default::default()
-    };
-    // The shot whose frame files are nimbus's: the manifest's, or (manifest lost) the one the
-    // newest checkpoint records.
-    let shot = match &c.manifest {
-        Some(m) => Some(m.shot.clone()),
-        None => checkpoint::newest_config(&dir.join("checkpoints"))?.map(|(_, cfg)| cfg.shot),
-    };
-    let listed: BTreeSet<&str> = c
-        .manifest
-        .iter()
-        .flat_map(|m| m.frames.iter())
-        .flat_map(|f| f.files.iter().map(|r| r.path.as_str()))
-        .collect();
-    // `nimbus export` directories (`exports/<name>/`) are surveyed the same way, by their own
-    // manifests.
-    let mut exported: BTreeSet<String> = BTreeSet::new();
-    if let Ok(entries) = std::fs::read_dir(dir.join("exports")) {
-        for e in entries.flatten() {
-            let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
-            if let (true, Some(name)) = (is_dir, e.file_name().to_str()) {
-                for r in survey(&e.path())?.own {
-                    exported.insert(format!("exports/{name}/{r}"));
-                }
-            }
+impl FrameFile {
+    pub const ALL: [FrameFile; 6] = [
+        FrameFile::Vdb,
+        FrameFile::NanoVdb,
+        FrameFile::Exr,
+        FrameFile::PreviewPng,
+        FrameFile::PreviewExr,
+        FrameFile::Particles,
+    ];
+
+    /// The folder under the run directory.
+    pub fn folder(self) -> &'static str {
+        match self {
+            FrameFile::Vdb => "vdb",
+            FrameFile::NanoVdb => "nvdb",
+            FrameFile::Exr => "exr",
+            FrameFile::PreviewPng | FrameFile::PreviewExr => RunDir::PREVIEW,
+            FrameFile::Particles => "particles",
         }
     }
-    let mut own = Vec::new();
-    let mut foreign = Vec::new();
-    for (rel, is_file) in files {
-        let mine = is_file
-            && (exported.contains(&rel)
-                || rel == LOCK_FILE
-                || rel.ends_with(TMP_SUFFIX)
-                || (rel == MANIFEST && c.manifest.is_some())
-                || (rel == STATS && (c.manifest.is_some() || stats_only(&dir.join(&rel))))
-                || listed.contains(rel.as_str())
-                || shot.as_ref().is_some_and(|s| frame_file_of(s, &rel))
-                || own_checkpoint(dir, &rel, &mut c.checkpoints));
-        if mine {
-            own.push(rel);
-        } else {
-            foreign.push(rel);
+
+    pub fn ext(self) -> &'static str {
+        match self {
+            FrameFile::Vdb => "vdb",
+            FrameFile::NanoVdb => "nvdb",
+            FrameFile::Exr | FrameFile::PreviewExr => "exr",
+            FrameFile::PreviewPng => "png",
+            FrameFile::Particles => "ply",
         }
     }
-    c.own = own;
-    c.foreign = foreign;
-    Ok(c)
 }
 
-/// Makes `dir` (locked by the caller) ready for a fresh run: nothing to do when it holds no
-/// files; refused when it holds a run (unless `force`: then that run's files are removed) or
-/// any foreign file.
-pub fn prepare_fresh(dir: &Path, force: bool) -> Result<()> {
-    let c = check_fresh(dir, force)?;
-    let mut removed = 0;
-    for rel in &c.own {
-        if rel == LOCK_FILE {
-            continue;
+impl RunDir {
+    /// The lock file (`super::lock`).
+    pub const LOCK: &'static str = ".lock";
+    /// The run's record for the farm (`super::records::Manifest`).
+    pub const MANIFEST: &'static str = "manifest.json";
+    /// One line of stats per written frame (`super::records::StatsLog`).
+    pub const STATS: &'static str = "stats.jsonl";
+    pub(super) const CHECKPOINTS: &'static str = "checkpoints";
+    const PREVIEW: &'static str = "preview";
+    pub(super) const EXPORTS: &'static str = "exports";
+    const CONTACT_SHEET: &'static str = "contact_sheet.png";
+    /// The farm's Blender renders (`nimbus farm --render`), written by its job scripts, not by
+    /// nimbus: foreign to the survey.
+    pub const RENDER: &'static str = "render";
+    /// The folders made before the first frame: the frame folders written from the writer's
+    /// first frame on (the particle and NanoVDB folders are made when first written), then
+    /// the checkpoints'.
+    const FRAME_DIRS: [&'static str; 3] = ["vdb", "exr", Self::PREVIEW];
+
+    pub fn new(root: impl Into<PathBuf>) -> Self {
+        Self { root: root.into() }
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    pub fn lock_file(&self) -> PathBuf {
+        self.root.join(Self::LOCK)
+    }
+
+    pub fn manifest(&self) -> PathBuf {
+        self.root.join(Self::MANIFEST)
+    }
+
+    pub fn stats(&self) -> PathBuf {
+        self.root.join(Self::STATS)
+    }
+
+    pub fn checkpoints(&self) -> PathBuf {
+        self.root.join(Self::CHECKPOINTS)
+    }
+
+    pub fn preview(&self) -> PathBuf {
+        self.root.join(Self::PREVIEW)
+    }
+
+    /// `preview/<folder>/`, the images of a debug view of `nimbus preview --view`.
+    pub fn preview_view(&self, folder: &str) -> PathBuf {
+        self.preview().join(folder)
+    }
+
+    /// The contact sheet of the previews in `dir` (`preview/` or a view's folder).
+    pub fn contact_sheet_in(dir: &Path) -> PathBuf {
+        dir.join(Self::CONTACT_SHEET)
+    }
+
+    /// `preview/contact_sheet.png`.
+    pub fn contact_sheet(&self) -> PathBuf {
+        Self::contact_sheet_in(&self.preview())
+    }
+
+    /// `preview/<shot>.mp4`, the dailies (`output.preview.movie`).
+    pub fn movie(&self, shot: &str) -> PathBuf {
+        self.preview().join(format!("{shot}.mp4"))
+    }
+
+    /// `exports/<name>/`, a `nimbus export` directory.
+    pub fn export_dir(&self, name: &str) -> RunDir {
+        RunDir::new(self.root.join(Self::EXPORTS).join(name))
+    }
+
+    /// `<folder>/<shot>.<frame, zero-padded>.<ext>`
+    pub fn frame_file(&self, kind: FrameFile, shot: &str, frame: u32, padding: u32) -> PathBuf {
+        self.root
+            .join(kind.folder())
+            .join(frame_name(shot, frame, padding, kind.ext()))
+    }
+
+    /// `<dir>/<shot>.<frame, zero-padded>.png`, a preview image in `dir` (`preview/` or a
+    /// view's folder).
+    pub fn preview_frame_in(dir: &Path, shot: &str, frame: u32, padding: u32) -> PathBuf {
+        dir.join(frame_name(
+            shot,
+            frame,
+            padding,
+            FrameFile::PreviewPng.ext(),
+        ))
+    }
+
+    /// The frames of `kind` as an ffmpeg input pattern (`<shot>.%0<padding>d.<ext>`).
+    pub fn frame_pattern(&self, kind: FrameFile, shot: &str, padding: u32) -> PathBuf {
+        self.root
+            .join(kind.folder())
+            .join(format!("{shot}.%0{}d.{}", padding.max(1), kind.ext()))
+    }
+
+    /// `render/<shot>.<frame, zero-padded>.png`, a farm render of a frame.
+    pub fn render_frame(&self, shot: &str, frame: u32, padding: u32) -> PathBuf {
+        self.root
+            .join(Self::RENDER)
+            .join(frame_name(shot, frame, padding, "png"))
+    }
+
+    /// Makes the folders of the frame files (`vdb`, `exr`, `preview`) and, with `checkpoints`,
+    /// `checkpoints` (an export directory has none).
+    pub fn create_dirs(&self, checkpoints: bool) -> Result<()> {
+        let extra = checkpoints.then_some(Self::CHECKPOINTS);
+        for d in Self::FRAME_DIRS.into_iter().chain(extra) {
+            let p = self.root.join(d);
+            std::fs::create_dir_all(&p).map_err(|e| Error::io(&p, e))?;
         }
-        let p = dir.join(rel);
-        std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
-        removed += 1;
-    }
-    if removed > 0 {
-        eprintln!(
-            "note: removed {removed} file(s) of an earlier run in {}",
-            dir.display()
-        );
-    }
-    Ok(())
-}
-
-/// Whether `out` can take a fresh run, read only: a file there, a directory another nimbus
-/// process holds, files nimbus did not write, or an earlier run without `force` are refused
-/// (exit 2). `run` asks it before it opens the
-/// device, so that bad input is exit 2 on a machine without a GPU too, and `prepare_fresh`
-/// again under the lock. A missing `out` passes (the lock creates it).
-pub fn check_fresh_out(out: &Path, force: bool) -> Result<()> {
-    match std::fs::metadata(out) {
-        Ok(m) if m.is_dir() => {
-            super::lock::check_not_in_use(out)?;
-            check_fresh(out, force).map(|_| ())
-        }
-        Ok(_) => Err(Error::InvalidInput(format!(
-            "{}: is a file, not a run directory",
-            out.display()
-        ))),
-        Err(_) => Ok(()),
+        Ok(())
     }
 }
 
-/// The survey of `dir` when it may take a fresh run (see [`prepare_fresh`]).
-fn check_fresh(dir: &Path, force: bool) -> Result<Contents> {
-    let c = survey(dir)?;
-    if !c.foreign.is_empty() {
-        let shown: Vec<&str> = c.foreign.iter().take(3).map(String::as_str).collect();
-        let more = c.foreign.len().saturating_sub(shown.len());
-        return Err(Error::InvalidInput(format!(
-            "{}: holds {} file(s) nimbus did not write ({}{}); a run goes into a new or empty \
-             directory or over its own earlier run, and nimbus never deletes other files: \
-             choose another --out",
-            dir.display(),
-            c.foreign.len(),
-            shown.join(", "),
-            if more > 0 {
-                format!(", and {more} more")
-            } else {
-                String::new()
-            }
-        )));
-    }
-    if c.holds_run() && !force {
-        let what = match &c.manifest {
-            Some(m) => format!(
-                "shot '{}', {} of frames {}..={} written{}",
-                m.shot,
-                m.frames.len(),
-                m.frame_start,
-                m.frame_end,
-                if m.complete { ", complete" } else { "" }
-            ),
-            None => "no manifest".into(),
-        };
-        let ck = match c.checkpoints.iter().max() {
-            Some(f) => format!(", newest checkpoint frame {f}"),
-            None => String::new(),
-        };
-        return Err(Error::InvalidInput(format!(
-            "{d}: already holds a nimbus run ({what}{ck}); to go on with it: {resume}; to start \
-             over, deleting that run's files: add --force",
-            d = dir.display(),
-            resume = resume_command(dir)
-        )));
-    }
-    Ok(c)
-}
-
-/// `kind/<shot>.<digits>.<ext>` with the extensions nimbus writes there, or the contact sheet.
-fn frame_file_of(shot: &str, rel: &str) -> bool {
-    if rel == "preview/contact_sheet.png"
-        || rel == format!("preview/{shot}.mp4")
-        || rel == crate::export::usd::layer_name(shot)
-    {
-        return true;
-    }
-    let Some((kind, name)) = rel.split_once('/') else {
-        return false;
-    };
-    let exts: &[&str] = match kind {
-        "vdb" => &["vdb"],
-        "exr" => &["exr"],
-        "preview" => &["png", "exr"],
-        "particles" => &["ply"],
-        "nvdb" => &["nvdb"],
-        _ => return false,
-    };
-    let Some(rest) = name.strip_prefix(shot).and_then(|r| r.strip_prefix('.')) else {
-        return false;
-    };
-    let Some((digits, ext)) = rest.split_once('.') else {
-        return false;
-    };
-    !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()) && exts.contains(&ext)
-}
-
-fn own_checkpoint(dir: &Path, rel: &str, frames: &mut Vec<u32>) -> bool {
-    let Some(name) = rel.strip_prefix("checkpoints/") else {
-        return false;
-    };
-    let Some(frame) = checkpoint::frame_of_name(name) else {
-        return false;
-    };
-    let mut head = [0u8; 8];
-    let ok = std::fs::File::open(dir.join(rel))
-        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
-        .is_ok()
-        && checkpoint::is_checkpoint(&head);
-    if ok {
-        frames.push(frame);
-    }
-    ok
-}
-
-/// Whether every line of the file is a nimbus stats line (an empty file is).
-fn stats_only(p: &Path) -> bool {
-    std::fs::read_to_string(p).is_ok_and(|t| {
-        t.lines()
-            .all(|l| serde_json::from_str::<FrameStats>(l).is_ok())
-    })
-}
-
-/// (relative path, is a regular file) of everything below `dir` but directories.
-fn walk(dir: &Path) -> Result<Vec<(String, bool)>> {
-    let mut out = Vec::new();
-    let mut stack: Vec<PathBuf> = vec![PathBuf::new()];
-    while let Some(rel) = stack.pop() {
-        let abs = dir.join(&rel);
-        let rd = std::fs::read_dir(&abs).map_err(|e| Error::io(&abs, e))?;
-        for entry in rd {
-            let entry = entry.map_err(|e| Error::io(&abs, e))?;
-            let ft = entry.file_type().map_err(|e| Error::io(entry.path(), e))?;
-            let r = rel.join(entry.file_name());
-            if ft.is_dir() {
-                stack.push(r);
-            } else {
-                out.push((r.to_string_lossy().replace('\\', "/"), ft.is_file()));
-            }
-        }
-    }
-    out.sort();
-    Ok(out)
+/// `<shot>.<frame, zero-padded to padding digits>.<ext>`
+fn frame_name(shot: &str, frame: u32, padding: u32, ext: &str) -> String {
+    format!("{shot}.{frame:0width$}.{ext}", width = padding as usize)
 }
 
 #[cfg(test)]
@@ -268,32 +180,45 @@ mod tests {
     use super::*;
 
     #[test]
-    fn frame_files_follow_the_naming() {
-        assert!(frame_file_of("tiny", "vdb/tiny.0003.vdb"));
-        assert!(frame_file_of("tiny", "preview/tiny.0003.exr"));
-        assert!(frame_file_of("tiny", "preview/contact_sheet.png"));
-        assert!(!frame_file_of("tiny", "vdb/tiny.0003.exr"));
-        assert!(!frame_file_of("tiny", "vdb/other.0003.vdb"));
-        assert!(!frame_file_of("tiny", "vdb/tiny.x3.vdb"));
-        assert!(!frame_file_of("tiny", "notes/tiny.0003.vdb"));
-    }
-
-    #[test]
-    fn empty_and_new_dirs_are_ready() {
-        let dir = tempfile::tempdir().unwrap();
-        std::fs::create_dir_all(dir.path().join("vdb")).unwrap();
-        std::fs::write(dir.path().join(LOCK_FILE), "").unwrap();
-        prepare_fresh(dir.path(), false).unwrap();
-    }
-
-    #[test]
-    fn foreign_files_refuse_even_with_force_and_stay() {
-        let dir = tempfile::tempdir().unwrap();
-        std::fs::create_dir_all(dir.path().join("checkpoints")).unwrap();
-        let f = dir.path().join("checkpoints/notes.txt");
-        std::fs::write(&f, "mine").unwrap();
-        let e = prepare_fresh(dir.path(), true).unwrap_err();
-        assert!(e.to_string().contains("checkpoints/notes.txt"), "{e}");
-        assert_eq!(std::fs::read(&f).unwrap(), b"mine");
+    fn paths_follow_the_documented_layout() {
+        let run = RunDir::new("out");
+        let p = |s: &str| PathBuf::from(s);
+        assert_eq!(
+            run.frame_file(FrameFile::Vdb, "shot", 7, 4),
+            p("out/vdb/shot.0007.vdb")
+        );
+        assert_eq!(
+            run.frame_file(FrameFile::NanoVdb, "shot", 7, 4),
+            p("out/nvdb/shot.0007.nvdb")
+        );
+        assert_eq!(
+            run.frame_file(FrameFile::Exr, "shot", 12, 1),
+            p("out/exr/shot.12.exr")
+        );
+        assert_eq!(
+            run.frame_file(FrameFile::PreviewExr, "shot", 7, 4),
+            p("out/preview/shot.0007.exr")
+        );
+        assert_eq!(
+            run.frame_file(FrameFile::Particles, "shot", 7, 4),
+            p("out/particles/shot.0007.ply")
+        );
+        assert_eq!(
+            run.frame_pattern(FrameFile::PreviewPng, "shot", 4),
+            p("out/preview/shot.%04d.png")
+        );
+        assert_eq!(run.manifest(), p("out/manifest.json"));
+        assert_eq!(run.stats(), p("out/stats.jsonl"));
+        assert_eq!(run.lock_file(), p("out/.lock"));
+        assert_eq!(run.checkpoints(), p("out/checkpoints"));
+        assert_eq!(run.contact_sheet(), p("out/preview/contact_sheet.png"));
+        assert_eq!(run.movie("shot"), p("out/preview/shot.mp4"));
+        assert_eq!(run.preview_view("target"), p("out/preview/target"));
+        assert_eq!(
+            RunDir::preview_frame_in(&run.preview_view("target"), "shot", 7, 4),
+            p("out/preview/target/shot.0007.png")
+        );
+        assert_eq!(run.export_dir("a").root(), p("out/exports/a"));
+        assert_eq!(run.render_frame("s", 3, 2), p("out/render/s.03.png"));
     }
 }

@@ -1,7 +1,7 @@
 //! The CPU side of a frame: splat the particles, write VDB, EXR and preview files atomically,
 //! and return their records for the manifest.
-use super::naming::frame_file;
-use super::records::{file_record, FrameRecord, Manifest};
+use super::records::{file_record, FrameRecord, Manifest, WriterTimes};
+use super::run_dir::{FrameFile, RunDir};
 use crate::config::ShotConfig;
 use crate::error::Result;
 use crate::export::ExportSpace;
@@ -31,13 +31,13 @@ pub struct WrittenFrame {
     pub frame: u32,
     pub particles: u64,
     pub record: Option<FrameRecord>,
-    pub phase_ms: BTreeMap<String, f64>,
+    pub phase_ms: WriterTimes,
     pub wall_ms: f64,
 }
 
 pub struct FrameWriter {
     cfg: ShotConfig,
-    run_dir: PathBuf,
+    run_dir: RunDir,
     transform: GridTransform,
     /// The VDB files' frame (scale, axis, velocity basis) and grid aliases.
     space: ExportSpace,
@@ -57,7 +57,7 @@ impl FrameWriter {
     /// The writer of `cfg`'s frames into `run_dir`: `cfg` is `shot`'s config, or it with other
     /// export or preview keys (a re-export, a bench); the particle caches' h0 and m0 and the
     /// heat maps the source overlay draws are the shot's.
-    pub fn new(shot: &Shot, cfg: &ShotConfig, run_dir: &Path) -> Result<Self> {
+    pub fn new(shot: &Shot, cfg: &ShotConfig, run_dir: &RunDir) -> Result<Self> {
         let heat_maps = shot.heat_maps();
         if cfg.output.preview.enabled && cfg.output.preview.movie {
             crate::preview::movie::require_ffmpeg()?;
@@ -77,7 +77,7 @@ impl FrameWriter {
         };
         Ok(Self {
             cfg: cfg.clone(),
-            run_dir: run_dir.to_path_buf(),
+            run_dir: run_dir.clone(),
             transform: splat.transform,
             space: ExportSpace::from_config(cfg),
             aliases: ExportSpace::aliases(cfg),
@@ -113,7 +113,7 @@ impl FrameWriter {
             export: Some(self.space.clone()),
             sources: crate::sim::sources::records(cfg),
             preroll: super::records::PrerollRecord::of(cfg),
-            resume_command: super::naming::resume_command(&self.run_dir),
+            resume_command: super::naming::resume_command(self.run_dir.root()),
             usd: None,
             frames: Vec::new(),
             complete: false,
@@ -121,7 +121,7 @@ impl FrameWriter {
     }
 
     pub fn write(&self, job: FrameJob) -> Result<WrittenFrame> {
-        let mut phase_ms = BTreeMap::new();
+        let mut phase_ms = WriterTimes::default();
         let particles = job.state.len() as u64;
         if job.skip_write {
             return Ok(WrittenFrame {
@@ -144,13 +144,12 @@ impl FrameWriter {
             dual: self.rest_clock.dual(),
         });
         let grids = crate::splat::splat_with_rest(&state, &self.splat, rest)?;
-        phase_ms.insert("splat".into(), ms(t));
+        phase_ms.splat = Some(ms(t));
         let mut files = Vec::new();
         let c = &self.cfg;
-        let pad = c.output.frame_padding;
         if c.export.exr.enabled {
             let t = Instant::now();
-            let path = frame_file(&self.run_dir, "exr", &c.shot, job.frame, pad, "exr");
+            let path = self.file(FrameFile::Exr, job.frame);
             let empty;
             let density = match &grids.density {
                 Some(g) => g,
@@ -165,8 +164,8 @@ impl FrameWriter {
                 }
             };
             crate::io::exr::write_density_atlas(&path, density, c.export.exr.half)?;
-            files.push(file_record(&self.run_dir, &path)?);
-            phase_ms.insert("write_exr".into(), ms(t));
+            files.push(file_record(self.run_dir.root(), &path)?);
+            phase_ms.write_exr = Some(ms(t));
         }
         if let (Some(params), Some(density)) = (&self.preview, &grids.density) {
             let t = Instant::now();
@@ -177,22 +176,24 @@ impl FrameWriter {
             let png = crate::preview::write_image(
                 &img,
                 params.exposure,
-                &self.run_dir.join("preview"),
-                &crate::preview::frame_stem(&c.shot, job.frame, pad),
+                &self.file(FrameFile::PreviewPng, job.frame),
                 c.output.preview.exr,
             )?;
-            files.push(file_record(&self.run_dir, &png)?);
+            files.push(file_record(self.run_dir.root(), &png)?);
             if c.output.preview.exr {
-                files.push(file_record(&self.run_dir, &png.with_extension("exr"))?);
+                files.push(file_record(
+                    self.run_dir.root(),
+                    &png.with_extension("exr"),
+                )?);
             }
-            phase_ms.insert("preview".into(), ms(t));
+            phase_ms.preview = Some(ms(t));
         }
         if c.export.particles {
             let t = Instant::now();
-            let path = frame_file(&self.run_dir, "particles", &c.shot, job.frame, pad, "ply");
+            let path = self.file(FrameFile::Particles, job.frame);
             self.write_particles(&path, &job.state, job.rest.as_deref(), job.frame)?;
-            files.push(file_record(&self.run_dir, &path)?);
-            phase_ms.insert("write_particles".into(), ms(t));
+            files.push(file_record(self.run_dir.root(), &path)?);
+            phase_ms.write_particles = Some(ms(t));
         }
         // Last, so the grids move into the file instead of being copied; listed first, then
         // the NanoVDB file made from the same grids.
@@ -201,17 +202,17 @@ impl FrameWriter {
             let mut head = Vec::new();
             if c.export.vdb.enabled {
                 let t = Instant::now();
-                let path = frame_file(&self.run_dir, "vdb", &c.shot, job.frame, pad, "vdb");
+                let path = self.file(FrameFile::Vdb, job.frame);
                 crate::io::vdb::write_file(&path, &file, &self.vdb_options())?;
-                head.push(file_record(&self.run_dir, &path)?);
-                phase_ms.insert("write_vdb".into(), ms(t));
+                head.push(file_record(self.run_dir.root(), &path)?);
+                phase_ms.write_vdb = Some(ms(t));
             }
             if c.export.nanovdb.enabled {
                 let t = Instant::now();
-                let path = frame_file(&self.run_dir, "nvdb", &c.shot, job.frame, pad, "nvdb");
+                let path = self.file(FrameFile::NanoVdb, job.frame);
                 self.write_nanovdb(&path, &file)?;
-                head.push(file_record(&self.run_dir, &path)?);
-                phase_ms.insert("write_nanovdb".into(), ms(t));
+                head.push(file_record(self.run_dir.root(), &path)?);
+                phase_ms.write_nanovdb = Some(ms(t));
             }
             files.splice(0..0, head);
         }
@@ -233,34 +234,39 @@ impl FrameWriter {
         let want = self.frame_files(rec.frame);
         want.len() == rec.files.len()
             && want.iter().zip(&rec.files).all(|(p, f)| {
-                p.strip_prefix(&self.run_dir)
+                p.strip_prefix(self.run_dir.root())
                     .is_ok_and(|r| r == Path::new(&f.path))
             })
+    }
+
+    /// The file of `kind` of `frame` of this shot.
+    fn file(&self, kind: FrameFile, frame: u32) -> PathBuf {
+        self.run_dir
+            .frame_file(kind, &self.cfg.shot, frame, self.cfg.output.frame_padding)
     }
 
     /// The files a frame of this config has, in the order of its manifest record.
     pub fn frame_files(&self, frame: u32) -> Vec<PathBuf> {
         let c = &self.cfg;
-        let pad = c.output.frame_padding;
-        let f = |kind: &str, ext: &str| frame_file(&self.run_dir, kind, &c.shot, frame, pad, ext);
+        let f = |kind| self.file(kind, frame);
         let mut v = Vec::new();
         if c.export.vdb.enabled {
-            v.push(f("vdb", "vdb"));
+            v.push(f(FrameFile::Vdb));
         }
         if c.export.nanovdb.enabled {
-            v.push(f("nvdb", "nvdb"));
+            v.push(f(FrameFile::NanoVdb));
         }
         if c.export.exr.enabled {
-            v.push(f("exr", "exr"));
+            v.push(f(FrameFile::Exr));
         }
         if self.preview.is_some() && !c.export.grids.density.is_empty() {
-            v.push(f("preview", "png"));
+            v.push(f(FrameFile::PreviewPng));
             if c.output.preview.exr {
-                v.push(f("preview", "exr"));
+                v.push(f(FrameFile::PreviewExr));
             }
         }
         if c.export.particles {
-            v.push(f("particles", "ply"));
+            v.push(f(FrameFile::Particles));
         }
         v
     }
@@ -307,7 +313,7 @@ impl FrameWriter {
             }
             let files = files
                 .iter()
-                .map(|p| file_record(&self.run_dir, p))
+                .map(|p| file_record(self.run_dir.root(), p))
                 .collect::<Result<Vec<_>>>()?;
             out.push(FrameRecord { frame, files });
         }
@@ -428,35 +434,26 @@ impl FrameWriter {
         let frames: Vec<(u32, PathBuf)> = manifest
             .frames
             .iter()
-            .map(|f| {
-                (
-                    f.frame,
-                    frame_file(
-                        &self.run_dir,
-                        "preview",
-                        &self.cfg.shot,
-                        f.frame,
-                        self.cfg.output.frame_padding,
-                        "png",
-                    ),
-                )
-            })
+            .map(|f| (f.frame, self.file(FrameFile::PreviewPng, f.frame)))
             .filter(|(_, p)| p.exists())
             .collect();
         if frames.is_empty() {
             return Ok(());
         }
-        crate::preview::sheet::write_contact_sheet(&self.run_dir, &frames)?;
+        crate::preview::sheet::write_contact_sheet(&self.run_dir.contact_sheet(), &frames)?;
         // The movie once the whole range is there (an export directory fills up in parts).
         if self.cfg.output.preview.movie
             && manifest.complete
             && frames.len() == manifest.frames.len()
         {
             crate::preview::movie::write_movie(
-                &self.run_dir,
-                &self.cfg.shot,
+                &self.run_dir.movie(&self.cfg.shot),
+                &self.run_dir.frame_pattern(
+                    FrameFile::PreviewPng,
+                    &self.cfg.shot,
+                    self.cfg.output.frame_padding,
+                ),
                 &frames,
-                self.cfg.output.frame_padding,
                 self.cfg.output.fps,
             )?;
         }

@@ -595,47 +595,29 @@ pub fn write_exr(path: &Path, img: &LinearImage) -> Result<()> {
     })
 }
 
-/// Renders one frame's preview to `<out>/preview/<shot>.<frame>.png` (and `.exr` when `exr`),
-/// returning the PNG path.
+/// Renders one frame's preview to `png` (and the `.exr` beside it when `exr`), returning the
+/// PNG path (a run's `preview/<shot>.<frame>.png`).
 pub fn write_frame_preview(
     grid: &SparseGrid<f32>,
     params: &PreviewParams,
-    out_dir: &Path,
-    shot: &str,
-    frame: u32,
-    padding: u32,
+    png: &Path,
     exr: bool,
 ) -> Result<PathBuf> {
     let img = render(grid, params)?;
-    write_image(
-        &img,
-        params.exposure,
-        &out_dir.join("preview"),
-        &frame_stem(shot, frame, padding),
-        exr,
-    )
+    write_image(&img, params.exposure, png, exr)
 }
 
-/// `<shot>.<frame>` with the frame zero-padded to `padding` digits: a preview's file stem.
-pub fn frame_stem(shot: &str, frame: u32, padding: u32) -> String {
-    format!("{shot}.{frame:0width$}", width = padding as usize)
-}
-
-/// Writes `img` to `<dir>/<stem>.png` (and `.exr` when `exr`), atomically; returns the PNG path.
-pub fn write_image(
-    img: &LinearImage,
-    exposure: f64,
-    dir: &Path,
-    stem: &str,
-    exr: bool,
-) -> Result<PathBuf> {
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let png = dir.join(format!("{stem}.png"));
-    crate::io::atomic::write_atomic(&png, &png_bytes(&img.to_srgb8(exposure))?)?;
-    if exr {
-        write_exr(&dir.join(format!("{stem}.exr")), img)?;
+/// Writes `img` to `png` (and linear to the `.exr` beside it when `exr`), atomically, making
+/// the folder; returns the PNG path.
+pub fn write_image(img: &LinearImage, exposure: f64, png: &Path, exr: bool) -> Result<PathBuf> {
+    if let Some(dir) = png.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     }
-    Ok(png)
+    crate::io::atomic::write_atomic(png, &png_bytes(&img.to_srgb8(exposure))?)?;
+    if exr {
+        write_exr(&png.with_extension("exr"), img)?;
+    }
+    Ok(png.to_path_buf())
 }
 
 /// `a` divided by its length (zero and non-finite vectors unchanged): glam's `normalize`

@@ -23,12 +23,12 @@ pub fn require_ffmpeg() -> Result<()> {
     ))
 }
 
-/// `preview/<shot>.mp4` of the PNGs `frames` (consecutive frame numbers, in order) at `fps`.
+/// The movie `out` (`preview/<shot>.mp4`) of the PNGs `frames` (consecutive frame numbers, in
+/// order, named by the ffmpeg input pattern `pattern`) at `fps`.
 pub fn write_movie(
-    run_dir: &Path,
-    shot: &str,
+    out: &Path,
+    pattern: &Path,
     frames: &[(u32, PathBuf)],
-    padding: u32,
     fps: f64,
 ) -> Result<PathBuf> {
     let (Some(first), Some(last)) = (frames.first(), frames.last()) else {
@@ -40,15 +40,12 @@ pub fn write_movie(
             first.0, last.0
         )));
     }
-    let dir = run_dir.join("preview");
-    let out = dir.join(format!("{shot}.mp4"));
-    let tmp = crate::io::atomic::tmp_path(&out);
-    let pattern = dir.join(format!("{shot}.%0{}d.png", padding.max(1)));
+    let tmp = crate::io::atomic::tmp_path(out);
     let result = Command::new("ffmpeg")
         .args(["-nostdin", "-v", "error", "-y", "-framerate"])
         .arg(format!("{fps}"))
         .args(["-start_number", &first.0.to_string(), "-i"])
-        .arg(&pattern)
+        .arg(pattern)
         .args(["-frames:v", &frames.len().to_string()])
         // H.264 in yuv420p needs even sizes; every player reads yuv420p
         .args(["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264"])
@@ -73,8 +70,8 @@ pub fn write_movie(
         }
         Ok(_) => {}
     }
-    if let Err(e) = std::fs::rename(&tmp, &out) {
+    if let Err(e) = std::fs::rename(&tmp, out) {
         return fail(format!("cannot rename: {e}"));
     }
-    Ok(out)
+    Ok(out.to_path_buf())
 }

@@ -89,13 +89,9 @@ pub fn contact_sheet(frames: &[(u32, RgbImage)], tile_width: u32) -> Result<RgbI
     Ok(sheet)
 }
 
-/// Reads the frames' PNGs and writes `<out_dir>/preview/contact_sheet.png`, sorted by frame.
-pub fn write_contact_sheet(out_dir: &Path, frames: &[(u32, PathBuf)]) -> Result<PathBuf> {
-    write_contact_sheet_in(&out_dir.join("preview"), frames)
-}
-
-/// Reads the frames' PNGs and writes `<dir>/contact_sheet.png`, sorted by frame.
-pub fn write_contact_sheet_in(dir: &Path, frames: &[(u32, PathBuf)]) -> Result<PathBuf> {
+/// Reads the frames' PNGs and writes their contact sheet to `path` (`preview/contact_sheet.png`
+/// of a run), sorted by frame.
+pub fn write_contact_sheet(path: &Path, frames: &[(u32, PathBuf)]) -> Result<PathBuf> {
     let mut sorted = frames.to_vec();
     sorted.sort();
     let mut images = Vec::with_capacity(sorted.len());
@@ -106,8 +102,9 @@ pub fn write_contact_sheet_in(dir: &Path, frames: &[(u32, PathBuf)]) -> Result<P
         images.push((*f, img));
     }
     let sheet = contact_sheet(&images, 320)?;
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let path = dir.join("contact_sheet.png");
-    crate::io::atomic::write_atomic(&path, &super::png_bytes(&sheet)?)?;
-    Ok(path)
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
+    crate::io::atomic::write_atomic(path, &super::png_bytes(&sheet)?)?;
+    Ok(path.to_path_buf())
 }
