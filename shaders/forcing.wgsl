@@ -21,7 +21,7 @@ struct ForcingParams {
     surface_moisture: f32,
     _pad0: u32,
     _pad1: u32,
-    layers: array<vec4<f32>, 64>,
+    layers: array<vec4<f32>, MAX_FORCING_LAYERS>,
 }
 
 @group(0) @binding(0) var<uniform> F: ForcingParams;

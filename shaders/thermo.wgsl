@@ -55,6 +55,13 @@ struct ThermoParams {
     pressure_top: f32,
     pressure_exponent: f32,
     pressure_surface: f32,
+    // levels of physics.environment.profile (0: the lapse rates and the inversion) and their
+    // (height m, T0 K, -, -) by increasing height
+    n_env: u32,
+    _env_pad0: u32,
+    _env_pad1: u32,
+    _env_pad2: u32,
+    env: array<vec4<f32>, MAX_ENVIRONMENT_LEVELS>,
     // the profile (m/s^2) at the layer centres, four a row (sim::thermo::LayerBuoyancy)
     layers: array<vec4<f32>, MAX_LAYERS / 4u>,
     // --- art direction (sim::wind, sim::sources) ---
@@ -265,9 +272,23 @@ fn wind_at(y: f32) -> vec2<f32> {
     return speed * vec2<f32>(cos(heading), sin(heading));
 }
 
+// T0(y) of physics.environment.profile: linear between levels, constant outside them (mirror:
+// sim::reference::thermo::profile_temperature).
+fn profile_temperature(y: f32) -> f32 {
+    let last = P.env[P.n_env - 1u];
+    if (y <= P.env[0].x) { return P.env[0].y; }
+    if (y >= last.x) { return last.y; }
+    var k = 1u;
+    while (k < P.n_env - 1u && P.env[k].x <= y) { k++; }
+    let a = P.env[k - 1u];
+    let b = P.env[k];
+    return a.y + (y - a.x) / (b.x - a.x) * (b.y - a.y);
+}
+
 // Environment temperature T0(y): piecewise linear with an optional capping inversion
 // (EnvironmentConfig::temperature).
 fn environment_temperature(y: f32) -> f32 {
+    if (P.n_env > 0u) { return profile_temperature(y); }
     let below = min(y, P.inversion_base);
     let inside = clamp(y - P.inversion_base, 0.0, P.inversion_depth);
     let above = max(y - P.inversion_base - P.inversion_depth, 0.0);

@@ -223,6 +223,27 @@ fn atmospheric_thermo_step_matches_mirror() {
     assert!(changed > n / 10, "only {changed} particles changed phase");
 }
 
+/// `physics.environment.profile` (the BOMEX sounding's temperatures) in eq. 6 against the
+/// mirror, with atmospheric thermodynamics.
+#[test]
+fn profile_thermo_step_matches_mirror() {
+    let ctx = context();
+    let mut cfg = shot();
+    cfg.physics.thermodynamics = nimbus::config::Thermodynamics::Atmospheric;
+    cfg.physics.environment.profile = serde_saphyr::from_str(
+        "[{height: 0, temperature: 299.1}, {height: 520, temperature: 294.0}, \
+         {height: 1480, temperature: 288.3}, {height: 2000, temperature: 289.0}, \
+         {height: 3000, temperature: 282.9}]",
+    )
+    .unwrap();
+    let n = 3000;
+    let (pos, vel, th) = random_thermo_state(n, 44, &cfg);
+    let params = ThermoParams::new(&cfg, 2.0, 137.0);
+    assert_eq!(params.n_env, 5);
+    let out = gpu_thermo(&ctx, &cfg, &[params], &pos, &vel, &th);
+    check_against_mirror(&params, &[], (&pos, &vel, &th), &out);
+}
+
 #[test]
 fn thermo_step_matches_mirror() {
     let ctx = context();

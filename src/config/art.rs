@@ -35,7 +35,68 @@ pub(crate) fn issues(p: &PhysicsConfig, c: &ShotConfig) -> Vec<Issue> {
     if let Some(f) = &p.forcing {
         check_forcing(&mut out, f, c);
     }
+    if !p.environment.profile.is_empty() {
+        check_profile(&mut out, &p.environment);
+    }
     out.0
+}
+
+pub use crate::ground::limits::MAX_ENVIRONMENT_LEVELS;
+
+fn check_profile(out: &mut Out, env: &EnvironmentConfig) {
+    let levels = &env.profile;
+    if levels.len() > MAX_ENVIRONMENT_LEVELS {
+        out.fail(
+            &["physics.environment.profile"],
+            format!(
+                "{} levels; at most {MAX_ENVIRONMENT_LEVELS} are supported",
+                levels.len()
+            ),
+        );
+    }
+    for (k, pair) in levels.windows(2).enumerate() {
+        if pair[1].height <= pair[0].height {
+            out.fail(
+                &[&format!("physics.environment.profile[{}].height", k + 1)],
+                format!(
+                    "heights must increase: {} m is not above the level before it ({} m)",
+                    num(pair[1].height),
+                    num(pair[0].height)
+                ),
+            );
+        }
+    }
+    let with_vapor = levels.iter().filter(|l| l.vapor.is_some()).count();
+    if with_vapor != 0 && with_vapor != levels.len() {
+        let k = levels.iter().position(|l| l.vapor.is_none()).unwrap_or(0);
+        out.fail(
+            &[&format!("physics.environment.profile[{k}]")],
+            "gives no vapor: give it at every level or at none (then physics.initial_vapor sets it)"
+                .into(),
+        );
+    }
+    for (key, set) in [
+        (
+            "physics.environment.inversion_height",
+            env.inversion_height.is_some(),
+        ),
+        (
+            "physics.environment.lapse_rate_above",
+            env.lapse_rate_above.is_some(),
+        ),
+        (
+            "physics.environment.humidity_above",
+            env.humidity_above.is_some(),
+        ),
+    ] {
+        if set {
+            out.fail(
+                &[key],
+                "is not read with physics.environment.profile, which gives the whole environment"
+                    .into(),
+            );
+        }
+    }
 }
 
 /// Most levels of `physics.forcing.profile` (the host builds the layer table from them).

@@ -12,7 +12,7 @@ mod node;
 mod schema;
 mod validate;
 
-pub use art::MAX_WIND_LEVELS;
+pub use art::{MAX_ENVIRONMENT_LEVELS, MAX_WIND_LEVELS};
 pub use hash::{full_hash, sim_hash, sim_key_diff, NON_SIM_KEYS};
 pub use node::fmt_float;
 pub use schema::*;

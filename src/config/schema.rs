@@ -458,6 +458,25 @@ pub struct EnvironmentConfig {
     /// Initial vapor above the inversion as a fraction of saturation (the dry free air over
     /// the boundary layer); linear across the inversion layer; `null` = `initial_vapor`.
     pub humidity_above: Option<f64>,
+    /// Measured or prescribed levels (an atmospheric case's sounding): T0(y), and the initial
+    /// vapor when every level gives it, linear between levels and constant outside. When
+    /// given, `ground_temperature`, `lapse_rate`, `lapse_rate_above` and the inversion keys
+    /// are not read. Left out of the serialisation when empty (hashes unchanged).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub profile: Vec<EnvironmentLevel>,
+}
+
+/// One level of `physics.environment.profile`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnvironmentLevel {
+    /// Height above the ground (m).
+    pub height: f64,
+    /// Environment temperature T0 (K).
+    pub temperature: f64,
+    /// Initial vapor (kg/kg); given at every level or at none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vapor: Option<f64>,
 }
 impl Default for EnvironmentConfig {
     fn default() -> Self {
@@ -468,6 +487,7 @@ impl Default for EnvironmentConfig {
             inversion_strength: 0.0,
             lapse_rate_above: None,
             humidity_above: None,
+            profile: Vec::new(),
         }
     }
 }
@@ -1162,6 +1182,28 @@ impl OutputConfig {
 }
 
 impl EnvironmentConfig {
+    /// A field of `profile` at height y: linear between levels, constant outside (the profile
+    /// is not empty).
+    pub fn profile_at(&self, y: f64, field: fn(&EnvironmentLevel) -> f64) -> f64 {
+        let levels = &self.profile;
+        let (first, last) = (&levels[0], &levels[levels.len() - 1]);
+        if y <= first.height {
+            return field(first);
+        }
+        if y >= last.height {
+            return field(last);
+        }
+        let k = levels.partition_point(|l| l.height <= y);
+        let (a, b) = (&levels[k - 1], &levels[k]);
+        field(a) + (y - a.height) / (b.height - a.height) * (field(b) - field(a))
+    }
+
+    /// The initial vapor (kg/kg) at height y when the profile gives it.
+    pub fn profile_vapor(&self, y: f64) -> Option<f64> {
+        let given = !self.profile.is_empty() && self.profile.iter().all(|l| l.vapor.is_some());
+        given.then(|| self.profile_at(y, |l| l.vapor.unwrap_or(0.0)))
+    }
+
     /// Lapse rate above the inversion.
     pub fn lapse_above(&self) -> f64 {
         self.lapse_rate_above.unwrap_or(self.lapse_rate)
@@ -1184,6 +1226,9 @@ impl EnvironmentConfig {
     }
 
     pub fn temperature(&self, ground: f64, y: f64) -> f64 {
+        if !self.profile.is_empty() {
+            return self.profile_at(y, |l| l.temperature);
+        }
         let Some(base) = self.inversion_height else {
             return ground - self.lapse_rate * y;
         };

@@ -100,6 +100,9 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("physics.environment.inversion_strength", -100.0, 100.0),
     closed("physics.environment.lapse_rate_above", -0.1, 0.1),
     closed("physics.environment.humidity_above", 0.0, 2.0),
+    closed("physics.environment.profile[].height", 0.0, 1.0e5),
+    closed("physics.environment.profile[].temperature", 150.0, 400.0),
+    closed("physics.environment.profile[].vapor", 0.0, 0.05),
     closed("physics.bowen_ratio", 0.05, 100.0),
     closed("physics.sources[].center", 0.0, 1.0e5),
     above("physics.sources[].radius", 0.0, 1.0e5),
@@ -410,6 +413,19 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
                 };
                 v.push((format!("physics.wind.profile[{k}].{name}"), key, x));
             }
+        }
+    }
+    for (k, l) in ph.environment.profile.iter().enumerate() {
+        let at = |f: &str| format!("physics.environment.profile[{k}].{f}");
+        v.push((
+            at("height"),
+            "physics.environment.profile[].height",
+            l.height,
+        ));
+        let t = "physics.environment.profile[].temperature";
+        v.push((at("temperature"), t, l.temperature));
+        if let Some(q) = l.vapor {
+            v.push((at("vapor"), "physics.environment.profile[].vapor", q));
         }
     }
     if let Some(f) = &ph.forcing {
@@ -819,6 +835,7 @@ fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
     if let Some(h) = env.inversion_height {
         marks.extend([h, h + env.inversion_depth]);
     }
+    marks.extend(env.profile.iter().map(|l| l.height));
     for y in marks.into_iter().filter(|&y| y <= height) {
         coldest = coldest.min(env.temperature(p.ground_temperature, y));
     }
@@ -1063,6 +1080,40 @@ mod tests {
             (
                 |c| c.physics.surface_pressure = Some(101_500.0),
                 "physics.surface_pressure",
+            ),
+            (
+                |c| {
+                    let level = |height, vapor| EnvironmentLevel {
+                        height,
+                        temperature: 290.0,
+                        vapor,
+                    };
+                    c.physics.environment.profile =
+                        vec![level(0.0, Some(0.01)), level(500.0, None)];
+                },
+                "physics.environment.profile[1]",
+            ),
+            (
+                |c| {
+                    let level = |height| EnvironmentLevel {
+                        height,
+                        temperature: 290.0,
+                        vapor: None,
+                    };
+                    c.physics.environment.profile = vec![level(100.0), level(50.0)];
+                },
+                "physics.environment.profile[1].height",
+            ),
+            (
+                |c| {
+                    c.physics.environment.inversion_height = Some(800.0);
+                    c.physics.environment.profile = vec![EnvironmentLevel {
+                        height: 0.0,
+                        temperature: 290.0,
+                        vapor: None,
+                    }];
+                },
+                "physics.environment.inversion_height",
             ),
             (
                 |c| {

@@ -26,7 +26,9 @@ pub const WG_SCAN_CPU: u32 = 8;
 /// the prelude.
 use crate::ground::levels::MAX_LEVEL;
 /// The thermo uniform's table sizes (`ground::limits`), in the prelude as well.
-use crate::ground::limits::{MAX_LAYERS, MAX_SOURCES, MAX_WIND_LEVELS};
+use crate::ground::limits::{
+    MAX_ENVIRONMENT_LEVELS, MAX_FORCING_LAYERS, MAX_LAYERS, MAX_SOURCES, MAX_WIND_LEVELS,
+};
 
 /// Loop iterations an invocation may run on llvmpipe, with a margin below its 65535.
 pub const CPU_LOOP_BUDGET: u32 = 60_000;
@@ -107,7 +109,7 @@ impl Prelude {
 
     fn wgsl(&self) -> String {
         format!(
-            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst WG_SCAN: u32 = {}u;\nconst SCAN_ITEMS: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\nconst MAX_LEVEL: u32 = {}u;\nconst MAX_SOURCES: u32 = {}u;\nconst MAX_WIND_LEVELS: u32 = {}u;\nconst MAX_LAYERS: u32 = {}u;\n",
+            "// prelude (src/gpu/shaders.rs)\nconst WG_PARTICLES: u32 = {}u;\nconst WG_BLOCK: u32 = {}u;\nconst WG_SCAN: u32 = {}u;\nconst SCAN_ITEMS: u32 = {}u;\nconst MAX_GROUPS_X: u32 = {}u;\nconst LOOP_BUDGET: u32 = {}u;\nconst MAX_LEVEL: u32 = {}u;\nconst MAX_SOURCES: u32 = {}u;\nconst MAX_WIND_LEVELS: u32 = {}u;\nconst MAX_LAYERS: u32 = {}u;\nconst MAX_ENVIRONMENT_LEVELS: u32 = {}u;\nconst MAX_FORCING_LAYERS: u32 = {}u;\n",
             self.wg_particles,
             self.wg_block,
             self.wg_scan,
@@ -117,7 +119,9 @@ impl Prelude {
             MAX_LEVEL,
             MAX_SOURCES,
             MAX_WIND_LEVELS,
-            MAX_LAYERS
+            MAX_LAYERS,
+            MAX_ENVIRONMENT_LEVELS,
+            MAX_FORCING_LAYERS
         )
     }
 }

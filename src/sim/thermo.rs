@@ -105,6 +105,11 @@ pub struct ThermoParams {
     pub pressure_top: f32,
     pub pressure_exponent: f32,
     pub pressure_surface: f32,
+    /// Levels of `physics.environment.profile` (0: T0(y) from the lapse rates and inversion).
+    pub n_env: u32,
+    pub _env_pad: [u32; 3],
+    /// (height m, T0 K, 0, 0) by increasing height.
+    pub env: [[f32; 4]; MAX_ENVIRONMENT_LEVELS],
     /// The profile (m/s^2), four layers a row: [`LayerBuoyancy`].
     pub layers: [[f32; 4]; MAX_LAYERS / 4],
     // --- art direction (issue 18): wind and sources, after everything else ---
@@ -125,6 +130,7 @@ pub struct ThermoParams {
     pub control_pull: [f32; 4],
 }
 
+pub use crate::ground::limits::MAX_ENVIRONMENT_LEVELS;
 /// Most layers of the horizontal-mean buoyancy profile (`ground::limits`).
 pub use crate::ground::limits::MAX_LAYERS;
 pub use crate::sim::sources::{HeatMaps, SourceGpu, MAX_SOURCES};
@@ -179,6 +185,13 @@ impl ThermoParams {
             pressure_top: pressure.map_or(0.0, |q| q.top as f32),
             pressure_exponent: pressure.map_or(0.0, |q| q.exponent as f32),
             pressure_surface: pressure.map_or(1.0, |q| q.surface as f32),
+            n_env: p.environment.profile.len().min(MAX_ENVIRONMENT_LEVELS) as u32,
+            _env_pad: [0; 3],
+            env: std::array::from_fn(|k| {
+                p.environment.profile.get(k).map_or([0.0; 4], |l| {
+                    [l.height as f32, l.temperature as f32, 0.0, 0.0]
+                })
+            }),
             wind,
             sources: crate::sim::sources::pack(cfg, dt, time),
             layers: [[0.0; 4]; MAX_LAYERS / 4],
@@ -309,7 +322,7 @@ impl Pressure {
     /// The shot's, or none with `thermodynamics: paper`.
     pub fn of(p: &PhysicsConfig) -> Option<Self> {
         (p.thermodynamics == crate::config::Thermodynamics::Atmospheric).then(|| Self {
-            top: p.ground_temperature / p.adiabatic_lapse_rate,
+            top: environment_temperature(p, 0.0) / p.adiabatic_lapse_rate,
             exponent: CP_OVER_RD,
             surface: P0 / p.surface_pressure.unwrap_or(P0),
         })
@@ -327,16 +340,15 @@ impl Pressure {
 }
 
 /// Initial thermo of a particle at height y (section 5): T = T0(y), v = kv(y) A exp(B / (T + C))
-/// (kv(y) = `initial_vapor`, or `environment.humidity_above` over the inversion),
-/// w = 0, shape energy 0.
+/// (kv(y) = `initial_vapor`, or `environment.humidity_above` over the inversion), or the
+/// vapor of `environment.profile` when it gives one; w = 0, shape energy 0.
 pub fn initial_thermo(p: &PhysicsConfig, y: f64) -> [f32; 4] {
     let t = environment_temperature(p, y);
-    [
-        t as f32,
-        (p.environment.humidity(p.initial_vapor, y) * saturation(p, t, y)) as f32,
-        0.0,
-        0.0,
-    ]
+    let vapor = p
+        .environment
+        .profile_vapor(y)
+        .unwrap_or_else(|| p.environment.humidity(p.initial_vapor, y) * saturation(p, t, y));
+    [t as f32, vapor as f32, 0.0, 0.0]
 }
 
 /// The thermodynamics pass (eqs. 5-11), bound once to the particle buffers; its parameters
@@ -455,7 +467,7 @@ mod tests {
 
     #[test]
     fn params_layout_matches_wgsl() {
-        assert_eq!(std::mem::size_of::<ThermoParams>(), 1104);
+        assert_eq!(std::mem::size_of::<ThermoParams>(), 1376);
     }
 
     /// A force that depends on height alone is the whole profile: eq. 6 less the profile is

@@ -39,8 +39,8 @@ entry_points! {
     }
 }
 
-/// Most layers of the table (`layers` of shaders/forcing.wgsl).
-pub const MAX_FORCING_LAYERS: usize = 64;
+/// Most layers of the table (`layers` of shaders/forcing.wgsl, through the prelude).
+pub use crate::ground::limits::MAX_FORCING_LAYERS;
 
 /// Seconds in a day (the profile's radiation is in K/day, its moisture in g/kg per day).
 const DAY: f64 = 86_400.0;

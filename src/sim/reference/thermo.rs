@@ -62,8 +62,27 @@ pub fn wind_at(p: &ThermoParams, y: f64) -> [f64; 2] {
     [speed * heading.cos(), speed * heading.sin()]
 }
 
+/// T0(y) of the profile's levels: linear between them, constant outside (mirror of
+/// `profile_temperature`).
+pub fn profile_temperature(p: &ThermoParams, y: f64) -> f64 {
+    let levels = &p.env[..p.n_env as usize];
+    let (first, last) = (levels[0], levels[levels.len() - 1]);
+    if y <= first[0] as f64 {
+        return first[1] as f64;
+    }
+    if y >= last[0] as f64 {
+        return last[1] as f64;
+    }
+    let k = levels.partition_point(|l| l[0] as f64 <= y);
+    let (a, b) = (levels[k - 1].map(|v| v as f64), levels[k].map(|v| v as f64));
+    a[1] + (y - a[0]) / (b[0] - a[0]) * (b[1] - a[1])
+}
+
 /// Environment temperature T0(y) of the parameters (mirror of `environment_temperature`).
 pub fn environment_temperature(p: &ThermoParams, y: f64) -> f64 {
+    if p.n_env > 0 {
+        return profile_temperature(p, y);
+    }
     let base = p.inversion_base as f64;
     let depth = p.inversion_depth as f64;
     let strength = p.inversion_strength as f64;
@@ -340,6 +359,39 @@ mod tests {
                 "{y}: {mirror} vs {host}"
             );
         }
+    }
+
+    /// `environment.profile` gives T0(y) (linear between levels, constant outside) and the
+    /// initial vapor; the mirror reads the same T0 from the uniform.
+    #[test]
+    fn the_environment_profile_sets_t0_and_the_initial_vapor() {
+        let mut cfg = shot();
+        cfg.physics.environment.profile = serde_saphyr::from_str(
+            "[{height: 0, temperature: 299.0, vapor: 0.017}, \
+             {height: 520, temperature: 293.9, vapor: 0.0163}, \
+             {height: 1480, temperature: 288.2, vapor: 0.0107}]",
+        )
+        .unwrap();
+        let p = ThermoParams::new(&cfg, 1.0, 0.0);
+        for (y, t) in [
+            (0.0, 299.0),
+            (260.0, 296.45),
+            (1000.0, 291.05),
+            (2000.0, 288.2),
+        ] {
+            let host = environment_temperature(&cfg.physics, y);
+            assert!((host - t).abs() < 1e-9, "{y}: {host} vs {t}");
+            assert!(
+                (super::environment_temperature(&p, y) - t).abs() < 1e-4,
+                "{y}"
+            );
+        }
+        let th = initial_thermo(&cfg.physics, 260.0);
+        assert!((th[1] as f64 - 0.01665).abs() < 1e-7, "{th:?}");
+        cfg.physics.environment.profile[1].vapor = None;
+        let kv = initial_thermo(&cfg.physics, 260.0)[1] as f64;
+        let sat = saturation(&cfg.physics, 296.45, 260.0);
+        assert!((kv - cfg.physics.initial_vapor * sat).abs() < 1e-7, "{kv}");
     }
 
     fn paper_at(cfg: &crate::config::ShotConfig, t: f64) -> f64 {
