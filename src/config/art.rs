@@ -45,27 +45,12 @@ pub use crate::ground::limits::MAX_ENVIRONMENT_LEVELS;
 
 fn check_profile(out: &mut Out, env: &EnvironmentConfig) {
     let levels = &env.profile;
-    if levels.len() > MAX_ENVIRONMENT_LEVELS {
-        out.fail(
-            &["physics.environment.profile"],
-            format!(
-                "{} levels; at most {MAX_ENVIRONMENT_LEVELS} are supported",
-                levels.len()
-            ),
-        );
-    }
-    for (k, pair) in levels.windows(2).enumerate() {
-        if pair[1].height <= pair[0].height {
-            out.fail(
-                &[&format!("physics.environment.profile[{}].height", k + 1)],
-                format!(
-                    "heights must increase: {} m is not above the level before it ({} m)",
-                    num(pair[1].height),
-                    num(pair[0].height)
-                ),
-            );
-        }
-    }
+    check_levels(
+        out,
+        "physics.environment.profile",
+        &levels.iter().map(|l| l.height).collect::<Vec<_>>(),
+        MAX_ENVIRONMENT_LEVELS,
+    );
     let with_vapor = levels.iter().filter(|l| l.vapor.is_some()).count();
     if with_vapor != 0 && with_vapor != levels.len() {
         let k = levels.iter().position(|l| l.vapor.is_none()).unwrap_or(0);
@@ -106,28 +91,35 @@ pub const MAX_FORCING_LEVELS: usize = 16;
 /// the frame's length (docs/CONFIG.md "Forcing").
 pub const MAX_FORCING_FRAME: f64 = 300.0;
 
-fn check_forcing(out: &mut Out, f: &ForcingConfig, c: &ShotConfig) {
-    if f.profile.len() > MAX_FORCING_LEVELS {
+/// A profile's levels: at most `max`, heights increasing (`key` the list's key).
+fn check_levels(out: &mut Out, key: &str, heights: &[f64], max: usize) {
+    if heights.len() > max {
         out.fail(
-            &["physics.forcing.profile"],
-            format!(
-                "{} levels; at most {MAX_FORCING_LEVELS} are supported",
-                f.profile.len()
-            ),
+            &[key],
+            format!("{} levels; at most {max} are supported", heights.len()),
         );
     }
-    for (k, pair) in f.profile.windows(2).enumerate() {
-        if pair[1].height <= pair[0].height {
+    for (k, pair) in heights.windows(2).enumerate() {
+        if pair[1] <= pair[0] {
             out.fail(
-                &[&format!("physics.forcing.profile[{}].height", k + 1)],
+                &[&format!("{key}[{}].height", k + 1)],
                 format!(
                     "heights must increase: {} m is not above the level before it ({} m)",
-                    num(pair[1].height),
-                    num(pair[0].height)
+                    num(pair[1]),
+                    num(pair[0])
                 ),
             );
         }
     }
+}
+
+fn check_forcing(out: &mut Out, f: &ForcingConfig, c: &ShotConfig) {
+    check_levels(
+        out,
+        "physics.forcing.profile",
+        &f.profile.iter().map(|l| l.height).collect::<Vec<_>>(),
+        MAX_FORCING_LEVELS,
+    );
     if let Some(d) = f.surface_layer {
         let height = c.domain.size[1];
         if d.is_finite() && height.is_finite() && d >= height {
@@ -324,27 +316,12 @@ fn check_wind(out: &mut Out, w: &WindConfig, c: &ShotConfig) {
         );
         return;
     }
-    if w.profile.len() > MAX_WIND_LEVELS {
-        out.fail(
-            &["physics.wind.profile"],
-            format!(
-                "{} levels; at most {MAX_WIND_LEVELS} are supported",
-                w.profile.len()
-            ),
-        );
-    }
-    for (k, pair) in w.profile.windows(2).enumerate() {
-        if pair[1].height <= pair[0].height {
-            out.fail(
-                &[&format!("physics.wind.profile[{}].height", k + 1)],
-                format!(
-                    "heights must increase: {} m is not above the level before it ({} m)",
-                    num(pair[1].height),
-                    num(pair[0].height)
-                ),
-            );
-        }
-    }
+    check_levels(
+        out,
+        "physics.wind.profile",
+        &w.profile.iter().map(|l| l.height).collect::<Vec<_>>(),
+        MAX_WIND_LEVELS,
+    );
     let periodic = |a: Axis| c.domain.periodic.contains(&a);
     for (k, l) in w.profile.iter().enumerate() {
         let at = |f: &str| format!("physics.wind.profile[{k}].{f}");

@@ -1181,21 +1181,33 @@ impl OutputConfig {
     }
 }
 
+/// A field of levels sorted by increasing height at y: linear between levels, constant below
+/// the first and above the last; 0 without levels.
+pub fn piecewise_linear<L>(
+    levels: &[L],
+    y: f64,
+    height: fn(&L) -> f64,
+    field: fn(&L) -> f64,
+) -> f64 {
+    let (Some(first), Some(last)) = (levels.first(), levels.last()) else {
+        return 0.0;
+    };
+    if y <= height(first) {
+        return field(first);
+    }
+    if y >= height(last) {
+        return field(last);
+    }
+    let k = levels.partition_point(|l| height(l) <= y);
+    let (a, b) = (&levels[k - 1], &levels[k]);
+    field(a) + (y - height(a)) / (height(b) - height(a)) * (field(b) - field(a))
+}
+
 impl EnvironmentConfig {
     /// A field of `profile` at height y: linear between levels, constant outside (the profile
     /// is not empty).
     pub fn profile_at(&self, y: f64, field: fn(&EnvironmentLevel) -> f64) -> f64 {
-        let levels = &self.profile;
-        let (first, last) = (&levels[0], &levels[levels.len() - 1]);
-        if y <= first.height {
-            return field(first);
-        }
-        if y >= last.height {
-            return field(last);
-        }
-        let k = levels.partition_point(|l| l.height <= y);
-        let (a, b) = (&levels[k - 1], &levels[k]);
-        field(a) + (y - a.height) / (b.height - a.height) * (field(b) - field(a))
+        piecewise_linear(&self.profile, y, |l| l.height, field)
     }
 
     /// The initial vapor (kg/kg) at height y when the profile gives it.

@@ -76,19 +76,7 @@ pub struct ForcingTable {
 
 /// A profile of `physics.forcing.profile` at height y: linear between levels, constant outside.
 fn profile_at(levels: &[ForcingLevel], y: f64, field: fn(&ForcingLevel) -> f64) -> f64 {
-    let (Some(first), Some(last)) = (levels.first(), levels.last()) else {
-        return 0.0;
-    };
-    if y <= first.height {
-        return field(first);
-    }
-    if y >= last.height {
-        return field(last);
-    }
-    let k = levels.partition_point(|l| l.height <= y);
-    let (a, b) = (&levels[k - 1], &levels[k]);
-    let t = (y - a.height) / (b.height - a.height);
-    field(a) + t * (field(b) - field(a))
+    crate::config::piecewise_linear(levels, y, |l| l.height, field)
 }
 
 /// Mass of particle i relative to m0 (2^-level).
