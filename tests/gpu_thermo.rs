@@ -641,6 +641,22 @@ fn mirror_input<'a>(
     }
 }
 
+/// The GPU's smoothed T against the mirror's `t` (2e-3 K); returns the mirror's largest change
+/// from `before`.
+fn assert_temperatures_match(seed: u64, gpu: &[[f32; 4]], t: &[f64], before: &[f64]) -> f64 {
+    let mut max_change = 0.0f64;
+    for i in 0..t.len() {
+        assert!(
+            (gpu[i][0] as f64 - t[i]).abs() < 2e-3,
+            "seed {seed} particle {i}: {} vs {}",
+            gpu[i][0],
+            t[i]
+        );
+        max_change = max_change.max((t[i] - before[i]).abs());
+    }
+    max_change
+}
+
 /// The conservative form (physics.smoothing.conservative) against its mirror, with fixed walls
 /// and without, and the heat it keeps: without walls sum m T moves by f32 rounding only (the
 /// paper's step moves it by far more on the same scene).
@@ -662,16 +678,7 @@ fn conservative_smoothing_matches_mirror_and_keeps_the_heat() {
         let t = nimbus::sim::reference::smoothing::smooth_temperature_conservative(&mirror_input(
             &s, &p, &s.pos, &t0,
         ));
-        let mut max_change = 0.0f64;
-        for i in 0..s.pos.len() {
-            assert!(
-                (gpu[i][0] as f64 - t[i]).abs() < 2e-3,
-                "seed {seed} particle {i}: {} vs {}",
-                gpu[i][0],
-                t[i]
-            );
-            max_change = max_change.max((t[i] - t0[i]).abs());
-        }
+        let max_change = assert_temperatures_match(seed, &gpu, &t, &t0);
         assert!(
             max_change > 0.5,
             "the test must smooth something: {max_change}"
@@ -716,16 +723,9 @@ fn smooth_temperature_matches_mirror() {
         for _ in 0..iterations {
             t = smooth_temperature(&mirror_input(&s, &p, &s.pos, &t));
         }
-        let mut max_change = 0.0f64;
+        let max_change = assert_temperatures_match(seed, &gpu, &t, &s.temp);
         for i in 0..s.pos.len() {
-            assert!(
-                (gpu[i][0] as f64 - t[i]).abs() < 2e-3,
-                "seed {seed} particle {i}: {} vs {}",
-                gpu[i][0],
-                t[i]
-            );
             assert_eq!(&gpu[i][1..], &thermo[i][1..], "only T changes");
-            max_change = max_change.max((t[i] - s.temp[i]).abs());
         }
         assert!(
             max_change > 0.5,
