@@ -9,12 +9,14 @@
 //   lambda_i = -C_i / (S_i^2 + sum_k a_ik^2)        (eq. 17a)
 //   T*_i = T_i + kappa lambda_i S_i                 (eq. 17b)
 // Conservative form (S.conservative = 1, physics.smoothing.conservative): eq. 17b written as
-// pair fluxes, T*_i = T_i - sum_j (k_i + k_j) / 2 a_ij (T_i - T_j) with k_i = kappa S_i / (S_i^2 +
+// pair fluxes of the dry static temperature s = T + Gamma_d y (S.lapse = Gamma_d),
+// T*_i = T_i - sum_j (k_i + k_j) / 2 a_ij (s_i - s_j) with k_i = kappa S_i / (S_i^2 +
 // sum_k a_ik^2) from the entry `smooth_factor` (run first). The paper's step is
-// T_i - k_i C_i; with k symmetrised per pair, m_i a_ij (T_i - T_j) (k_i + k_j) / 2 is
+// T_i - k_i C_i; with k symmetrised per pair, m_i a_ij (s_i - s_j) (k_i + k_j) / 2 is
 // antisymmetric in i and j, so sum_i m_i T_i is kept exactly: the smoothing moves heat, it
 // creates or destroys none (the paper's per-particle projection does not, docs/PHYSICS.md
-// "Heat budget").
+// "Heat budget"). Mixing evens out s, not T: a well-mixed layer has one potential
+// temperature and T falling at Gamma_d, which smoothing T would turn stable.
 // Walls: insulated (S.fixed_walls = 0: the boundary particles are left out, no heat crosses the
 // floor or the ceiling) or fixed-temperature (neighbours with their own temperature boundary.w,
 // level 0). kappa is the per-iteration share of the configured rate (SmoothParams::new).
@@ -31,7 +33,8 @@
 //!include shared/common.wgsl
 
 struct SmoothParams {
-    _pad0: u32,
+    // Gamma_d of the conservative form (0 otherwise)
+    lapse: f32,
     h0: f32,
     kappa: f32,
     epsilon: f32,
@@ -192,7 +195,8 @@ fn smooth_pair(a: ptr<function, SmAcc>, me: Sm, j: u32) {
     let tj = thermo_in[j];
     (*a).c += aij * (me.ti - tj.x);
     if (S.conservative != 0u) {
-        (*a).flux += 0.5 * (me.ki + smooth_factor_of[j]) * aij * (me.ti - tj.x);
+        let ds = me.ti - tj.x + S.lapse * xij.y;
+        (*a).flux += 0.5 * (me.ki + smooth_factor_of[j]) * aij * ds;
     }
     if (me.mixing && (me.cloudy || tj.z > 0.0)) {
         (*a).cv += min(me.limit, vapor_limit_of[j]) * aij * (me.vi - tj.y);
@@ -210,7 +214,7 @@ fn smooth_wall(a: ptr<function, SmAcc>, me: Sm, k: u32) {
     (*a).sum_a2 += aik * aik;
     (*a).c += aik * (me.ti - b.w);
     // a wall at a fixed temperature exchanges heat with the particle alone
-    (*a).flux += me.ki * aik * (me.ti - b.w);
+    (*a).flux += me.ki * aik * (me.ti - b.w + S.lapse * xik.y);
 }
 //!walk smooth_scan
 

@@ -191,7 +191,7 @@ fn the_forcing_budget_closes() {
 /// forcing's heat, while the water, which no smoothing touches, still closes. Its conservative
 /// form (`physics.smoothing.conservative`, the same step as fluxes between pairs) closes the
 /// budget again. This is the heat that paper example 1's budget misses (docs/PHYSICS.md "Heat
-/// budget"). Measured: paper 0.95930, conservative 0.99988.
+/// budget"). Measured: paper 0.95930, conservative 1.00003.
 #[test]
 fn the_paper_smoothing_loses_heat_and_its_conservative_form_keeps_it() {
     let (heat, water) = budget("");

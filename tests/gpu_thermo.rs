@@ -561,7 +561,7 @@ fn scene(seed: u64) -> Scene {
 
 fn smooth_params(kappa: f32) -> SmoothParams {
     SmoothParams {
-        _pad0: 0,
+        lapse: 0.0,
         h0: 20.0,
         kappa,
         epsilon: 1e-2,
@@ -668,6 +668,8 @@ fn conservative_smoothing_matches_mirror_and_keeps_the_heat() {
         let mut p = smooth_params(kappa);
         p.conservative = 1;
         p.fixed_walls = fixed;
+        // the form smooths T + Gamma_d y
+        p.lapse = 0.0098;
         let thermo: Vec<[f32; 4]> = s
             .temp
             .iter()
@@ -691,6 +693,7 @@ fn conservative_smoothing_matches_mirror_and_keeps_the_heat() {
             let kept = heat(&|i| t[i]) - before;
             let gpu_kept = heat(&|i| gpu[i][0] as f64) - before;
             p.conservative = 0;
+            p.lapse = 0.0;
             let paper = smooth_temperature(&mirror_input(&s, &p, &s.pos, &t0));
             let paper_kept = heat(&|i| paper[i]) - before;
             eprintln!(

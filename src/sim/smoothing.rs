@@ -38,8 +38,9 @@ entry_points! {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct SmoothParams {
-    /// (the particle count is `live.count`, on the GPU)
-    pub _pad0: u32,
+    /// Gamma_d (K/m) with the conservative form, which smooths T + Gamma_d y; 0 otherwise
+    /// (the particle count is `live.count`, on the GPU).
+    pub lapse: f32,
     /// Level-0 kernel radius h0 (m); level l has h0 2^(-l/3).
     pub h0: f32,
     /// kappa of eq. 17b for one iteration: the share of the configured rate (see `new`).
@@ -67,7 +68,11 @@ impl SmoothParams {
         let iterations = s.iterations as f64;
         let share = dt / (cfg.solver.reference_step * iterations);
         Self {
-            _pad0: 0,
+            lapse: if s.conservative {
+                cfg.physics.adiabatic_lapse_rate as f32
+            } else {
+                0.0
+            },
             h0: cfg.domain.kernel_radius() as f32,
             // Temperature smoothing off while vapor mixing is on: the pass runs for the vapor.
             kappa: if s.enabled {

@@ -73,12 +73,14 @@ pub fn constraint_terms(input: &SmoothInput, i: usize) -> (f64, f64, f64) {
     (sum_a, sum_a2, c)
 }
 
-/// One Jacobi iteration of the conservative form (`physics.smoothing.conservative`):
-/// T*_i = T_i - sum_j (k_i + k_j) / 2 a_ij (T_i - T_j) - sum_walls k_i a_ik (T_i - T_k) with
+/// One Jacobi iteration of the conservative form (`physics.smoothing.conservative`), of the
+/// dry static temperature s = T + Gamma_d y (Gamma_d = `lapse`):
+/// T*_i = T_i - sum_j (k_i + k_j) / 2 a_ij (s_i - s_j) - sum_walls k_i a_ik (s_i - s_k) with
 /// k_i = kappa S_i / (S_i^2 + sum_k a_ik^2), the walls only when they are fixed.
 pub fn smooth_temperature_conservative(input: &SmoothInput) -> Vec<f64> {
     let p = input.params;
     let kappa = p.kappa as f64;
+    let lapse = p.lapse as f64;
     let k: Vec<f64> = (0..input.pos.len())
         .map(|i| {
             let (s, s2, _) = constraint_terms(input, i);
@@ -108,14 +110,15 @@ pub fn smooth_temperature_conservative(input: &SmoothInput) -> Vec<f64> {
                     let lj = input.level[j];
                     let volume = p.volume0 as f64 * (-(lj as f64)).exp2();
                     let a = laplacian_coefficient(p, xij, hi, radius_of_level(p, lj), volume);
-                    flux += 0.5 * (k[i] + k[j]) * a * (ti - input.temperature[j]);
+                    let ds = ti - input.temperature[j] + lapse * xij.y;
+                    flux += 0.5 * (k[i] + k[j]) * a * ds;
                 },
             );
             if p.fixed_walls != 0 {
                 let (grid, cells) = (input.grid, input.boundary_cell_start);
                 for_each_wall_neighbor(grid, cells, &bpos, input.pos[i], |w, xik| {
                     let a = laplacian_coefficient(p, xik, hi, p.h0 as f64, p.volume0 as f64);
-                    flux += k[i] * a * (ti - input.boundary[w][3]);
+                    flux += k[i] * a * (ti - input.boundary[w][3] + lapse * xik.y);
                 });
             }
             ti - flux
@@ -276,7 +279,7 @@ mod tests {
 
     fn params(kappa: f32) -> SmoothParams {
         SmoothParams {
-            _pad0: 0,
+            lapse: 0.0,
             h0: 2.0,
             kappa,
             epsilon: 1e-2,
