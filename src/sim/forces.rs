@@ -12,8 +12,10 @@
 //! its f64 mirror (`sim/reference/<force>.rs`), its module (`sim/forces/<force>.rs`: parameters,
 //! program, `Stage`, and a `pub fn stage(&Setup) -> Result<Option<Box<dyn Stage>>>` giving
 //! `None` when the shot leaves it off), and one line in [`FORCES`],
-//! `Force::own("drag", &["physics.drag"], drag::stage),` (with the module's `mod` line). Forces of their own run after the thermodynamics, in list order, timed under
-//! `Phase::Forces` (stats.jsonl `phase_ms.forces`, absent while none runs).
+//! `Force::own("drag", &["physics.drag"], drag::stage),` (with the module's `mod` line).
+//! Forces of their own run first in the substep, before the PBF prediction (where PBF takes
+//! its external forces), in list order, timed under `Phase::Forces` (stats.jsonl
+//! `phase_ms.forces`, absent while none runs).
 pub mod forcing;
 
 use crate::error::Result;
