@@ -8,7 +8,7 @@ use nimbus::sim::forces::forcing::{ForcingStage, ForcingTable};
 use nimbus::sim::grid_params::GridParams;
 use nimbus::sim::reference::forcing::apply_forcing;
 use nimbus::sim::sources::HeatMaps;
-use nimbus::sim::stage::Setup;
+use nimbus::sim::stage::{Setup, Stage};
 use nimbus::sim::Simulation;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -74,7 +74,7 @@ fn apply_forcing_matches_the_mirror() {
     let b = scene.upload(&ctx);
     let prepared = nimbus::shot::Shot::prepare(cfg.clone()).unwrap();
     let maps = HeatMaps::new(&[]);
-    let stage = ForcingStage::for_test(&Setup {
+    let stage = ForcingStage::from_setup(&Setup {
         ctx: &ctx,
         shot: &prepared,
         buffers: &b,

@@ -294,10 +294,7 @@ impl Stage for ForcingStage {
 
 #[cfg(feature = "test-hooks")]
 impl ForcingStage {
-    /// The stage of a shot over buffers a test made, and one pass with `params`.
-    pub fn for_test(setup: &Setup) -> Result<Self> {
-        Self::from_setup(setup)
-    }
+    /// One pass with explicit parameters (the tests share them with the mirror).
     pub fn apply_with(
         &self,
         rec: &mut Recorder,
