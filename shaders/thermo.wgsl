@@ -58,7 +58,8 @@ struct ThermoParams {
     // levels of physics.environment.profile (0: the lapse rates and the inversion) and their
     // (height m, T0 K, -, -) by increasing height
     n_env: u32,
-    _env_pad0: u32,
+    // 0.608 with physics.virtual_temperature, else 0 (T (1 + 0 v) is T exactly)
+    virtual_factor: f32,
     _env_pad1: u32,
     _env_pad2: u32,
     env: array<vec4<f32>, MAX_ENVIRONMENT_LEVELS>,
@@ -331,8 +332,10 @@ fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     // eq. 6: F = kb (T - T0) / T0 j - kg w j, applied as a velocity change dt F, less its
     // horizontal mean at this height when there is a profile (a force of height alone only
     // changes the pressure of a closed incompressible box).
+    // With physics.virtual_temperature, T is the virtual temperature T (1 + 0.608 v).
     let t0 = environment_temperature(p.y);
-    let force = P.buoyancy * (temp - t0) / t0 - P.cloud_weight * th.z;
+    let tv = temp * (1.0 + P.virtual_factor * v);
+    let force = P.buoyancy * (tv - t0) / t0 - P.cloud_weight * th.z;
     u.y = u.y + P.dt * (force - layer_mean(p.y));
 
     // target-shape control (not in the paper): cloud near the target is pulled into it

@@ -223,6 +223,40 @@ fn atmospheric_thermo_step_matches_mirror() {
     assert!(changed > n / 10, "only {changed} particles changed phase");
 }
 
+/// `physics.virtual_temperature`: eq. 6 reads T (1 + 0.608 v). GPU against the mirror, and the
+/// extra lift against the formula, dt k_b 0.608 T v / T0(y) (no heating, so T and v are the
+/// inputs when eq. 6 reads them).
+#[test]
+fn virtual_temperature_lifts_moist_air_as_the_mirror_does() {
+    let ctx = context();
+    let mut cfg = shot();
+    cfg.physics.heat_source = 0.0;
+    cfg.physics.buoyancy_reference = nimbus::config::BuoyancyReference::LayerMean;
+    let n = 3000;
+    let (pos, vel, th) = random_thermo_state(n, 45, &cfg);
+    let dt = 2.0;
+    let plain = ThermoParams::new(&cfg, dt, 137.0);
+    cfg.physics.virtual_temperature = true;
+    let moist = ThermoParams::new(&cfg, dt, 137.0);
+    assert_eq!(plain.virtual_factor, 0.0);
+    assert_eq!(moist.virtual_factor, 0.608);
+    let out_plain = gpu_thermo(&ctx, &cfg, &[plain], &pos, &vel, &th);
+    let out_moist = gpu_thermo(&ctx, &cfg, &[moist], &pos, &vel, &th);
+    check_against_mirror(&moist, &[], (&pos, &vel, &th), &out_moist);
+    let mut worst: f64 = 0.0;
+    let mut lifted = 0;
+    for i in 0..n {
+        let t0 = nimbus::sim::thermo::environment_temperature(&cfg.physics, pos[i][1] as f64);
+        let want = dt * cfg.physics.buoyancy * 0.608 * th[i][0] as f64 * th[i][1] as f64 / t0;
+        let got = out_moist.vel[i][1] as f64 - out_plain.vel[i][1] as f64;
+        worst = worst.max((got - want).abs());
+        lifted += usize::from(want > 0.01);
+    }
+    // f32 velocities near 1 m/s: ulp 1.2e-7; a few operations.
+    assert!(worst < 2e-5, "extra lift off by {worst} m/s");
+    assert!(lifted > n / 2, "only {lifted} particles got 0.01 m/s of lift");
+}
+
 /// `physics.environment.profile` (the BOMEX sounding's temperatures) in eq. 6 against the
 /// mirror, with atmospheric thermodynamics.
 #[test]

@@ -351,6 +351,12 @@ pub struct PhysicsConfig {
     /// What eq. 6's force is measured against: the environment T0(y) alone, or also less its
     /// horizontal mean per height (`layer_mean`).
     pub buoyancy_reference: BuoyancyReference,
+    /// Eq. 6 on the virtual temperature T (1 + 0.608 v): moist air is lighter (a kelvin of
+    /// buoyancy per 5.5 g/kg of vapor at 300 K). Needs `buoyancy_reference: layer_mean`, which
+    /// takes away the environment's own (unknown) virtual profile. Left out of the
+    /// serialisation when false, so earlier hashes are unchanged.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub virtual_temperature: bool,
     /// Phase transition rate alpha (1/s), eq. 9.
     pub phase_rate: f64,
     /// How the saturation depends on height: as eq. 10 (`paper`), or also on a hydrostatic
@@ -423,6 +429,7 @@ impl Default for PhysicsConfig {
             buoyancy: 9.81,
             cloud_weight: 9.81,
             buoyancy_reference: BuoyancyReference::Environment,
+            virtual_temperature: false,
             phase_rate: 0.05,
             thermodynamics: Thermodynamics::Paper,
             surface_pressure: None,
@@ -464,6 +471,24 @@ pub struct EnvironmentConfig {
     /// are not read. Left out of the serialisation when empty (hashes unchanged).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub profile: Vec<EnvironmentLevel>,
+    /// Random initial perturbations of temperature and vapor below a height (an LES case's
+    /// trigger of turbulence, e.g. BOMEX's +-0.1 K and +-0.025 g/kg below 1600 m); `null` =
+    /// none. Left out of the serialisation when unset (hashes unchanged).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub perturbation: Option<Perturbation>,
+}
+
+/// `physics.environment.perturbation`: each particle below `height` starts with temperature
+/// and vapor offsets drawn uniformly from [-amplitude, +amplitude].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Perturbation {
+    /// Largest temperature offset (K).
+    pub temperature: f64,
+    /// Largest vapor offset (kg/kg).
+    pub vapor: f64,
+    /// Particles at or above this height (m) are left alone.
+    pub height: f64,
 }
 
 /// One level of `physics.environment.profile`.
@@ -488,6 +513,7 @@ impl Default for EnvironmentConfig {
             lapse_rate_above: None,
             humidity_above: None,
             profile: Vec::new(),
+            perturbation: None,
         }
     }
 }

@@ -103,6 +103,9 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("physics.environment.profile[].height", 0.0, 1.0e5),
     closed("physics.environment.profile[].temperature", 150.0, 400.0),
     closed("physics.environment.profile[].vapor", 0.0, 0.05),
+    closed("physics.environment.perturbation.temperature", 0.0, 10.0),
+    closed("physics.environment.perturbation.vapor", 0.0, 0.01),
+    closed("physics.environment.perturbation.height", 0.0, 1.0e5),
     closed("physics.bowen_ratio", 0.05, 100.0),
     closed("physics.sources[].center", 0.0, 1.0e5),
     above("physics.sources[].radius", 0.0, 1.0e5),
@@ -426,6 +429,15 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         v.push((at("temperature"), t, l.temperature));
         if let Some(q) = l.vapor {
             v.push((at("vapor"), "physics.environment.profile[].vapor", q));
+        }
+    }
+    if let Some(pt) = &ph.environment.perturbation {
+        for (key, x) in [
+            ("physics.environment.perturbation.temperature", pt.temperature),
+            ("physics.environment.perturbation.vapor", pt.vapor),
+            ("physics.environment.perturbation.height", pt.height),
+        ] {
+            v.push((key.to_string(), key, x));
         }
     }
     if let Some(f) = &ph.forcing {
@@ -818,6 +830,14 @@ fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
             );
         }
     }
+    if p.virtual_temperature && p.buoyancy_reference != crate::config::BuoyancyReference::LayerMean
+    {
+        k.fail(
+            &["physics.virtual_temperature", "physics.buoyancy_reference"],
+            "measures buoyancy against the horizontal mean: set physics.buoyancy_reference: layer_mean too (the environment has no virtual temperature of its own)"
+                .to_string(),
+        );
+    }
     if env.humidity_above.is_some() && env.inversion_height.is_none() {
         k.fail(
             &["physics.environment.humidity_above"],
@@ -1189,6 +1209,20 @@ mod tests {
                 "physics.environment.lapse_rate",
             ),
             (|c| c.physics.initial_speed = 100.0, "physics.initial_speed"),
+            (
+                |c| c.physics.virtual_temperature = true,
+                "physics.virtual_temperature",
+            ),
+            (
+                |c| {
+                    c.physics.environment.perturbation = Some(crate::config::Perturbation {
+                        temperature: 0.1,
+                        vapor: 0.5,
+                        height: 1600.0,
+                    })
+                },
+                "physics.environment.perturbation.vapor",
+            ),
             (
                 |c| c.output.preview.sun_direction = [0.0; 3],
                 "output.preview.sun_direction",

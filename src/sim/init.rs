@@ -25,7 +25,8 @@ pub fn hash_uniform(seed: u64, index: u64, draw: u64) -> f64 {
 }
 
 /// The fluid particles: a uniform lattice filling the box, random velocity directions with speeds
-/// uniform in [0, initial_speed], T = T0(y), cloud w = 0, vapor v = kv * gamma(T), level 0, id = index.
+/// uniform in [0, initial_speed], T = T0(y), cloud w = 0, vapor v = kv * gamma(T), level 0, id = index;
+/// below `environment.perturbation.height`, T and v offset uniformly within its amplitudes.
 pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
     let (n, d) = cfg.domain.lattice();
     let count = n[0] * n[1] * n[2];
@@ -56,7 +57,16 @@ pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
                 ];
                 s.pos.push([p[0] as f32, p[1] as f32, p[2] as f32, 0.0]);
                 s.vel.push([v[0] as f32, v[1] as f32, v[2] as f32, 0.0]);
-                s.thermo.push(initial_thermo(&cfg.physics, p[1]));
+                let mut thermo = initial_thermo(&cfg.physics, p[1]);
+                if let Some(pt) = &cfg.physics.environment.perturbation {
+                    if p[1] < pt.height {
+                        let dt = pt.temperature * (2.0 * hash_uniform(cfg.seed, idx, 3) - 1.0);
+                        let dv = pt.vapor * (2.0 * hash_uniform(cfg.seed, idx, 4) - 1.0);
+                        thermo[0] = (f64::from(thermo[0]) + dt) as f32;
+                        thermo[1] = (f64::from(thermo[1]) + dv).max(0.0) as f32;
+                    }
+                }
+                s.thermo.push(thermo);
                 s.info.push([idx as u32, 0]);
             }
         }
@@ -110,6 +120,45 @@ pub fn boundary_particles(cfg: &ShotConfig, grid: &GridParams) -> (Vec<[f32; 4]>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn perturbation_stays_below_its_height_and_within_its_amplitudes() {
+        let mut cfg: ShotConfig = serde_saphyr::from_str(
+            "shot: t\noutput: {frames: {start: 1, end: 2}}\n\
+             domain: {size: [800.0, 800.0, 800.0], spacing: 50.0}\n",
+        )
+        .unwrap();
+        let calm = initial_particles(&cfg);
+        cfg.physics.environment.perturbation = Some(crate::config::Perturbation {
+            temperature: 0.1,
+            vapor: 2.5e-5,
+            height: 400.0,
+        });
+        let moved = initial_particles(&cfg);
+        assert_eq!(calm.pos, moved.pos);
+        assert_eq!(calm.vel, moved.vel);
+        let (mut below, mut sum_t, mut sum_v, mut max_t, mut max_v) = (0, 0.0, 0.0, 0.0f64, 0.0f64);
+        for ((p, a), b) in calm.pos.iter().zip(&calm.thermo).zip(&moved.thermo) {
+            let dt = f64::from(b[0]) - f64::from(a[0]);
+            let dv = f64::from(b[1]) - f64::from(a[1]);
+            if p[1] >= 400.0 {
+                assert_eq!(a, b, "untouched above the height");
+                continue;
+            }
+            below += 1;
+            sum_t += dt;
+            sum_v += dv;
+            max_t = max_t.max(dt.abs());
+            max_v = max_v.max(dv.abs());
+        }
+        assert_eq!(below, 16 * 16 * 8);
+        // f32 rounding of ~290 K is 3e-5 K; of ~0.01 kg/kg, 1e-9.
+        assert!(max_t <= 0.1 + 1e-4 && max_t > 0.09, "{max_t}");
+        assert!(max_v <= 2.5e-5 + 1e-8 && max_v > 2.2e-5, "{max_v}");
+        // Uniform draws: means near 0 (sd of the mean 0.1/sqrt(3*2048) = 1.3e-3 K).
+        assert!((sum_t / below as f64).abs() < 5e-3, "{sum_t}");
+        assert!((sum_v / below as f64).abs() < 1.3e-6, "{sum_v}");
+    }
 
     #[test]
     fn hash_is_uniform_and_stateless() {

@@ -107,7 +107,10 @@ pub struct ThermoParams {
     pub pressure_surface: f32,
     /// Levels of `physics.environment.profile` (0: T0(y) from the lapse rates and inversion).
     pub n_env: u32,
-    pub _env_pad: [u32; 3],
+    /// 0.608 (R_v / R_d - 1) with `physics.virtual_temperature`, else 0: eq. 6 then reads
+    /// T (1 + virtual_factor v), which is T exactly at 0.
+    pub virtual_factor: f32,
+    pub _env_pad: [u32; 2],
     /// (height m, T0 K, 0, 0) by increasing height.
     pub env: [[f32; 4]; MAX_ENVIRONMENT_LEVELS],
     /// The profile (m/s^2), four layers a row: [`LayerBuoyancy`].
@@ -186,7 +189,8 @@ impl ThermoParams {
             pressure_exponent: pressure.map_or(0.0, |q| q.exponent as f32),
             pressure_surface: pressure.map_or(1.0, |q| q.surface as f32),
             n_env: p.environment.profile.len().min(MAX_ENVIRONMENT_LEVELS) as u32,
-            _env_pad: [0; 3],
+            virtual_factor: virtual_factor(p) as f32,
+            _env_pad: [0; 2],
             env: std::array::from_fn(|k| {
                 p.environment.profile.get(k).map_or([0.0; 4], |l| {
                     [l.height as f32, l.temperature as f32, 0.0, 0.0]
@@ -257,7 +261,8 @@ impl LayerBuoyancy {
             let y = state.pos[i][1] as f64;
             let th = state.thermo[i];
             let t0 = environment_temperature(p, y);
-            let force = p.buoyancy * (th[0] as f64 - t0) / t0 - p.cloud_weight * th[2] as f64;
+            let tv = th[0] as f64 * (1.0 + virtual_factor(p) * th[1] as f64);
+            let force = p.buoyancy * (tv - t0) / t0 - p.cloud_weight * th[2] as f64;
             let m = levels::mass(1.0, state.info[i][1].min(levels::MAX_LEVEL));
             let (k0, k1, f) = layer_weights(y, layer_height, n);
             for (k, w) in [(k0, 1.0 - f), (k1, f)] {
@@ -286,6 +291,19 @@ pub fn layer_weights(y: f64, layer_height: f64, n: usize) -> (usize, usize, f64)
 }
 
 /// Environment temperature T0(y) (K): `physics.environment` above `ground_temperature`.
+/// R_v / R_d - 1: the virtual temperature is T (1 + this v) (v the vapor mixing ratio).
+pub const VIRTUAL_FACTOR: f64 = 0.608;
+
+/// The factor of v in eq. 6's temperature: [`VIRTUAL_FACTOR`] with
+/// `physics.virtual_temperature`, else 0 (the paper's T).
+pub fn virtual_factor(p: &PhysicsConfig) -> f64 {
+    if p.virtual_temperature {
+        VIRTUAL_FACTOR
+    } else {
+        0.0
+    }
+}
+
 pub fn environment_temperature(p: &PhysicsConfig, y: f64) -> f64 {
     p.environment.temperature(p.ground_temperature, y)
 }

@@ -128,7 +128,8 @@ pub fn thermo_step_particle(
     th[1] += heat * p.ground_vapor as f64 + dt * vapor;
     // eq. 6
     let t0 = environment_temperature(p, pos[1]);
-    let force = p.buoyancy as f64 * (temp - t0) / t0 - p.cloud_weight as f64 * th[2];
+    let tv = temp * (1.0 + p.virtual_factor as f64 * th[1]);
+    let force = p.buoyancy as f64 * (tv - t0) / t0 - p.cloud_weight as f64 * th[2];
     vel[1] += dt * (force - layer_mean(p, pos[1]));
     // wind: exact relaxation of the horizontal velocity over dt
     if p.n_wind > 0 {
