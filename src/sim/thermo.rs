@@ -9,7 +9,8 @@
 //!    plus every `physics.sources` entry's heating and vapor ([`crate::sim::sources`]: shapes
 //!    on the ground and in the air, heat maps in a storage buffer at binding 4);
 //! 2. buoyancy and cloud weight, eq. 6: `u_y += dt (kb (T - T0(y)) / T0(y) - kg w)` with the
-//!    environment `T0(y)` of `physics.environment` (with its optional capping inversion); and
+//!    environment `T0(y)` of `physics.environment` (with its optional capping inversion), T
+//!    read as T (1 + 0.608 v) with `physics.virtual_temperature`; and
 //!    the wind, `u_h += f (U(y) - u_h)` with `f = 1 - exp(-dt / tau)` ([`crate::sim::wind`]);
 //! 3. adiabatic cooling, eq. 7: `T -= Gamma_d dy` over the height `dy` the substep's move gained
 //!    (`vel.w`, written by pbf.wgsl's `update_velocity`);
