@@ -342,3 +342,67 @@ fn a_real_run_reads_the_same_in_any_up_axis_and_scale() {
         close(f(&b["summary"][key]), f(&a["summary"][key]), 1e-6, key);
     }
 }
+
+/// tools/mean_profiles.py on the first minute of pipelines/bomex.yaml (a narrow column of it):
+/// the particles start on the layer centres with the sounding converted to T over the run's
+/// reference atmosphere, so the tool's theta_l and q_t must give back BOMEX's initial theta_l
+/// and q_t (within the initial perturbations, a minute of motion and forcing).
+#[test]
+fn mean_profiles_of_the_first_bomex_minute_are_the_sounding() {
+    if !py_modules_available(&["numpy"]) {
+        return;
+    }
+    let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("mean_profiles_bomex");
+    let _ = std::fs::remove_dir_all(&out);
+    let o = nimbus()
+        .arg("run")
+        .arg(root().join("pipelines/bomex.yaml"))
+        .arg("--out")
+        .arg(&out)
+        .args(["--set", "domain.size=[800, 3000, 800]"])
+        .args(["--set", "output.frames.end=1"])
+        .args(["--set", "output.preview.enabled=false"])
+        .args(["--set", "export.vdb.enabled=false"])
+        .args(["--set", "checkpoint.every=1"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let json = out.join("profiles.json");
+    let o = Command::new("/usr/bin/python3")
+        .arg(root().join("tools/mean_profiles.py"))
+        .arg(&out)
+        .args(["--window", "0,60", "--json", json.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let rec: Value = serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+    let p = &rec["profiles"];
+    assert_eq!(p["snapshots"], 1);
+    let col = |k: &str| -> Vec<f64> { p[k].as_array().unwrap().iter().map(f).collect() };
+    let (z, thl, qt) = (col("z"), col("thl"), col("qt"));
+    assert_eq!(z.len(), 30);
+    let interp = |x: f64, xs: &[f64], ys: &[f64]| {
+        let k = xs.windows(2).position(|w| x <= w[1]).unwrap();
+        ys[k] + (x - xs[k]) / (xs[k + 1] - xs[k]) * (ys[k + 1] - ys[k])
+    };
+    let zt = [0.0, 520.0, 1480.0, 2000.0, 3000.0];
+    let (th0, q0) = (
+        [298.7, 298.7, 302.4, 308.2, 311.85],
+        [17.0e-3, 16.3e-3, 10.7e-3, 4.2e-3, 3.0e-3],
+    );
+    for i in 0..z.len() {
+        let (want_th, want_q) = (interp(z[i], &zt, &th0), interp(z[i], &zt, &q0));
+        assert!(
+            (thl[i] - want_th).abs() < 0.1,
+            "theta_l at {} m: {} against {want_th}",
+            z[i],
+            thl[i]
+        );
+        assert!(
+            (qt[i] - want_q).abs() < 1e-4,
+            "q_t at {} m: {} against {want_q}",
+            z[i],
+            qt[i]
+        );
+    }
+}

@@ -1,0 +1,231 @@
+#!/usr/bin/env python3
+"""Horizontal-mean theta_l, q_t, cloud water and wind profiles of a nimbus run or a MicroHH run.
+
+    /usr/bin/python3 tools/mean_profiles.py SOURCE [SOURCE...] [--window T0,T1] [--dz M]
+        [--labels A,B] [--json OUT] [--meta META.json] [--plot PNG] [--nimbus-frame-u U]
+
+A SOURCE is one of:
+- a nimbus run directory (thermodynamics: atmospheric): its checkpoints (checkpoints/*.nck)
+  whose simulated time lies in the window. Each particle gives theta_l = (T - Q w)
+  (p0 / p(y))^(R_d / c_p), with p(y) the run's reference pressure (sim::thermo::Pressure), and
+  q_t = v + w; layers of --dz metres (default 100) average them with equal weight per particle
+  (particles of one level share one mass); u, v are the mean horizontal velocities (x, z);
+- a MicroHH run directory: its statistics file (<case>.default.0000000.nc, groups `thermo` and
+  `default`), the snapshots in the window;
+- a JSON file this tool wrote (--json): the profiles it holds.
+
+Window default 10800-21600 s (hours 3-6 of BOMEX). Prints the profiles side by side at the
+heights of the first source, with the BOMEX initial state. --json writes the first source's
+profiles (schema nimbus.mean_profiles/1) with the provenance of --meta.
+Needs numpy; netCDF4 for MicroHH; matplotlib for --plot (tools/setup.sh installs them).
+"""
+import argparse
+import glob
+import json
+import math
+import os
+import struct
+import sys
+
+P00 = 100000.0
+CP_OVER_RD = 3.4978  # c_p / R_d as sim::thermo::CP_OVER_RD
+Q = 2500.0  # L / c_p (K per kg/kg), as nimbus's latent_heat default
+
+
+def fail(msg, code=2):
+    print(f"error: {msg}", file=sys.stderr)
+    sys.exit(code)
+
+
+try:
+    import numpy as np
+except ImportError:
+    fail("numpy is missing: run tools/setup.sh (Debian python3-numpy) and use /usr/bin/python3")
+
+
+def bomex_initial(z):
+    """theta_l (K) and q_t (kg/kg) of the BOMEX initial state (Siebesma et al. 2003)."""
+    zt = [0.0, 520.0, 1480.0, 2000.0, 3000.0]
+    th = [298.7, 298.7, 302.4, 308.2, 311.85]
+    qt = [17.0e-3, 16.3e-3, 10.7e-3, 4.2e-3, 3.0e-3]
+    return np.interp(z, zt, th), np.interp(z, zt, qt)
+
+
+def read_checkpoint(path):
+    """(frame, sim time, pos, thermo, vel) of a nimbus checkpoint (src/io/checkpoint/format.rs)."""
+    b = open(path, "rb").read()
+    if b[:8] != b"NIMBUSCK":
+        fail(f"{path}: not a nimbus checkpoint")
+    h = struct.unpack_from("<I", b, 12)[0]
+    o = 16 + 8
+    for _ in range(2):  # tool version, config hash
+        n = struct.unpack_from("<H", b, o)[0]
+        o += 2 + n
+    frame, _step, time = struct.unpack_from("<IQd", b, o)
+    o = 16 + h + 4
+    sec = {}
+    while o < len(b) - 32:
+        n = struct.unpack_from("<H", b, o)[0]
+        name = b[o + 2:o + 2 + n].decode()
+        o += 2 + n
+        size = struct.unpack_from("<Q", b, o)[0]
+        sec[name] = b[o + 8:o + 8 + size]
+        o += 8 + size + 4
+    arr = lambda k: np.frombuffer(sec[k], "<f4").reshape(-1, 4).astype(float)
+    return frame, time, arr("pos"), arr("thermo"), arr("vel")
+
+
+def read_nimbus(run, window, dz):
+    manifest = json.load(open(os.path.join(run, "manifest.json")))
+    cfg = manifest["config"]
+    ph = cfg["physics"]
+    if ph.get("thermodynamics", "paper") != "atmospheric":
+        fail(f"{run}: theta_l needs thermodynamics: atmospheric (the paper's has no pressure)")
+    levels = ph["environment"].get("profile") or []
+    if not levels:
+        fail(f"{run}: needs physics.environment.profile (the surface temperature of the reference atmosphere)")
+    t_s = levels[0]["temperature"] if levels[0]["height"] <= 0 else None
+    if t_s is None:
+        fail(f"{run}: the profile's first level must be at the ground")
+    gamma = ph.get("adiabatic_lapse_rate", 0.0098)
+    p_s = ph.get("surface_pressure") or P00
+    q = ph.get("latent_heat", Q)
+    height = cfg["domain"]["size"][1]
+    top = t_s / gamma
+    n = int(math.ceil(height / dz))
+    acc = np.zeros((n, 5))
+    count = np.zeros(n)
+    times = []
+    for path in sorted(glob.glob(os.path.join(run, "checkpoints", "*.nck"))):
+        _frame, t, pos, th, vel = read_checkpoint(path)
+        if not (window[0] - 1.0 <= t <= window[1] + 1.0):  # frame times drift by ~1e-4 s
+            continue
+        times.append(t)
+        y = pos[:, 1]
+        p = p_s * (1.0 - y / top) ** CP_OVER_RD
+        theta_l = (th[:, 0] - q * th[:, 2]) * (P00 / p) ** (1.0 / CP_OVER_RD)
+        k = np.clip((y // dz).astype(int), 0, n - 1)
+        for j, f in enumerate([theta_l, th[:, 1] + th[:, 2], th[:, 2], vel[:, 0], vel[:, 2]]):
+            acc[:, j] += np.bincount(k, f, n)
+        count += np.bincount(k, None, n)
+    if not times:
+        fail(f"{run}: no checkpoint in the window {window[0]:g}-{window[1]:g} s")
+    m = acc / np.maximum(count, 1)[:, None]
+    z = (np.arange(n) + 0.5) * dz
+    return {"kind": "nimbus", "path": os.path.abspath(run), "snapshots": len(times),
+            "times": times, "z": z.tolist(), "thl": m[:, 0].tolist(), "qt": m[:, 1].tolist(),
+            "ql": m[:, 2].tolist(), "u": m[:, 3].tolist(), "v": m[:, 4].tolist(),
+            "note": f"checkpoints; layers of {dz:g} m; u, v in the simulation's frame (x, z)"}
+
+
+def read_microhh(run, window):
+    try:
+        import netCDF4
+    except ImportError:
+        fail("netCDF4 is missing: apt-get install python3-netcdf4 and use /usr/bin/python3")
+    files = sorted(glob.glob(os.path.join(run, "*.default.0000000.nc")))
+    if not files:
+        fail(f"{run}: no MicroHH statistics file (*.default.0000000.nc)")
+    f = netCDF4.Dataset(files[0])
+    t = np.asarray(f["time"][:], float)
+    sel = (t >= window[0]) & (t <= window[1])
+    if not sel.any():
+        fail(f"{run}: no statistics in the window")
+    mean = lambda g, v: np.asarray(f[g][v][sel, :], float).mean(axis=0).tolist()
+    utrans = 0.0
+    ini = glob.glob(os.path.join(run, "*.ini"))
+    if ini:
+        for line in open(ini[0]):
+            if line.strip().startswith("utrans="):
+                utrans = float(line.split("=")[1])
+    return {"kind": "microhh", "path": os.path.abspath(run), "snapshots": int(sel.sum()),
+            "z": np.asarray(f["z"][:], float).tolist(), "thl": mean("thermo", "thl"),
+            "qt": mean("thermo", "qt"), "ql": mean("thermo", "ql"), "u": mean("default", "u"),
+            "v": mean("default", "v"), "utrans": utrans,
+            "note": "statistics file; u, v in the ground frame (MicroHH adds back its utrans)"}
+
+
+def load(src, window, dz):
+    if src.endswith(".json"):
+        rec = json.load(open(src))
+        if rec.get("schema") != "nimbus.mean_profiles/1":
+            fail(f"{src}: not a mean_profiles record")
+        return rec["profiles"]
+    if os.path.exists(os.path.join(src, "manifest.json")):
+        return read_nimbus(src, window, dz)
+    if glob.glob(os.path.join(src, "*.default.0000000.nc")):
+        return read_microhh(src, window)
+    fail(f"{src}: neither a nimbus run, a MicroHH run nor a mean_profiles JSON")
+
+
+def at(rec, key, z):
+    return np.interp(z, rec["z"], rec[key])
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("sources", nargs="+")
+    ap.add_argument("--window", default="10800,21600")
+    ap.add_argument("--dz", type=float, default=100.0)
+    ap.add_argument("--labels")
+    ap.add_argument("--json")
+    ap.add_argument("--meta")
+    ap.add_argument("--plot")
+    ap.add_argument("--nimbus-frame-u", type=float, default=0.0,
+                    help="speed (m/s, along x) of the frame a nimbus run's wind is given in; added to its u in the plot (BOMEX: -8)")
+    a = ap.parse_args(argv)
+    try:
+        window = [float(x) for x in a.window.split(",")]
+        assert len(window) == 2 and window[0] <= window[1]
+    except (ValueError, AssertionError):
+        fail("--window wants T0,T1 with T0 <= T1")
+    if not a.dz > 0:
+        fail("--dz must be > 0")
+    frame_u = a.nimbus_frame_u
+    recs = [load(s, window, a.dz) for s in a.sources]
+    labels = a.labels.split(",") if a.labels else [os.path.basename(s.rstrip("/")) for s in a.sources]
+    if len(labels) != len(recs):
+        fail("--labels needs one name per source")
+    z = np.asarray(recs[0]["z"])
+    th0, qt0 = bomex_initial(z)
+    head = "  z (m)   " + "".join(f"{'thl ' + l:>16}{'qt ' + l:>14}{'ql ' + l:>13}" for l in labels)
+    print(f"window {window[0]:g}-{window[1]:g} s; snapshots: " + ", ".join(f"{l} {r['snapshots']}" for l, r in zip(labels, recs)))
+    print(head + f"{'thl BOMEX t=0':>16}{'qt t=0':>10}")
+    for i, zi in enumerate(z):
+        row = f"{zi:8.0f}  "
+        for r in recs:
+            row += f"{at(r, 'thl', zi):16.2f}{1e3 * at(r, 'qt', zi):14.2f}{1e3 * at(r, 'ql', zi):13.4f}"
+        print(row + f"{th0[i]:16.2f}{1e3 * qt0[i]:10.2f}")
+    if a.json:
+        rec = {"schema": "nimbus.mean_profiles/1", "window": window, "profiles": recs[0]}
+        if a.meta:
+            rec["meta"] = json.load(open(a.meta))
+        with open(a.json, "w") as out:
+            json.dump(rec, out, indent=1)
+    if a.plot:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots(1, 4, figsize=(14, 5), sharey=True)
+        zz = np.linspace(0, max(r["z"][-1] for r in recs), 200)
+        th, qt = bomex_initial(zz)
+        for axis, v in [(ax[0], th), (ax[1], 1e3 * qt)]:
+            axis.plot(v, zz, "k:", label="BOMEX t = 0")
+        for r, l in zip(recs, labels):
+            zr = np.asarray(r["z"])
+            ax[0].plot(r["thl"], zr, label=l)
+            ax[1].plot(1e3 * np.asarray(r["qt"]), zr, label=l)
+            ax[2].plot(1e3 * np.asarray(r["ql"]), zr, label=l)
+            ax[3].plot(np.asarray(r["u"]) + (frame_u if r["kind"] == "nimbus" else 0.0), zr, label=l)
+        for axis, name in zip(ax, ["theta_l (K)", "q_t (g/kg)", "mean q_l (g/kg)", "u (m/s, ground frame)"]):
+            axis.set_xlabel(name)
+            axis.grid(alpha=0.3)
+        ax[0].set_ylabel("height (m)")
+        ax[0].legend(fontsize=8)
+        fig.suptitle(f"mean profiles, {window[0] / 3600:g}-{window[1] / 3600:g} h")
+        fig.tight_layout()
+        fig.savefig(a.plot, dpi=90)
+
+
+if __name__ == "__main__":
+    main()
