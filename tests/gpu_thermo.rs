@@ -254,7 +254,10 @@ fn virtual_temperature_lifts_moist_air_as_the_mirror_does() {
     }
     // f32 velocities near 1 m/s: ulp 1.2e-7; a few operations.
     assert!(worst < 2e-5, "extra lift off by {worst} m/s");
-    assert!(lifted > n / 2, "only {lifted} particles got 0.01 m/s of lift");
+    assert!(
+        lifted > n / 2,
+        "only {lifted} particles got 0.01 m/s of lift"
+    );
 }
 
 /// `physics.environment.profile` (the BOMEX sounding's temperatures) in eq. 6 against the

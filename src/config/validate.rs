@@ -433,7 +433,10 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
     }
     if let Some(pt) = &ph.environment.perturbation {
         for (key, x) in [
-            ("physics.environment.perturbation.temperature", pt.temperature),
+            (
+                "physics.environment.perturbation.temperature",
+                pt.temperature,
+            ),
             ("physics.environment.perturbation.vapor", pt.vapor),
             ("physics.environment.perturbation.height", pt.height),
         ] {
