@@ -53,7 +53,13 @@ def bomex_initial(z):
 
 def read_checkpoint(path):
     """(frame, sim time, pos, thermo, vel) of a nimbus checkpoint (src/io/checkpoint/format.rs)."""
-    b = open(path, "rb").read()
+    try:
+        return parse_checkpoint(path, open(path, "rb").read())
+    except (OSError, struct.error, KeyError, ValueError, UnicodeDecodeError) as e:
+        fail(f"{path}: not a readable nimbus checkpoint ({e})", 3)
+
+
+def parse_checkpoint(path, b):
     if b[:8] != b"NIMBUSCK":
         fail(f"{path}: not a nimbus checkpoint")
     h = struct.unpack_from("<I", b, 12)[0]
