@@ -43,12 +43,9 @@ except ImportError:
     fail("numpy is missing: run tools/setup.sh (Debian python3-numpy) and use /usr/bin/python3")
 
 
-def bomex_initial(z):
-    """theta_l (K) and q_t (kg/kg) of the BOMEX initial state (Siebesma et al. 2003)."""
-    zt = [0.0, 520.0, 1480.0, 2000.0, 3000.0]
-    th = [298.7, 298.7, 302.4, 308.2, 311.85]
-    qt = [17.0e-3, 16.3e-3, 10.7e-3, 4.2e-3, 3.0e-3]
-    return np.interp(z, zt, th), np.interp(z, zt, qt)
+# The BOMEX initial theta_l and q_t: one definition, cloud_stats.py's (this file's directory
+# is on sys.path when it runs as a script).
+from cloud_stats import bomex_initial  # noqa: E402
 
 
 def read_checkpoint(path):
