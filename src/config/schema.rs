@@ -260,8 +260,16 @@ pub enum Axis {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SolverConfig {
-    /// PBF density iterations per substep.
+    /// PBF density iterations per `reference_step` of simulated time (see
+    /// `crate::sim::iterations_in_substep`).
     pub iterations: u32,
+    /// Spread a frame's density iterations, round(iterations frame_seconds / reference_step),
+    /// evenly over its substeps (at least one each), instead of rounding each substep's share
+    /// (at most `iterations`): the iteration rate, which damps buoyant motion, then does not
+    /// change with the substep count the CFL control takes. Left out of the serialisation when
+    /// false, so earlier hashes are unchanged.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub spread_iterations: bool,
     /// Rest density rho0 (kg/m^3).
     pub rest_density: f64,
     /// Constraint force mixing epsilon (eq. 4 relaxation), dimensionless: eps = relaxation / h0^2
@@ -296,6 +304,7 @@ impl Default for SolverConfig {
     fn default() -> Self {
         Self {
             iterations: 4,
+            spread_iterations: false,
             rest_density: 1.0,
             relaxation: 1.0,
             scorr_k: 0.1,

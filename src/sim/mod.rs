@@ -42,5 +42,6 @@ pub mod wind;
 pub use frame_report::{FrameReport, StepDiagnostics};
 pub use phase::{Phase, PhaseTimes, Timing};
 pub use simulation::{
-    compression_error, density_error, iterations_per_substep, speed_ratio, Simulation,
+    compression_error, density_error, iterations_in_substep, iterations_per_substep, speed_ratio,
+    Simulation,
 };

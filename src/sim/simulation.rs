@@ -34,7 +34,7 @@ pub struct Simulation {
     pub(super) cfg: ShotConfig,
     /// max over particles of |v| / h (1/s) in the newest state: the CFL control's input
     speed_ratio: f64,
-    /// density iterations per substep: `solver.iterations` per `solver.reference_step`
+    /// density iterations of the substep being recorded ([`iterations_in_substep`])
     pub(super) iterations: u32,
     /// live particles as of the last read-back (the GPU's `live.count` between frames)
     count: u32,
@@ -231,7 +231,6 @@ impl Simulation {
         let mut report = FrameReport::default();
         let substeps = self.substeps_for_next_frame();
         let dt = self.cfg.output.substep_dt(substeps);
-        self.iterations = iterations_per_substep(&self.cfg, dt);
         if self.params.dt != dt as f32 {
             self.params.set_dt(&self.cfg, dt);
             self.s.pbf.set_params(&ctx, &self.params);
@@ -243,6 +242,7 @@ impl Simulation {
         let mut host_times = PhaseTimes::default();
         let mut timer = self.timer.take();
         for k in 0..substeps {
+            self.iterations = iterations_in_substep(&self.cfg, substeps, k);
             let mut rec =
                 Recorder::new(&ctx, timer.as_mut(), host_timing.then_some(&mut host_times));
             let recorded = self.record_substep(&mut rec, dt, k == 0);
@@ -466,6 +466,21 @@ pub fn iterations_per_substep(cfg: &ShotConfig, dt: f64) -> u32 {
     ((cfg.solver.iterations as f64 * share).round() as u32).max(1)
 }
 
+/// Density iterations of substep k of a frame of `substeps`: [`iterations_per_substep`], or
+/// with `solver.spread_iterations` the frame's round(iterations frame_seconds /
+/// reference_step) spread evenly (the cumulative count rounded at each substep's end), at
+/// least 1 a substep. Rounding each substep's share makes the rate jump with the substep count
+/// the CFL control takes (at 4 per 15 s: 10 substeps of a minute run 20, 11 run 11); a
+/// function of the frame's substep count alone, so a resumed run takes the same.
+pub fn iterations_in_substep(cfg: &ShotConfig, substeps: u32, k: u32) -> u32 {
+    if !cfg.solver.spread_iterations {
+        return iterations_per_substep(cfg, cfg.output.substep_dt(substeps));
+    }
+    let total = cfg.solver.iterations as f64 * cfg.solver.step_share(cfg.output.frame_seconds);
+    let done_by = |j: u32| (total * j as f64 / substeps as f64).round() as u64;
+    ((done_by(k + 1) - done_by(k)) as u32).max(1)
+}
+
 /// max over particles of |v_i| / h_i (1/s), h_i = h0 2^(-l/3): times dt, the largest
 /// displacement per substep in kernel radii.
 pub fn speed_ratio(vel: &[[f32; 4]], info: &[[u32; 2]], h0: f64) -> f64 {
@@ -498,4 +513,56 @@ pub fn density_error(density: &[f32], rho0: f64) -> (f64, f64) {
         max = max.max(e);
     }
     (sum / density.len() as f64, max)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// BOMEX's rates: a minute's frame, 4 iterations per 15 s.
+    fn minute_frames(spread: bool) -> ShotConfig {
+        let mut cfg: ShotConfig = serde_saphyr::from_str(
+            "shot: t\noutput: {frames: {start: 1, end: 2}, frame_seconds: 60}\n\
+             domain: {size: [800.0, 800.0, 800.0], spacing: 50.0}\n\
+             solver: {iterations: 4, reference_step: 15}\n",
+        )
+        .unwrap();
+        cfg.solver.spread_iterations = spread;
+        cfg
+    }
+
+    fn frame(cfg: &ShotConfig, substeps: u32) -> Vec<u32> {
+        (0..substeps)
+            .map(|k| iterations_in_substep(cfg, substeps, k))
+            .collect()
+    }
+
+    #[test]
+    fn spread_iterations_keep_the_rate_at_every_substep_count() {
+        let cfg = minute_frames(true);
+        for n in 1..=16 {
+            let its = frame(&cfg, n);
+            assert_eq!(its.iter().sum::<u32>(), 16, "{n} substeps: {its:?}");
+            let (lo, hi) = (its.iter().min().unwrap(), its.iter().max().unwrap());
+            assert!(hi - lo <= 1, "{n} substeps spread unevenly: {its:?}");
+        }
+        // beyond 16 substeps a minute every substep still corrects its density once
+        assert_eq!(frame(&cfg, 23), vec![1; 23]);
+    }
+
+    #[test]
+    fn rounded_iterations_are_unchanged_and_jump_with_the_substeps() {
+        let cfg = minute_frames(false);
+        // each substep rounds its own share, at most `iterations`: what earlier shots ran
+        assert_eq!(frame(&cfg, 2), vec![4; 2]);
+        assert_eq!(frame(&cfg, 10), vec![2; 10]);
+        assert_eq!(frame(&cfg, 11), vec![1; 11]);
+        for n in 1..=40 {
+            let dt = cfg.output.substep_dt(n);
+            assert_eq!(
+                frame(&cfg, n),
+                vec![iterations_per_substep(&cfg, dt); n as usize]
+            );
+        }
+    }
 }
