@@ -411,6 +411,11 @@ fn sources_and_wind_match_mirror() {
                 direction: 120.0,
             },
         ],
+        coriolis: None,
+        surface_friction: 0.0,
+        surface_layer: None,
+        ground_velocity: [0.0; 2],
+        initial: Vec::new(),
     });
     let maps = heat_maps(&cfg);
     assert_eq!(maps.values.len(), 40 * 32);

@@ -323,8 +323,49 @@ fn check_wind(out: &mut Out, w: &WindConfig, c: &ShotConfig) {
         MAX_WIND_LEVELS,
     );
     let periodic = |a: Axis| c.domain.periodic.contains(&a);
-    for (k, l) in w.profile.iter().enumerate() {
-        let at = |f: &str| format!("physics.wind.profile[{k}].{f}");
+    if w.coriolis.is_some() {
+        // the relaxation's key has a default, so only a value other than it can be told apart
+        if w.time_constant != d_wind_time() {
+            out.fail(
+                &["physics.wind.time_constant", "physics.wind.coriolis"],
+                "a geostrophic wind (coriolis) turns the air about the profile and does not relax it: remove time_constant".into(),
+            );
+        }
+        if !(periodic(Axis::X) && periodic(Axis::Z)) {
+            out.fail(
+                &["physics.wind.coriolis", "domain.periodic"],
+                "the Coriolis force turns the wind through every heading: it needs periodic x and z (domain.periodic)".into(),
+            );
+        }
+    }
+    for (axis, u, name) in [
+        (Axis::X, w.ground_velocity[0], "x"),
+        (Axis::Z, w.ground_velocity[1], "z"),
+    ] {
+        if u != 0.0 && !periodic(axis) {
+            out.fail(
+                &["physics.wind.ground_velocity", "domain.periodic"],
+                format!("the ground moves along {name}, which is walled (domain.periodic)"),
+            );
+        }
+    }
+    check_wind_levels(out, "physics.wind.profile", &w.profile, c);
+    if !w.initial.is_empty() {
+        check_levels(
+            out,
+            "physics.wind.initial",
+            &w.initial.iter().map(|l| l.height).collect::<Vec<_>>(),
+            MAX_WIND_LEVELS,
+        );
+        check_wind_levels(out, "physics.wind.initial", &w.initial, c);
+    }
+}
+
+/// Each level's speed against `solver.max_speed`, and no wind into a wall.
+fn check_wind_levels(out: &mut Out, name: &str, levels: &[WindLevel], c: &ShotConfig) {
+    let periodic = |a: Axis| c.domain.periodic.contains(&a);
+    for (k, l) in levels.iter().enumerate() {
+        let at = |f: &str| format!("{name}[{k}].{f}");
         if l.speed > c.solver.max_speed {
             out.fail(
                 &[&at("speed"), "solver.max_speed"],

@@ -599,11 +599,44 @@ pub struct WindConfig {
     #[serde(default = "d_wind_time")]
     pub time_constant: f64,
     /// Levels by increasing height; linear in speed and direction between them, constant
-    /// below the first and above the last.
+    /// below the first and above the last. With `coriolis`, the geostrophic wind.
     pub profile: Vec<WindLevel>,
+    /// Coriolis parameter f (1/s; 2 Omega sin(latitude), positive in the northern hemisphere):
+    /// with it the profile is the geostrophic wind U_g and the air turns about it,
+    /// du_h/dt = -f y x (u_h - U_g), in place of the relaxation (`sim::forces::coriolis`).
+    /// Left out of the serialisation when unset, as the three keys below at their defaults.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub coriolis: Option<f64>,
+    /// Surface friction velocity u* (m/s): the particles below `surface_layer` take the surface
+    /// stress, du_h/dt = -u*^2 U / (|U| d) with U their velocity over the ground; 0 = none.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub surface_friction: f64,
+    /// Depth d of the layer that takes the surface stress (m); `null` = the kernel radius.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub surface_layer: Option<f64>,
+    /// The ground's velocity in the shot's frame (m/s, along x and z): a shot simulated in a
+    /// frame moving with the wind (as an LES's Galilean transform) drags against the ground
+    /// moving under it.
+    #[serde(default, skip_serializing_if = "is_still")]
+    pub ground_velocity: [f64; 2],
+    /// The wind the particles start with (levels as `profile`'s, added to the random initial
+    /// speeds); empty = they start at rest. An atmospheric case starts from its observed wind,
+    /// not from the geostrophic one.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub initial: Vec<WindLevel>,
 }
-fn d_wind_time() -> f64 {
+pub(crate) fn d_wind_time() -> f64 {
     60.0
+}
+fn is_still(v: &[f64; 2]) -> bool {
+    *v == [0.0; 2]
+}
+
+impl WindConfig {
+    /// Whether the Coriolis and drag stage runs (`sim::forces::coriolis`).
+    pub fn has_momentum_forcing(&self) -> bool {
+        self.coriolis.is_some() || self.surface_friction > 0.0
+    }
 }
 
 /// `physics.forcing`: the large-scale forcing of an atmospheric case (GCSS BOMEX and the like),

@@ -122,6 +122,13 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("physics.wind.profile[].height", 0.0, 1.0e5),
     closed("physics.wind.profile[].speed", 0.0, 100.0),
     closed("physics.wind.profile[].direction", -360.0, 360.0),
+    closed("physics.wind.initial[].height", 0.0, 1.0e5),
+    closed("physics.wind.initial[].speed", 0.0, 100.0),
+    closed("physics.wind.initial[].direction", -360.0, 360.0),
+    closed("physics.wind.coriolis", -1.0e-3, 1.0e-3),
+    closed("physics.wind.surface_friction", 0.0, 10.0),
+    above("physics.wind.surface_layer", 0.0, 1.0e5),
+    closed("physics.wind.ground_velocity", -100.0, 100.0),
     closed("physics.forcing.surface_heat_flux", -1.0, 1.0),
     closed("physics.forcing.surface_moisture_flux", -1.0e-3, 1.0e-3),
     above("physics.forcing.surface_layer", 0.0, 1.0e5),
@@ -403,18 +410,59 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
             "physics.wind.time_constant",
             w.time_constant,
         ));
-        for (k, l) in w.profile.iter().enumerate() {
-            for (name, x) in [
-                ("height", l.height),
-                ("speed", l.speed),
-                ("direction", l.direction),
-            ] {
-                let key = match name {
-                    "height" => "physics.wind.profile[].height",
-                    "speed" => "physics.wind.profile[].speed",
-                    _ => "physics.wind.profile[].direction",
-                };
-                v.push((format!("physics.wind.profile[{k}].{name}"), key, x));
+        if let Some(f) = w.coriolis {
+            v.push(("physics.wind.coriolis".into(), "physics.wind.coriolis", f));
+        }
+        v.push((
+            "physics.wind.surface_friction".into(),
+            "physics.wind.surface_friction",
+            w.surface_friction,
+        ));
+        if let Some(d) = w.surface_layer {
+            v.push((
+                "physics.wind.surface_layer".into(),
+                "physics.wind.surface_layer",
+                d,
+            ));
+        }
+        for (a, x) in w.ground_velocity.iter().enumerate() {
+            v.push((
+                format!("physics.wind.ground_velocity[{a}]"),
+                "physics.wind.ground_velocity",
+                *x,
+            ));
+        }
+        for (list, levels, keys) in [
+            (
+                "profile",
+                &w.profile,
+                [
+                    "physics.wind.profile[].height",
+                    "physics.wind.profile[].speed",
+                    "physics.wind.profile[].direction",
+                ],
+            ),
+            (
+                "initial",
+                &w.initial,
+                [
+                    "physics.wind.initial[].height",
+                    "physics.wind.initial[].speed",
+                    "physics.wind.initial[].direction",
+                ],
+            ),
+        ] {
+            for (k, l) in levels.iter().enumerate() {
+                for (j, (name, x)) in [
+                    ("height", l.height),
+                    ("speed", l.speed),
+                    ("direction", l.direction),
+                ]
+                .into_iter()
+                .enumerate()
+                {
+                    v.push((format!("physics.wind.{list}[{k}].{name}"), keys[j], x));
+                }
             }
         }
     }
@@ -1336,11 +1384,21 @@ mod tests {
             },
         ];
         c.physics.wind = Some(WindConfig {
-            time_constant: 30.0,
+            // the default: a geostrophic wind does not relax
+            time_constant: 60.0,
             profile: vec![WindLevel {
                 height: 10.0,
                 speed: 2.0,
                 direction: 45.0,
+            }],
+            coriolis: Some(1.0e-4),
+            surface_friction: 0.3,
+            surface_layer: Some(50.0),
+            ground_velocity: [1.0, -1.0],
+            initial: vec![WindLevel {
+                height: 20.0,
+                speed: 1.0,
+                direction: 10.0,
             }],
         });
         // keys left out of the JSON at their defaults (the manifest's config of earlier shots

@@ -16,6 +16,7 @@
 //! Forces of their own run first in the substep, before the PBF prediction (where PBF takes
 //! its external forces), in list order, timed under `Phase::Forces` (stats.jsonl
 //! `phase_ms.forces`, absent while none runs).
+pub mod coriolis;
 pub mod forcing;
 
 use crate::error::Result;
@@ -128,6 +129,11 @@ pub const FORCES: &[Force] = &[
         },
     },
     Force::own("large-scale forcing", &["physics.forcing"], forcing::stage),
+    Force::own(
+        "Coriolis force and surface stress",
+        &["physics.wind.coriolis", "physics.wind.surface_friction"],
+        coriolis::stage,
+    ),
 ];
 
 /// The forces of their own a shot turns on, recorded one after the other.

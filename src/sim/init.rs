@@ -25,7 +25,7 @@ pub fn hash_uniform(seed: u64, index: u64, draw: u64) -> f64 {
 }
 
 /// The fluid particles: a uniform lattice filling the box, random velocity directions with speeds
-/// uniform in [0, initial_speed], T = T0(y), cloud w = 0, vapor v = kv * gamma(T), level 0, id = index;
+/// uniform in [0, initial_speed] (plus `physics.wind.initial` at their height), T = T0(y), cloud w = 0, vapor v = kv * gamma(T), level 0, id = index;
 /// below `environment.perturbation.height`, T and v offset uniformly within its amplitudes.
 pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
     let (n, d) = cfg.domain.lattice();
@@ -50,11 +50,15 @@ pub fn initial_particles(cfg: &ShotConfig) -> ParticleState {
                 let phi = 2.0 * std::f64::consts::PI * hash_uniform(cfg.seed, idx, 1);
                 let speed = cfg.physics.initial_speed * hash_uniform(cfg.seed, idx, 2);
                 let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-                let v = [
+                let mut v = [
                     speed * sin_t * phi.cos(),
                     speed * cos_t,
                     speed * sin_t * phi.sin(),
                 ];
+                if let Some(u) = crate::sim::wind::initial_at(cfg, p[1]) {
+                    v[0] += u[0];
+                    v[2] += u[1];
+                }
                 s.pos.push([p[0] as f32, p[1] as f32, p[2] as f32, 0.0]);
                 s.vel.push([v[0] as f32, v[1] as f32, v[2] as f32, 0.0]);
                 let mut thermo = initial_thermo(&cfg.physics, p[1]);

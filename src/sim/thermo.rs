@@ -146,7 +146,7 @@ impl ThermoParams {
         let p = &cfg.physics;
         let (cell_x, period_x) = noise::lattice_for_extent(cfg.domain.size[0], p.heat_noise_scale);
         let (cell_z, period_z) = noise::lattice_for_extent(cfg.domain.size[2], p.heat_noise_scale);
-        let (wind_levels, wind) = crate::sim::wind::rows(cfg);
+        let (wind_levels, wind) = crate::sim::wind::relaxed_rows(cfg);
         let pressure = Pressure::of(p);
         Self {
             dt: dt as f32,

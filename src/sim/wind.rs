@@ -7,21 +7,27 @@
 //! (as eq. 9's phase transition). The headings are unwrapped along the profile (each differs
 //! from the one below by at most 180 degrees), so the direction turns the short way between
 //! two levels. The momentum this adds in a substep is sum_i m_i f (U(y_i) - u_h,i): the nudging
-//! term; nothing else changes the total (docs/PHYSICS.md "Wind").
-use crate::config::ShotConfig;
+//! term; nothing else changes the total (docs/PHYSICS.md "Wind"). With `coriolis` the profile is
+//! a geostrophic wind, which `sim::forces::coriolis` turns the air about instead.
+use crate::config::{ShotConfig, WindLevel};
 
 /// Most levels of `physics.wind.profile`.
 pub const MAX_WIND_LEVELS: usize = crate::config::MAX_WIND_LEVELS;
 
 /// (levels in use, rows) of a shot's wind; (0, zeros) without wind.
 pub fn rows(cfg: &ShotConfig) -> (u32, [[f32; 4]; MAX_WIND_LEVELS]) {
+    match &cfg.physics.wind {
+        Some(w) => rows_of(&w.profile),
+        None => (0, [[0.0f32; 4]; MAX_WIND_LEVELS]),
+    }
+}
+
+/// (levels in use, rows) of a list of wind levels.
+pub fn rows_of(levels: &[WindLevel]) -> (u32, [[f32; 4]; MAX_WIND_LEVELS]) {
     let mut out = [[0.0f32; 4]; MAX_WIND_LEVELS];
-    let Some(w) = &cfg.physics.wind else {
-        return (0, out);
-    };
     let mut heading = 0.0f64;
     let mut prev: Option<f64> = None;
-    for (row, l) in out.iter_mut().zip(&w.profile) {
+    for (row, l) in out.iter_mut().zip(levels) {
         let a = l.direction.to_radians();
         heading = match prev {
             None => a,
@@ -34,7 +40,21 @@ pub fn rows(cfg: &ShotConfig) -> (u32, [[f32; 4]; MAX_WIND_LEVELS]) {
         prev = Some(a);
         *row = [l.height as f32, l.speed as f32, heading as f32, 0.0];
     }
-    (w.profile.len().min(MAX_WIND_LEVELS) as u32, out)
+    (levels.len().min(MAX_WIND_LEVELS) as u32, out)
+}
+
+/// The wind particles start with at height y (`physics.wind.initial`); `None` without one.
+pub fn initial_at(cfg: &ShotConfig, y: f64) -> Option<[f64; 2]> {
+    let w = cfg
+        .physics
+        .wind
+        .as_ref()
+        .filter(|w| !w.initial.is_empty())?;
+    let (n, rows) = rows_of(&w.initial);
+    Some(crate::sim::reference::thermo::profile_wind(
+        &rows[..n as usize],
+        y,
+    ))
 }
 
 /// 1 - exp(-dt / tau) of a substep of `dt` (s); 0 without wind.
@@ -43,6 +63,20 @@ pub fn fraction(cfg: &ShotConfig, dt: f64) -> f32 {
         .wind
         .as_ref()
         .map_or(0.0, |w| -(-dt / w.time_constant).exp_m1()) as f32
+}
+
+/// (levels, rows) of the wind the thermo stage relaxes towards: the shot's, or none when the
+/// profile is a geostrophic wind (`physics.wind.coriolis`: `sim::forces::coriolis` acts).
+pub fn relaxed_rows(cfg: &ShotConfig) -> (u32, [[f32; 4]; MAX_WIND_LEVELS]) {
+    match cfg
+        .physics
+        .wind
+        .as_ref()
+        .is_some_and(|w| w.coriolis.is_some())
+    {
+        true => (0, [[0.0; 4]; MAX_WIND_LEVELS]),
+        false => rows(cfg),
+    }
 }
 
 #[cfg(test)]
@@ -77,6 +111,33 @@ mod tests {
         // 10 -> -170 is 180 either way; the rounding takes one of them
         assert!(((deg(r[2][2]) - deg(r[1][2])).abs() - 180.0).abs() < 1e-3);
         assert_eq!([r[1][0], r[1][1]], [500.0, 5.0]);
+    }
+
+    #[test]
+    fn particles_start_with_the_initial_wind() {
+        let cfg = shot(
+            "{profile: [{height: 0, speed: 1}], initial: [{height: 0, speed: 2, direction: 180}, \
+             {height: 1000, speed: 4, direction: 180}]}",
+        );
+        let u = initial_at(&cfg, 500.0).unwrap();
+        assert!((u[0] + 3.0).abs() < 1e-6 && u[1].abs() < 1e-6, "{u:?}");
+        let u = initial_at(&cfg, 2000.0).unwrap();
+        assert!((u[0] + 4.0).abs() < 1e-6, "{u:?}");
+        assert_eq!(
+            initial_at(&shot("{profile: [{height: 0, speed: 1}]}"), 5.0),
+            None
+        );
+        // the particles: the random speeds (0 here) plus the wind at their height
+        let mut c = cfg.clone();
+        c.physics.initial_speed = 0.0;
+        let s = crate::sim::init::initial_particles(&c);
+        for (p, v) in s.pos.iter().zip(&s.vel) {
+            let want = -(2.0 + 2.0 * (p[1] as f64 / 1000.0).min(1.0));
+            assert!(
+                (v[0] as f64 - want).abs() < 1e-5 && v[2].abs() < 1e-5,
+                "{p:?} {v:?}"
+            );
+        }
     }
 
     #[test]

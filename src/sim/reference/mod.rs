@@ -10,6 +10,7 @@ pub mod adaptive_plan;
 pub mod adaptive_split;
 pub mod adaptive_stats;
 pub mod common;
+pub mod coriolis;
 pub mod forcing;
 pub mod grid;
 pub mod pbf;

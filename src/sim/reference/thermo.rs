@@ -40,12 +40,18 @@ pub fn target_pull(p: &ThermoParams, maps: &[f32], pos: [f64; 3], w: f64) -> [f6
 
 /// The wind (u_x, u_z) at height y (mirror of `wind_at`); (0, 0) without wind.
 pub fn wind_at(p: &ThermoParams, y: f64) -> [f64; 2] {
-    if p.n_wind == 0 {
+    profile_wind(&p.wind[..p.n_wind as usize], y)
+}
+
+/// The wind (u_x, u_z) at height y of a table of (height, speed, heading, -) rows by increasing
+/// height (`sim::wind::rows`): linear between rows, constant outside; (0, 0) without rows.
+pub fn profile_wind(rows: &[[f32; 4]], y: f64) -> [f64; 2] {
+    if rows.is_empty() {
         return [0.0; 2];
     }
-    let row = |k: usize| p.wind[k].map(|v| v as f64);
+    let row = |k: usize| rows[k].map(|v| v as f64);
     let (mut a, mut b) = (row(0), row(0));
-    for k in 1..p.n_wind as usize {
+    for k in 1..rows.len() {
         b = row(k);
         if y < b[0] {
             break;
