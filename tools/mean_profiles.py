@@ -9,7 +9,8 @@ A SOURCE is one of:
   whose simulated time lies in the window. Each particle gives theta_l = (T - Q w)
   (p0 / p(y))^(R_d / c_p), with p(y) the run's reference pressure (sim::thermo::Pressure), and
   q_t = v + w; layers of --dz metres (default 100) average them with equal weight per particle
-  (particles of one level share one mass); u, v are the mean horizontal velocities (x, z);
+  (particles of one level share one mass); u, v are the mean horizontal velocities east (x)
+  and north (-z: y is up, and `physics.wind.coriolis` > 0 turns the air to its right);
 - a MicroHH run directory: its statistics file (<case>.default.0000000.nc, groups `thermo` and
   `default`), the snapshots in the window;
 - a JSON file this tool wrote (--json): the profiles it holds.
@@ -108,7 +109,7 @@ def read_nimbus(run, window, dz):
         p = p_s * (1.0 - y / top) ** CP_OVER_RD
         theta_l = (th[:, 0] - q * th[:, 2]) * (P00 / p) ** (1.0 / CP_OVER_RD)
         k = np.clip((y // dz).astype(int), 0, n - 1)
-        for j, f in enumerate([theta_l, th[:, 1] + th[:, 2], th[:, 2], vel[:, 0], vel[:, 2]]):
+        for j, f in enumerate([theta_l, th[:, 1] + th[:, 2], th[:, 2], vel[:, 0], -vel[:, 2]]):
             acc[:, j] += np.bincount(k, f, n)
         count += np.bincount(k, None, n)
     if not times:
@@ -118,7 +119,7 @@ def read_nimbus(run, window, dz):
     return {"kind": "nimbus", "path": os.path.abspath(run), "snapshots": len(times),
             "times": times, "z": z.tolist(), "thl": m[:, 0].tolist(), "qt": m[:, 1].tolist(),
             "ql": m[:, 2].tolist(), "u": m[:, 3].tolist(), "v": m[:, 4].tolist(),
-            "note": f"checkpoints; layers of {dz:g} m; u, v in the simulation's frame (x, z)"}
+            "note": f"checkpoints; layers of {dz:g} m; u, v in the simulation's frame (x, -z)"}
 
 
 def read_microhh(run, window):
