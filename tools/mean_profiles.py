@@ -220,8 +220,9 @@ def main(argv=None):
             ax[0].plot(r["thl"], zr, label=l)
             ax[1].plot(1e3 * np.asarray(r["qt"]), zr, label=l)
             ax[2].plot(1e3 * np.asarray(r["ql"]), zr, label=l)
-            ax[3].plot(np.asarray(r["u"]) + (frame_u if r["kind"] == "nimbus" else 0.0), zr, label=l)
-        for axis, name in zip(ax, ["theta_l (K)", "q_t (g/kg)", "mean q_l (g/kg)", "u (m/s, ground frame)"]):
+            line, = ax[3].plot(np.asarray(r["u"]) + (frame_u if r["kind"] == "nimbus" else 0.0), zr, label=l)
+            ax[3].plot(np.asarray(r["v"]), zr, "--", color=line.get_color())
+        for axis, name in zip(ax, ["theta_l (K)", "q_t (g/kg)", "mean q_l (g/kg)", "u, v dashed (m/s, ground frame)"]):
             axis.set_xlabel(name)
             axis.grid(alpha=0.3)
         ax[0].set_ylabel("height (m)")
