@@ -51,10 +51,7 @@ pub fn initial_at(cfg: &ShotConfig, y: f64) -> Option<[f64; 2]> {
         .as_ref()
         .filter(|w| !w.initial.is_empty())?;
     let (n, rows) = rows_of(&w.initial);
-    Some(crate::sim::reference::thermo::profile_wind(
-        &rows[..n as usize],
-        y,
-    ))
+    Some(profile_wind(&rows[..n as usize], y))
 }
 
 /// 1 - exp(-dt / tau) of a substep of `dt` (s); 0 without wind.
@@ -77,6 +74,31 @@ pub fn relaxed_rows(cfg: &ShotConfig) -> (u32, [[f32; 4]; MAX_WIND_LEVELS]) {
         true => (0, [[0.0; 4]; MAX_WIND_LEVELS]),
         false => rows(cfg),
     }
+}
+
+/// The wind (u_x, u_z) at height y of a table of (height, speed, heading, -) rows by increasing
+/// height (`sim::wind::rows`): linear between rows, constant outside; (0, 0) without rows.
+pub fn profile_wind(rows: &[[f32; 4]], y: f64) -> [f64; 2] {
+    if rows.is_empty() {
+        return [0.0; 2];
+    }
+    let row = |k: usize| rows[k].map(|v| v as f64);
+    let (mut a, mut b) = (row(0), row(0));
+    for k in 1..rows.len() {
+        b = row(k);
+        if y < b[0] {
+            break;
+        }
+        a = b;
+    }
+    let t = if b[0] > a[0] {
+        ((y - a[0]) / (b[0] - a[0])).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let speed = a[1] + (b[1] - a[1]) * t;
+    let heading = a[2] + (b[2] - a[2]) * t;
+    [speed * heading.cos(), speed * heading.sin()]
 }
 
 #[cfg(test)]

@@ -43,30 +43,8 @@ pub fn wind_at(p: &ThermoParams, y: f64) -> [f64; 2] {
     profile_wind(&p.wind[..p.n_wind as usize], y)
 }
 
-/// The wind (u_x, u_z) at height y of a table of (height, speed, heading, -) rows by increasing
-/// height (`sim::wind::rows`): linear between rows, constant outside; (0, 0) without rows.
-pub fn profile_wind(rows: &[[f32; 4]], y: f64) -> [f64; 2] {
-    if rows.is_empty() {
-        return [0.0; 2];
-    }
-    let row = |k: usize| rows[k].map(|v| v as f64);
-    let (mut a, mut b) = (row(0), row(0));
-    for k in 1..rows.len() {
-        b = row(k);
-        if y < b[0] {
-            break;
-        }
-        a = b;
-    }
-    let t = if b[0] > a[0] {
-        ((y - a[0]) / (b[0] - a[0])).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    let speed = a[1] + (b[1] - a[1]) * t;
-    let heading = a[2] + (b[2] - a[2]) * t;
-    [speed * heading.cos(), speed * heading.sin()]
-}
+/// The table lookup of `wind_at`: the host's own (`sim::wind::profile_wind`), the same f64 code.
+pub use crate::sim::wind::profile_wind;
 
 /// T0(y) of the profile's levels: linear between them, constant outside (mirror of
 /// `profile_temperature`).
