@@ -217,6 +217,19 @@ mod tests {
     }
 
     #[test]
+    fn min_iterations_is_a_sim_key_absent_at_one() {
+        let (a, b) = (
+            cfg(&["solver.iterations=4"]),
+            cfg(&["solver.iterations=4", "solver.min_iterations=2"]),
+        );
+        assert_ne!(sim_hash(&a), sim_hash(&b));
+        assert_eq!(sim_key_diff(&a, &b), vec!["solver.min_iterations"]);
+        // at 1 the key is not serialised: the hashes of shots from before it are unchanged
+        assert!(!canonical_string(&a).contains("min_iterations"));
+        assert!(canonical_string(&b).contains("\"min_iterations\":2"));
+    }
+
+    #[test]
     fn hash_ignores_key_order_in_the_file() {
         let a = super::super::read_str(
             "shot: t\nseed: 3\noutput: {frames: {start: 1, end: 10}}\ndomain: {size: [100, 50, 100], spacing: 5}\n",

@@ -826,6 +826,15 @@ fn axis_name(a: Axis) -> &'static str {
 
 fn check_solver(k: &mut Checks, s: &SolverConfig, c: &ShotConfig) {
     k.uint_within("solver.iterations", s.iterations, 1, 100);
+    if s.min_iterations < 1 || s.min_iterations > s.iterations {
+        k.fail(
+            &["solver.min_iterations"],
+            format!(
+                "expected an integer from 1 to solver.iterations ({}), got {}",
+                s.iterations, s.min_iterations
+            ),
+        );
+    }
     k.uint_within("solver.scorr_n", s.scorr_n, 1, 16);
     if s.max_speed.is_finite() && c.physics.initial_speed > s.max_speed {
         k.fail(
@@ -1253,6 +1262,8 @@ mod tests {
             (|c| c.gpu.adapter = " ".into(), "gpu.adapter"),
             (|c| c.shot = "a/b".into(), "shot"),
             (|c| c.solver.iterations = 0, "solver.iterations"),
+            (|c| c.solver.min_iterations = 5, "solver.min_iterations"),
+            (|c| c.solver.min_iterations = 0, "solver.min_iterations"),
             (|c| c.physics.phase_rate = 10.0, "physics.phase_rate"),
             (|c| c.physics.saturation_c = -400.0, "physics.saturation_c"),
             (
