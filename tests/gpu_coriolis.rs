@@ -77,7 +77,7 @@ fn apply_coriolis_matches_the_mirror() {
     })
     .unwrap();
     // a long substep, so that the turn and the stress are large enough to compare
-    let params = CoriolisParams::new(&cfg, 600.0);
+    let params = CoriolisParams::new(&cfg, 600.0, 1.3);
     let (out, _) = harness::run_gpu(&ctx, &b, |rec, live| stage.apply_with(rec, live, &params));
 
     let pos: Vec<[f64; 3]> = state.pos.iter().map(harness::v3).collect();

@@ -178,7 +178,7 @@ fn budget(extra: &str) -> (f64, f64) {
 
 /// With the temperature smoothing off, everything else on (buoyancy, adiabatic cooling, phase
 /// changes, insulated walls), the static energy keeps what the forcing reports it put in, to
-/// 1%, and the total water likewise. Measured: 0.99914 and 1.000000.
+/// 1%, and the total water likewise. Measured: 0.99926 and 1.000000.
 #[test]
 fn the_forcing_budget_closes() {
     let (heat, water) = budget(", smoothing: {enabled: false}");
@@ -191,7 +191,7 @@ fn the_forcing_budget_closes() {
 /// forcing's heat, while the water, which no smoothing touches, still closes. Its conservative
 /// form (`physics.smoothing.conservative`, the same step as fluxes between pairs) closes the
 /// budget again. This is the heat that paper example 1's budget misses (docs/PHYSICS.md "Heat
-/// budget"). Measured: paper 0.95930, conservative 1.00003.
+/// budget"). Measured: paper 0.95980, conservative 1.00026.
 #[test]
 fn the_paper_smoothing_loses_heat_and_its_conservative_form_keeps_it() {
     let (heat, water) = budget("");

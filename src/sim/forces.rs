@@ -26,6 +26,31 @@ use crate::sim::phase::{Phase, Recorder};
 use crate::sim::stage::{Setup, Stage, Substep};
 use crate::sim::thermo::ThermoEntry;
 
+/// The factor that spreads a surface flux over the air actually below `depth` at the frame's
+/// start: the box's air below it at rest density, rho0 A depth, over the particles' mass there.
+/// A flux F divided by `depth` and times this puts rho0 A F a second into the air whatever the
+/// particles' layering at the floor (100 m particles hold 7% less than rho0 A d below 100 m in
+/// the BOMEX shot, 160 m ones 4-26% more); 0 when no particle is below `depth`.
+pub fn surface_layer_factor(
+    cfg: &crate::config::ShotConfig,
+    state: &crate::ground::ParticleState,
+    depth: f64,
+) -> f64 {
+    let s = &cfg.domain.size;
+    let d = cfg.domain.spacing;
+    // in level-0 particles (`ShotConfig::cell_mass`)
+    let nominal = s[0] * s[2] * depth / (d * d * d);
+    let below: f64 = (0..state.len())
+        .filter(|&i| (state.pos[i][1] as f64) < depth)
+        .map(|i| (-(state.info[i][1].min(crate::ground::levels::MAX_LEVEL) as f64)).exp2())
+        .sum();
+    if below > 0.0 {
+        nominal / below
+    } else {
+        0.0
+    }
+}
+
 /// A force and where it acts.
 pub struct Force {
     pub name: &'static str,

@@ -11,10 +11,11 @@
 //!   is off then (`sim::wind::relaxed_rows`): a geostrophic wind is where the pressure gradient
 //!   balances the Coriolis force, not a velocity the air is pulled to;
 //! - with `surface_friction` u*, the particles below the surface layer's depth d take the
-//!   surface stress rho u*^2 spread over their mass rho d: their velocity over the ground
-//!   (`ground_velocity`, for a shot in a frame moving with the wind) loses dt u*^2 / d of its
-//!   speed a substep, never more than it has (the bulk law of an LES's prescribed u*, per
-//!   particle).
+//!   surface stress rho u*^2 spread over their mass (rho0 A d, scaled by
+//!   `sim::forces::surface_layer_factor` from the frame-start state as the surface fluxes):
+//!   their velocity over the ground (`ground_velocity`, for a shot in a frame moving with the
+//!   wind) loses dt u*^2 / d of its speed a substep, never more than it has (the bulk law of
+//!   an LES's prescribed u*, per particle).
 use crate::config::ShotConfig;
 use crate::error::Result;
 use crate::gpu::buffers::ParamSlots;
@@ -53,8 +54,10 @@ pub struct CoriolisParams {
 }
 
 impl CoriolisParams {
-    /// The uniform of a substep of `dt` (s); all zeros (nothing acts) without wind.
-    pub fn new(cfg: &ShotConfig, dt: f64) -> Self {
+    /// The uniform of a substep of `dt` (s), the stress spread over the air below the surface
+    /// layer with `factor` (`sim::forces::surface_layer_factor`: 1 when the particles there hold
+    /// rho0 A d); all zeros (nothing acts) without wind.
+    pub fn new(cfg: &ShotConfig, dt: f64, factor: f64) -> Self {
         let Some(w) = &cfg.physics.wind else {
             return bytemuck::Zeroable::zeroed();
         };
@@ -69,7 +72,7 @@ impl CoriolisParams {
             turn_sin: turn.sin() as f32,
             n_levels,
             surface_layer: depth as f32,
-            drag: (dt * w.surface_friction * w.surface_friction / depth) as f32,
+            drag: (factor * dt * w.surface_friction * w.surface_friction / depth) as f32,
             _pad: 0,
             ground: w.ground_velocity.map(|g| g as f32),
             levels,
@@ -83,6 +86,8 @@ pub struct CoriolisStage {
     params: ParamSlots<CoriolisParams>,
     bind: wgpu::BindGroup,
     cfg: ShotConfig,
+    /// The frame's `surface_layer_factor` (1 without a surface stress).
+    factor: f64,
 }
 
 /// The stage, when the shot's wind has `coriolis` or `surface_friction` (its line in
@@ -119,7 +124,8 @@ impl Stage for CoriolisStage {
         let ctx = setup.ctx;
         let cfg = setup.shot.config().clone();
         let program = Program::new(ctx)?;
-        let params = ParamSlots::single(ctx, "coriolis params", &CoriolisParams::new(&cfg, 0.0));
+        let first = CoriolisParams::new(&cfg, 0.0, 1.0);
+        let params = ParamSlots::single(ctx, "coriolis params", &first);
         let own = [("C", params.slot(0))];
         let bind = program.bind(ctx, &[&own, setup.buffers])?;
         Ok(Self {
@@ -127,13 +133,15 @@ impl Stage for CoriolisStage {
             params,
             bind,
             cfg,
+            factor: 1.0,
         })
     }
 
     fn record(&self, phase: Phase, rec: &mut Recorder, sub: &Substep) -> Result<()> {
         match phase {
             Phase::Forces => {
-                self.apply_params(rec, sub.live, &CoriolisParams::new(&self.cfg, sub.dt))
+                let params = CoriolisParams::new(&self.cfg, sub.dt, self.factor);
+                self.apply_params(rec, sub.live, &params)
             }
             other => Err(crate::sim::stage::not_recorded("coriolis", other)),
         }
@@ -141,6 +149,22 @@ impl Stage for CoriolisStage {
 
     fn device_bytes(&self) -> u64 {
         self.params.size()
+    }
+
+    /// The stress needs the air below the surface layer at the frame's start.
+    fn reads_state(&self) -> bool {
+        self.cfg
+            .physics
+            .wind
+            .as_ref()
+            .is_some_and(|w| w.surface_friction > 0.0)
+    }
+
+    fn start_frame(&mut self, state: &crate::ground::ParticleState) {
+        if let Some(w) = &self.cfg.physics.wind {
+            let depth = w.surface_layer.unwrap_or(self.cfg.domain.kernel_radius());
+            self.factor = crate::sim::forces::surface_layer_factor(&self.cfg, state, depth);
+        }
     }
 }
 
@@ -178,7 +202,7 @@ mod tests {
 
     /// Horizontal velocity of one particle at height y after `n` substeps of `dt`.
     fn after(c: &ShotConfig, y: f64, u: [f64; 2], n: usize, dt: f64) -> [f64; 2] {
-        let p = CoriolisParams::new(c, dt);
+        let p = CoriolisParams::new(c, dt, 1.0);
         let mut v = [[u[0], 0.0, u[1], 0.0]];
         for _ in 0..n {
             apply_coriolis(&p, &[[0.0, y, 0.0]], &mut v);
@@ -228,7 +252,7 @@ mod tests {
             "{surface_friction: 0.3, surface_layer: 100, ground_velocity: [8, 0], \
              profile: [{height: 0, speed: 0}]}",
         );
-        let p = CoriolisParams::new(&c, 10.0);
+        let p = CoriolisParams::new(&c, 10.0, 1.0);
         assert!((p.drag as f64 - 10.0 * 0.09 / 100.0).abs() < 1e-8);
         // 5 m/s over the ground along -x, and 1 along +z (the ground moves at +8 along x)
         let u = after(&c, 50.0, [3.0, 1.0], 1, 10.0);

@@ -12,8 +12,9 @@
 //!   total water `q_t = v + w`, measured from the frame-start state on layers of at least one
 //!   kernel radius;
 //! - `F_h` (K m/s) and `F_q` (kg/kg m/s) are the kinematic surface fluxes, spread over the
-//!   particles below `d` (`surface_layer`, default the kernel radius): their mass there is
-//!   rho0 A d, so they put in rho0 A F per second.
+//!   particles below `d` (`surface_layer`, default the kernel radius) at the frame's start,
+//!   scaled by rho0 A d over their mass (`sim::forces::surface_layer_factor`), so that they put
+//!   in rho0 A F per second however many particles the floor's layering holds below `d`.
 //!
 //! The host builds the layer table and `dt` = the frame's length into the uniform; the step is
 //! one per frame because a per-substep increment of a radiative 2 K/day is about one f32 ulp of
@@ -136,13 +137,15 @@ impl ForcingTable {
             })
             .collect();
         let surface_layer = f.surface_layer.unwrap_or(h0);
+        let spread =
+            crate::sim::forces::surface_layer_factor(cfg, state, surface_layer) / surface_layer;
         Self {
             layer_height,
             rates,
             surface_layer,
             surface: [
-                f.surface_heat_flux / surface_layer,
-                f.surface_moisture_flux / surface_layer,
+                f.surface_heat_flux * spread,
+                f.surface_moisture_flux * spread,
             ],
         }
     }
@@ -372,33 +375,36 @@ mod tests {
         }
     }
 
-    /// The surface flux puts in rho0 A F per second when the surface layer holds rho0 A d.
+    /// The surface flux puts in rho0 A F per second: over a layer that holds rho0 A d every
+    /// particle warms by F t / d; with half of them gone the rest take it all.
     #[test]
     fn the_surface_flux_puts_in_the_flux() {
         let c = cfg("{surface_heat_flux: 0.01, surface_moisture_flux: 1.0e-4, surface_layer: 100}");
         let f = c.physics.forcing.as_ref().unwrap();
-        // a 2 x 2 column of particles at 50 m spacing, 100 m deep: rho0 A d of mass
-        let pts: Vec<(f64, [f64; 3])> = (0..8)
-            .map(|k| (25.0 + 50.0 * (k / 4) as f64, [300.0, 0.01, 0.0]))
-            .collect();
-        let s = state(&pts);
-        let t = ForcingTable::of_state(&c, f, &s);
+        // the 1000 x 1000 m floor at 50 m spacing, two layers below 100 m and one above
+        let layer = |y: f64| (0..400).map(move |_| (y, [300.0, 0.01, 0.0]));
+        let full: Vec<(f64, [f64; 3])> =
+            layer(25.0).chain(layer(75.0)).chain(layer(125.0)).collect();
+        let thinned: Vec<(f64, [f64; 3])> = layer(25.0).chain(layer(125.0)).collect();
         let m0 = c.cell_mass();
         let seconds = 60.0;
-        let [heat, water] = frame_input(&t.params(seconds), &s, m0);
-        let area = 100.0 * 100.0;
         let rho0 = c.solver.rest_density;
-        // every particle is in the layer: the mean warming is F t / d
-        let expect_heat = 0.01 * seconds / 100.0;
-        assert!(
-            (heat / expect_heat - 1.0).abs() < 1e-6,
-            "{heat} vs {expect_heat}"
-        );
-        let expect_water = rho0 * area * 1.0e-4 * seconds;
-        assert!(
-            (water / expect_water - 1.0).abs() < 1e-6,
-            "{water} vs {expect_water}"
-        );
+        let expect_water = rho0 * 1000.0 * 1000.0 * 1.0e-4 * seconds;
+        for pts in [full, thinned] {
+            let s = state(&pts);
+            let t = ForcingTable::of_state(&c, f, &s);
+            let [heat, water] = frame_input(&t.params(seconds), &s, m0);
+            // the mean over every particle: rho0 A d of air (800 particles) warmed by F t / d
+            let expect_heat = 0.01 * seconds / 100.0 * 800.0 / pts.len() as f64;
+            assert!(
+                (heat / expect_heat - 1.0).abs() < 1e-6,
+                "{heat} vs {expect_heat}"
+            );
+            assert!(
+                (water / expect_water - 1.0).abs() < 1e-6,
+                "{water} vs {expect_water}"
+            );
+        }
     }
 
     /// A drying larger than the vapor there takes only the vapor, and the budget says so.
