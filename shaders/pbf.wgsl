@@ -33,9 +33,10 @@ struct PbfParams {
     vorticity: f32,
     gravity: f32,
     max_speed: f32,
-    // (live.single_level, 1 while every particle is on level 0, lets the pair terms skip the
-    // level look-up and the per-level kernel pairs: eq. 19 of equal radii is W)
-    _pad0: u32,
+    // 1: the walls push along y alone (domain.free_slip). (live.single_level, 1 while every
+    // particle is on level 0, lets the pair terms skip the level look-up and the per-level
+    // kernel pairs: eq. 19 of equal radii is W.)
+    free_slip: u32,
     // under-density up to this fraction is left alone (solver.expansion_tolerance)
     expansion_tolerance: f32,
     // the share of that correction split particles get (solver.split_expansion_weight)
@@ -256,6 +257,13 @@ fn lam_fluid(a: ptr<function, LamAcc>, me: Me, j: u32, packed: bool) -> bool {
     }
     return false;
 }
+// A wall particle's kernel gradient; with free slip its normal (y) part alone. The walls are
+// a lattice at rest: the sideways part of their push drags the air sliding over them towards
+// the shot's frame, and is the one term of the solver that does not keep the momentum.
+fn wall_grad(g: vec3<f32>) -> vec3<f32> {
+    if (prm.free_slip != 0u) { return vec3<f32>(0.0, g.y, 0.0); }
+    return g;
+}
 // Wall particles continue the level-0 lattice and weigh m0 whatever the fluid particle's level
 // (eq. 18 with the fluid's own mass starved split particles: a level-3 particle got 0.07 rho0
 // from the wall instead of 0.5 and was never pushed off it).
@@ -267,7 +275,7 @@ fn lam_wall(a: ptr<function, LamAcc>, me: Me, k: u32) {
     if (r2 < hm * hm) {
         let m = c.lv0.w;
         (*a).rho += m * wsym(r2, me.lv, c.lv0);
-        (*a).grad += gsym(xik, sqrt(r2), me.lv, c.lv0) * (m / c.rho0);
+        (*a).grad += wall_grad(gsym(xik, sqrt(r2), me.lv, c.lv0)) * (m / c.rho0);
         (*a).near_wall = true;
     }
 }
@@ -573,7 +581,7 @@ fn delta_wall(dp: ptr<function, vec3<f32>>, me: Me, k: u32) {
     let hm = max(me.hi, c.h0);
     if (r2 < hm * hm) {
         let s = (me.lam + scorr(c, r2, me.lv, c.lv0)) * c.lv0.w;
-        *dp += s * gsym(xik, sqrt(r2), me.lv, c.lv0);
+        *dp += s * wall_grad(gsym(xik, sqrt(r2), me.lv, c.lv0));
     }
 }
 

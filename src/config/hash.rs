@@ -217,6 +217,15 @@ mod tests {
     }
 
     #[test]
+    fn free_slip_is_a_sim_key_absent_when_off() {
+        let (a, b) = (cfg(&[]), cfg(&["domain.free_slip=true"]));
+        assert_ne!(sim_hash(&a), sim_hash(&b));
+        assert_eq!(sim_key_diff(&a, &b), vec!["domain.free_slip"]);
+        assert!(!canonical_string(&a).contains("free_slip"));
+        assert!(canonical_string(&b).contains("\"free_slip\":true"));
+    }
+
+    #[test]
     fn min_iterations_is_a_sim_key_absent_at_one() {
         let (a, b) = (
             cfg(&["solver.iterations=4"]),

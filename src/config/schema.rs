@@ -228,6 +228,12 @@ pub struct DomainConfig {
     /// Periodic axes; the rest are walls. y (up) is always walled.
     #[serde(default = "d_periodic")]
     pub periodic: Vec<Axis>,
+    /// The floor and the ceiling push the air along their normal alone (free slip): their
+    /// wall particles, a lattice at rest, otherwise drag the air that slides over them
+    /// towards the shot's frame (docs/PHYSICS.md "Walls"). Left out of the serialisation when
+    /// false, so earlier hashes are unchanged.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub free_slip: bool,
 }
 fn d_kernel_ratio() -> f64 {
     2.0

@@ -28,8 +28,8 @@ pub struct PbfParams {
     pub vorticity: f32,
     pub gravity: f32,
     pub max_speed: f32,
-    /// (unused: whether every particle is on level 0 is `live.single_level`, on the GPU)
-    pub _pad0: u32,
+    /// 1: the wall particles' gradient is taken along y alone (`domain.free_slip`).
+    pub free_slip: u32,
     /// Under-density up to this fraction of rho0 is not corrected (`solver.expansion_tolerance`).
     pub expansion_tolerance: f32,
     /// The share of that correction split particles get (`solver.split_expansion_weight`).
@@ -60,7 +60,7 @@ impl PbfParams {
             vorticity: s.vorticity as f32,
             gravity: s.gravity as f32,
             max_speed: s.max_speed as f32,
-            _pad0: 0,
+            free_slip: cfg.domain.free_slip as u32,
             expansion_tolerance: s.expansion_tolerance as f32,
             split_expansion_weight: s.split_expansion_weight as f32,
             levels: std::array::from_fn(|l| {

@@ -161,7 +161,7 @@ pub fn compute_lambda_in(
             // wall particles weigh m0 whatever the fluid particle's level
             rho += m0 * poly6_sym(r2, hi, h0);
             near_wall = true;
-            grad_i += spiky_grad_sym(xik, r2.sqrt(), hi, h0) * (m0 / rho0);
+            grad_i += wall_grad(sc.prm, spiky_grad_sym(xik, r2.sqrt(), hi, h0)) * (m0 / rho0);
         });
         let mut c = rho / rho0 - 1.0;
         // the under-density tolerance, and a share of the rest for split particles, none next
@@ -189,6 +189,16 @@ pub fn lambda_of_word(w: f32, single_level: bool) -> f64 {
         return w as f64;
     }
     f32::from_bits(w.to_bits() & !7) as f64
+}
+
+/// A wall particle's kernel gradient; with `domain.free_slip` its y part alone (the shader's
+/// `wall_grad`).
+fn wall_grad(prm: &PbfParams, g: DVec3) -> DVec3 {
+    if prm.free_slip != 0 {
+        DVec3::new(0.0, g.y, 0.0)
+    } else {
+        g
+    }
 }
 
 /// Returns the corrected predicted positions p* + delta p (confined).
@@ -226,7 +236,7 @@ pub fn compute_delta_in(
                     return;
                 }
                 let s = (li + sc.scorr(r2, hi, h0)) * sc.prm.m0 as f64;
-                dp += spiky_grad_sym(xik, r2.sqrt(), hi, h0) * s;
+                dp += wall_grad(sc.prm, spiky_grad_sym(xik, r2.sqrt(), hi, h0)) * s;
             });
             confine(sc.grid, DVec3::from(p) + dp * (1.0 / rho0)).to_array()
         })
