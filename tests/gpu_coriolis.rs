@@ -6,10 +6,7 @@ mod harness;
 use nimbus::config::ShotConfig;
 use nimbus::ground::ParticleState;
 use nimbus::sim::forces::coriolis::{CoriolisParams, CoriolisStage};
-use nimbus::sim::grid_params::GridParams;
 use nimbus::sim::reference::coriolis::apply_coriolis;
-use nimbus::sim::sources::HeatMaps;
-use nimbus::sim::stage::{Setup, Stage};
 use nimbus::sim::Simulation;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -62,20 +59,7 @@ fn apply_coriolis_matches_the_mirror() {
         info: (0..n as u32).map(|i| [i, 0]).collect(),
         density: Vec::new(),
     };
-    let ctx = harness::context();
-    let grid = GridParams::for_shot(&cfg);
-    let scene = harness::Scene::as_given(grid, state.clone(), n);
-    let b = scene.upload(&ctx);
-    let prepared = nimbus::shot::Shot::prepare(cfg.clone()).unwrap();
-    let maps = HeatMaps::new(&[]);
-    let stage = CoriolisStage::from_setup(&Setup {
-        ctx: &ctx,
-        shot: &prepared,
-        buffers: &b,
-        grid: &grid,
-        maps: &maps,
-    })
-    .unwrap();
+    let (ctx, b, stage) = harness::stage_over::<CoriolisStage>(&cfg, &state);
     // a long substep, so that the turn and the stress are large enough to compare
     let params = CoriolisParams::new(&cfg, 600.0, 1.3);
     let (out, _) = harness::run_gpu(&ctx, &b, |rec, live| stage.apply_with(rec, live, &params));

@@ -5,10 +5,7 @@ mod harness;
 use nimbus::config::ShotConfig;
 use nimbus::ground::ParticleState;
 use nimbus::sim::forces::forcing::{ForcingStage, ForcingTable};
-use nimbus::sim::grid_params::GridParams;
 use nimbus::sim::reference::forcing::apply_forcing;
-use nimbus::sim::sources::HeatMaps;
-use nimbus::sim::stage::{Setup, Stage};
 use nimbus::sim::Simulation;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -68,20 +65,7 @@ fn apply_forcing_matches_the_mirror() {
         info: (0..n as u32).map(|i| [i, 0]).collect(),
         density: Vec::new(),
     };
-    let ctx = harness::context();
-    let grid = GridParams::for_shot(&cfg);
-    let scene = harness::Scene::as_given(grid, state.clone(), n);
-    let b = scene.upload(&ctx);
-    let prepared = nimbus::shot::Shot::prepare(cfg.clone()).unwrap();
-    let maps = HeatMaps::new(&[]);
-    let stage = ForcingStage::from_setup(&Setup {
-        ctx: &ctx,
-        shot: &prepared,
-        buffers: &b,
-        grid: &grid,
-        maps: &maps,
-    })
-    .unwrap();
+    let (ctx, b, stage) = harness::stage_over::<ForcingStage>(&cfg, &state);
     // a table with subsidence: the random state's mean profiles
     let table = ForcingTable::of_state(&cfg, cfg.physics.forcing.as_ref().unwrap(), &state);
     let params = table.params(60.0);

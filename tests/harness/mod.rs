@@ -236,3 +236,26 @@ pub fn off_cell_boundaries(grid: &GridParams, pos: &mut [[f32; 4]]) -> usize {
     }
     moved
 }
+
+/// A particle stage of `cfg` (a force such as `sim::forces::coriolis`) bound to `state`,
+/// uploaded as given: the context, the buffers it is bound to and the stage, for one
+/// `apply_with` against its mirror.
+pub fn stage_over<S: nimbus::sim::stage::Stage>(
+    cfg: &nimbus::config::ShotConfig,
+    state: &ParticleState,
+) -> (Arc<Context>, ParticleBuffers, S) {
+    let ctx = context();
+    let grid = GridParams::for_shot(cfg);
+    let b = Scene::as_given(grid, state.clone(), state.len()).upload(&ctx);
+    let shot = nimbus::shot::Shot::prepare(cfg.clone()).unwrap();
+    let maps = nimbus::sim::sources::HeatMaps::new(&[]);
+    let stage = S::from_setup(&nimbus::sim::stage::Setup {
+        ctx: &ctx,
+        shot: &shot,
+        buffers: &b,
+        grid: &grid,
+        maps: &maps,
+    })
+    .unwrap();
+    (ctx, b, stage)
+}
