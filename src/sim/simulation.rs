@@ -458,27 +458,34 @@ struct StateParts {
 }
 
 /// Density iterations of a substep of dt: `solver.iterations` per `solver.reference_step`
-/// (at least `solver.min_iterations`, at most `solver.iterations`). Each Jacobi projection also takes a share of the
-/// buoyant motion, so a fixed count per substep made more substeps a stiffer, slower air
-/// (quickstart at 8 substeps x 8 iterations: 17 t of cloud at frame 48 against 96 t at 2).
+/// (at least `solver.min_iterations`, at most `solver.iterations`). Each Jacobi projection
+/// also takes a share of the buoyant motion, so a fixed count per substep made more substeps a
+/// stiffer, slower air (quickstart at 8 substeps x 8 iterations: 17 t of cloud at frame 48
+/// against 96 t at 2).
 pub fn iterations_per_substep(cfg: &ShotConfig, dt: f64) -> u32 {
     let share = cfg.solver.step_share(dt).min(1.0);
-    ((cfg.solver.iterations as f64 * share).round() as u32).max(cfg.solver.min_iterations.max(1))
+    ((cfg.solver.iterations as f64 * share).round() as u32).max(fewest_iterations(cfg))
+}
+
+/// The fewest density iterations a substep runs: `solver.min_iterations`, never 0.
+fn fewest_iterations(cfg: &ShotConfig) -> u32 {
+    cfg.solver.min_iterations.max(1)
 }
 
 /// Density iterations of substep k of a frame of `substeps`: [`iterations_per_substep`], or
 /// with `solver.spread_iterations` the frame's round(iterations frame_seconds /
 /// reference_step) spread evenly (the cumulative count rounded at each substep's end), at
-/// least `solver.min_iterations` a substep. Rounding each substep's share makes the rate jump with the substep count
-/// the CFL control takes (at 4 per 15 s: 10 substeps of a minute run 20, 11 run 11); a
-/// function of the frame's substep count alone, so a resumed run takes the same.
+/// least `solver.min_iterations` a substep. Rounding each substep's share makes the rate jump
+/// with the substep count the CFL control takes (at 4 per 15 s: 10 substeps of a minute run
+/// 20, 11 run 11); a function of the frame's substep count alone, so a resumed run takes the
+/// same.
 pub fn iterations_in_substep(cfg: &ShotConfig, substeps: u32, k: u32) -> u32 {
     if !cfg.solver.spread_iterations {
         return iterations_per_substep(cfg, cfg.output.substep_dt(substeps));
     }
     let total = cfg.solver.iterations as f64 * cfg.solver.step_share(cfg.output.frame_seconds);
     let done_by = |j: u32| (total * j as f64 / substeps as f64).round() as u64;
-    ((done_by(k + 1) - done_by(k)) as u32).max(cfg.solver.min_iterations.max(1))
+    ((done_by(k + 1) - done_by(k)) as u32).max(fewest_iterations(cfg))
 }
 
 /// max over particles of |v_i| / h_i (1/s), h_i = h0 2^(-l/3): times dt, the largest
