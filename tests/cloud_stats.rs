@@ -405,4 +405,19 @@ fn mean_profiles_of_the_first_bomex_minute_are_the_sounding() {
             qt[i]
         );
     }
+    // --dynamics: the particles start with random speeds of at most `initial_speed` (0.5 m/s),
+    // so a layer's w'^2 lies in (0, 0.25) m^2/s^2, and a minute of it moves little heat or
+    // water: |w'theta_l'| under 0.05 K m/s (the case's surface flux is 8e-3) and |w'q_t'|
+    // under 5e-4 (5.2e-5).
+    let (w2, wthl, wqt) = (col("w2"), col("wthl"), col("wqt"));
+    for i in 0..z.len() {
+        assert!(w2[i] > 0.0 && w2[i] < 0.25, "w'^2 at {} m: {}", z[i], w2[i]);
+        assert!(
+            wthl[i].abs() < 0.05,
+            "w'theta_l' at {} m: {}",
+            z[i],
+            wthl[i]
+        );
+        assert!(wqt[i].abs() < 5e-4, "w'q_t' at {} m: {}", z[i], wqt[i]);
+    }
 }

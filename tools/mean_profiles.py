@@ -3,6 +3,7 @@
 
     /usr/bin/python3 tools/mean_profiles.py SOURCE [SOURCE...] [--window T0,T1] [--dz M]
         [--labels A,B] [--json OUT] [--meta META.json] [--plot PNG] [--nimbus-frame-u U]
+        [--dynamics]
 
 A SOURCE is one of:
 - a nimbus run directory (thermodynamics: atmospheric): its checkpoints (checkpoints/*.nck)
@@ -14,6 +15,12 @@ A SOURCE is one of:
 - a MicroHH run directory: its statistics file (<case>.default.0000000.nc, groups `thermo` and
   `default`), the snapshots in the window;
 - a JSON file this tool wrote (--json): the profiles it holds.
+
+With --dynamics it also prints the vertical velocity variance w'^2 and the vertical fluxes
+w'q_t' and w'theta_l' of each source: for nimbus the particles' departures from their layer's
+mean, per snapshot, averaged over the snapshots (the resolved flux); for MicroHH its statistics
+file's w_2, qt_flux and thl_flux (resolved plus subgrid), moved from its half levels to the full
+levels by linear interpolation. A JSON file written before these keys existed has none.
 
 Window default 10800-21600 s (hours 3-6 of BOMEX). Prints the profiles side by side at the
 heights of the first source, with the BOMEX initial state. --json writes the first source's
@@ -99,6 +106,8 @@ def read_nimbus(run, window, dz):
     n = int(math.ceil(height / dz))
     acc = np.zeros((n, 5))
     count = np.zeros(n)
+    # w'^2, w'q_t', w'theta_l' of each snapshot's layers, summed over the snapshots
+    dyn = np.zeros((n, 3))
     times = []
     for path in sorted(glob.glob(os.path.join(run, "checkpoints", "*.nck"))):
         _frame, t, pos, th, vel = read_checkpoint(path)
@@ -109,16 +118,24 @@ def read_nimbus(run, window, dz):
         p = p_s * (1.0 - y / top) ** CP_OVER_RD
         theta_l = (th[:, 0] - q * th[:, 2]) * (P00 / p) ** (1.0 / CP_OVER_RD)
         k = np.clip((y // dz).astype(int), 0, n - 1)
-        for j, f in enumerate([theta_l, th[:, 1] + th[:, 2], th[:, 2], vel[:, 0], -vel[:, 2]]):
+        q_t = th[:, 1] + th[:, 2]
+        for j, f in enumerate([theta_l, q_t, th[:, 2], vel[:, 0], -vel[:, 2]]):
             acc[:, j] += np.bincount(k, f, n)
-        count += np.bincount(k, None, n)
+        here = np.bincount(k, None, n)
+        count += here
+        layer_mean = lambda f: (np.bincount(k, f, n) / np.maximum(here, 1))[k]
+        w = vel[:, 1] - layer_mean(vel[:, 1])
+        for j, f in enumerate([w, q_t - layer_mean(q_t), theta_l - layer_mean(theta_l)]):
+            dyn[:, j] += np.bincount(k, w * f, n) / np.maximum(here, 1)
     if not times:
         fail(f"{run}: no checkpoint in the window {window[0]:g}-{window[1]:g} s")
     m = acc / np.maximum(count, 1)[:, None]
+    d = dyn / len(times)
     z = (np.arange(n) + 0.5) * dz
     return {"kind": "nimbus", "path": os.path.abspath(run), "snapshots": len(times),
             "times": times, "z": z.tolist(), "thl": m[:, 0].tolist(), "qt": m[:, 1].tolist(),
             "ql": m[:, 2].tolist(), "u": m[:, 3].tolist(), "v": m[:, 4].tolist(),
+            "w2": d[:, 0].tolist(), "wqt": d[:, 1].tolist(), "wthl": d[:, 2].tolist(),
             "note": f"checkpoints; layers of {dz:g} m; u, v in the simulation's frame (x, -z)"}
 
 
@@ -136,6 +153,9 @@ def read_microhh(run, window):
     if not sel.any():
         fail(f"{run}: no statistics in the window")
     mean = lambda g, v: np.asarray(f[g][v][sel, :], float).mean(axis=0).tolist()
+    z = np.asarray(f["z"][:], float)
+    zh = np.asarray(f["zh"][:], float)
+    full = lambda g, v: np.interp(z, zh, np.asarray(f[g][v][sel, :], float).mean(axis=0)).tolist()
     utrans = 0.0
     ini = glob.glob(os.path.join(run, "*.ini"))
     if ini:
@@ -143,9 +163,10 @@ def read_microhh(run, window):
             if line.strip().startswith("utrans="):
                 utrans = float(line.split("=")[1])
     return {"kind": "microhh", "path": os.path.abspath(run), "snapshots": int(sel.sum()),
-            "z": np.asarray(f["z"][:], float).tolist(), "thl": mean("thermo", "thl"),
+            "z": z.tolist(), "thl": mean("thermo", "thl"),
             "qt": mean("thermo", "qt"), "ql": mean("thermo", "ql"), "u": mean("default", "u"),
-            "v": mean("default", "v"), "utrans": utrans,
+            "v": mean("default", "v"), "w2": full("default", "w_2"),
+            "wqt": full("thermo", "qt_flux"), "wthl": full("thermo", "thl_flux"), "utrans": utrans,
             "note": "statistics file; u, v in the ground frame (MicroHH adds back its utrans)"}
 
 
@@ -166,6 +187,19 @@ def at(rec, key, z):
     return np.interp(z, rec["z"], rec[key])
 
 
+def print_dynamics(recs, labels, z):
+    """w'^2 (m^2/s^2), w'q_t' (g/kg m/s) and w'theta_l' (K m/s) side by side; "-" for a JSON
+    source written without them."""
+    cell = lambda r, key, zi, scale, f: f"{scale * at(r, key, zi):{f}}" if key in r else "-"
+    wide = [max(14, len(l) + 6) for l in labels]
+    print("\n  z (m)   " + "".join(f"{'w2 ' + l:>{n}}{'wqt ' + l:>{n}}{'wthl ' + l:>{n}}" for l, n in zip(labels, wide)))
+    for zi in z:
+        row = f"{zi:8.0f}  "
+        for r, n in zip(recs, wide):
+            row += f"{cell(r, 'w2', zi, 1.0, '.4f'):>{n}}{cell(r, 'wqt', zi, 1e3, '.5f'):>{n}}{cell(r, 'wthl', zi, 1.0, '.5f'):>{n}}"
+        print(row)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("sources", nargs="+")
@@ -175,6 +209,8 @@ def main(argv=None):
     ap.add_argument("--json")
     ap.add_argument("--meta")
     ap.add_argument("--plot")
+    ap.add_argument("--dynamics", action="store_true",
+                    help="also print w'^2, w'q_t' and w'theta_l' of each source")
     ap.add_argument("--nimbus-frame-u", type=float, default=0.0,
                     help="speed (m/s, along x) of the frame a nimbus run's wind is given in; added to its u in the plot (BOMEX: -8)")
     a = ap.parse_args(argv)
@@ -200,6 +236,8 @@ def main(argv=None):
         for r in recs:
             row += f"{at(r, 'thl', zi):16.2f}{1e3 * at(r, 'qt', zi):14.2f}{1e3 * at(r, 'ql', zi):13.4f}"
         print(row + f"{th0[i]:16.2f}{1e3 * qt0[i]:10.2f}")
+    if a.dynamics:
+        print_dynamics(recs, labels, z)
     if a.json:
         rec = {"schema": "nimbus.mean_profiles/1", "window": window, "profiles": recs[0]}
         if a.meta:
