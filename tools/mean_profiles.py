@@ -21,6 +21,8 @@ w'q_t' and w'theta_l' of each source: for nimbus the particles' departures from 
 mean, per snapshot, averaged over the snapshots (the resolved flux); for MicroHH its statistics
 file's w_2, qt_flux and thl_flux (resolved plus subgrid), moved from its half levels to the full
 levels by linear interpolation. A JSON file written before these keys existed has none.
+--plot draws theta_l, q_t, q_l and the wind, and w'^2 on a log axis for the sources that have
+it.
 
 Window default 10800-21600 s (hours 3-6 of BOMEX). Prints the profiles side by side at the
 heights of the first source, with the BOMEX initial state. --json writes the first source's
@@ -248,7 +250,9 @@ def main(argv=None):
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
-        fig, ax = plt.subplots(1, 4, figsize=(14, 5), sharey=True)
+        # a fifth panel, w'^2 on a log axis, when a source has it (--dynamics's variance)
+        dyn = any("w2" in r for r in recs)
+        fig, ax = plt.subplots(1, 5 if dyn else 4, figsize=(17 if dyn else 14, 5), sharey=True)
         zz = np.linspace(0, max(r["z"][-1] for r in recs), 200)
         th, qt = bomex_initial(zz)
         for axis, v in [(ax[0], th), (ax[1], 1e3 * qt)]:
@@ -260,7 +264,13 @@ def main(argv=None):
             ax[2].plot(1e3 * np.asarray(r["ql"]), zr, label=l)
             line, = ax[3].plot(np.asarray(r["u"]) + (frame_u if r["kind"] == "nimbus" else 0.0), zr, label=l)
             ax[3].plot(np.asarray(r["v"]), zr, "--", color=line.get_color())
-        for axis, name in zip(ax, ["theta_l (K)", "q_t (g/kg)", "mean q_l (g/kg)", "u, v dashed (m/s, ground frame)"]):
+            if dyn and "w2" in r:
+                ax[4].plot(np.maximum(np.asarray(r["w2"]), 1e-5), zr, label=l)
+        if dyn:
+            ax[4].set_xscale("log")
+        names = ["theta_l (K)", "q_t (g/kg)", "mean q_l (g/kg)", "u, v dashed (m/s, ground frame)",
+                 "w'^2 (m^2/s^2)"]
+        for axis, name in zip(ax, names):
             axis.set_xlabel(name)
             axis.grid(alpha=0.3)
         ax[0].set_ylabel("height (m)")
