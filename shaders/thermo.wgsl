@@ -329,6 +329,15 @@ fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     v = v + heat * P.ground_vapor;
     v = v + P.dt * rates.y;
 
+    // eq. 7: dT = -Gamma_d dy over the height this substep's move gained (vel.w, written by
+    // pbf.wgsl's update_velocity): T + Gamma_d y is kept exactly by a dry parcel, however the
+    // constraint solve moved it (u_y dt cooled parcels that the solve held in place). Before
+    // eq. 6, which compares T with T0 at the particle's new height: with the T of the height it
+    // left, a particle that rose by dy felt g Gamma_d dy / T0 of extra lift, a push along its
+    // own motion of g Gamma_d dt / T0 per second (5e-3 / s at 15 s substeps) that grew waves
+    // out of air at rest (docs/PHYSICS.md "BOMEX").
+    temp = temp - P.adiabatic_lapse_rate * u.w;
+
     // eq. 6: F = kb (T - T0) / T0 j - kg w j, applied as a velocity change dt F, less its
     // horizontal mean at this height when there is a profile (a force of height alone only
     // changes the pressure of a closed incompressible box).
@@ -352,11 +361,6 @@ fn thermo_step(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
         u.x = u.x + P.wind_fraction * (air.x - u.x);
         u.z = u.z + P.wind_fraction * (air.y - u.z);
     }
-
-    // eq. 7: dT = -Gamma_d dy over the height this substep's move gained (vel.w, written by
-    // pbf.wgsl's update_velocity): T + Gamma_d y is kept exactly by a dry parcel, however the
-    // constraint solve moved it (u_y dt cooled parcels that the solve held in place).
-    temp = temp - P.adiabatic_lapse_rate * u.w;
 
     // eqs. 8-10: w moves towards v - gamma, gamma = min(A exp(B / (T + C)), v + w). The total
     // s = v + w is kept: w is clamped into [0, s] and v = s - w, so neither goes negative.

@@ -224,8 +224,8 @@ fn atmospheric_thermo_step_matches_mirror() {
 }
 
 /// `physics.virtual_temperature`: eq. 6 reads T (1 + 0.608 v). GPU against the mirror, and the
-/// extra lift against the formula, dt k_b 0.608 T v / T0(y) (no heating, so T and v are the
-/// inputs when eq. 6 reads them).
+/// extra lift against the formula, dt k_b 0.608 T v / T0(y) (no heating, so v is the input
+/// and T the input less eq. 7's cooling over the height gained, vel.w, when eq. 6 reads them).
 #[test]
 fn virtual_temperature_lifts_moist_air_as_the_mirror_does() {
     let ctx = context();
@@ -247,7 +247,8 @@ fn virtual_temperature_lifts_moist_air_as_the_mirror_does() {
     let mut lifted = 0;
     for i in 0..n {
         let t0 = nimbus::sim::thermo::environment_temperature(&cfg.physics, pos[i][1] as f64);
-        let want = dt * cfg.physics.buoyancy * 0.608 * th[i][0] as f64 * th[i][1] as f64 / t0;
+        let t = th[i][0] as f64 - cfg.physics.adiabatic_lapse_rate * vel[i][3] as f64;
+        let want = dt * cfg.physics.buoyancy * 0.608 * t * th[i][1] as f64 / t0;
         let got = out_moist.vel[i][1] as f64 - out_plain.vel[i][1] as f64;
         worst = worst.max((got - want).abs());
         lifted += usize::from(want > 0.01);

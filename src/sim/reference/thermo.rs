@@ -110,6 +110,8 @@ pub fn thermo_step_particle(
     let heat = dt * rate;
     temp += heat;
     th[1] += heat * p.ground_vapor as f64 + dt * vapor;
+    // eq. 7, over the height gained by the move: before eq. 6, which reads T at pos
+    temp -= p.adiabatic_lapse_rate as f64 * vel[3];
     // eq. 6
     let t0 = environment_temperature(p, pos[1]);
     let tv = temp * (1.0 + p.virtual_factor as f64 * th[1]);
@@ -129,8 +131,6 @@ pub fn thermo_step_particle(
             vel[a] += dt * pull[a];
         }
     }
-    // eq. 7, over the height gained by the move
-    temp -= p.adiabatic_lapse_rate as f64 * vel[3];
     // eqs. 8-10
     let (v, w) = (th[1], th[2]);
     let s = v + w;
