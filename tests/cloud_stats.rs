@@ -343,6 +343,39 @@ fn a_real_run_reads_the_same_in_any_up_axis_and_scale() {
     }
 }
 
+/// Runs `pipeline` into the test's temporary directory `name` with the `--set`s, then
+/// tools/mean_profiles.py --dynamics over `window` (seconds, "T0,T1"): the profiles it writes.
+fn profiles_of_a_run(name: &str, pipeline: &str, sets: &[&str], window: &str) -> Value {
+    let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&out);
+    let mut run = nimbus();
+    run.arg("run")
+        .arg(root().join(pipeline))
+        .arg("--out")
+        .arg(&out);
+    for s in sets {
+        run.args(["--set", s]);
+    }
+    let o = run.output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let json = out.join("profiles.json");
+    let o = Command::new("/usr/bin/python3")
+        .arg(root().join("tools/mean_profiles.py"))
+        .arg(&out)
+        .args([
+            "--window",
+            window,
+            "--dynamics",
+            "--json",
+            json.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let rec: Value = serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+    rec["profiles"].clone()
+}
+
 /// tools/mean_profiles.py on the first minute of pipelines/bomex.yaml (a narrow column of it):
 /// the particles start on the layer centres with the sounding converted to T over the run's
 /// reference atmosphere, so the tool's theta_l and q_t must give back BOMEX's initial theta_l
@@ -352,31 +385,18 @@ fn mean_profiles_of_the_first_bomex_minute_are_the_sounding() {
     if !py_modules_available(&["numpy"]) {
         return;
     }
-    let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("mean_profiles_bomex");
-    let _ = std::fs::remove_dir_all(&out);
-    let o = nimbus()
-        .arg("run")
-        .arg(root().join("pipelines/bomex.yaml"))
-        .arg("--out")
-        .arg(&out)
-        .args(["--set", "domain.size=[800, 3000, 800]"])
-        .args(["--set", "output.frames.end=1"])
-        .args(["--set", "output.preview.enabled=false"])
-        .args(["--set", "export.vdb.enabled=false"])
-        .args(["--set", "checkpoint.every=1"])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", text(&o));
-    let json = out.join("profiles.json");
-    let o = Command::new("/usr/bin/python3")
-        .arg(root().join("tools/mean_profiles.py"))
-        .arg(&out)
-        .args(["--window", "0,60", "--json", json.to_str().unwrap()])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", text(&o));
-    let rec: Value = serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
-    let p = &rec["profiles"];
+    let p = profiles_of_a_run(
+        "mean_profiles_bomex",
+        "pipelines/bomex.yaml",
+        &[
+            "domain.size=[800, 3000, 800]",
+            "output.frames.end=1",
+            "output.preview.enabled=false",
+            "export.vdb.enabled=false",
+            "checkpoint.every=1",
+        ],
+        "0,60",
+    );
     assert_eq!(p["snapshots"], 1);
     let col = |k: &str| -> Vec<f64> { p[k].as_array().unwrap().iter().map(f).collect() };
     let (z, thl, qt) = (col("z"), col("thl"), col("qt"));
@@ -433,28 +453,12 @@ fn the_dry_bomex_box_stays_at_rest() {
     if !py_modules_available(&["numpy"]) {
         return;
     }
-    let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("bomex_dry");
-    let _ = std::fs::remove_dir_all(&out);
-    let o = nimbus()
-        .arg("run")
-        .arg(root().join("pipelines/bomex_dry.yaml"))
-        .arg("--out")
-        .arg(&out)
-        .args(["--set", "domain.size=[1600, 3000, 1600]"])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", text(&o));
-    let json = out.join("profiles.json");
-    let o = Command::new("/usr/bin/python3")
-        .arg(root().join("tools/mean_profiles.py"))
-        .arg(&out)
-        .args(["--window", "4800,5400", "--dynamics"])
-        .args(["--json", json.to_str().unwrap()])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", text(&o));
-    let rec: Value = serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
-    let p = &rec["profiles"];
+    let p = profiles_of_a_run(
+        "bomex_dry",
+        "pipelines/bomex_dry.yaml",
+        &["domain.size=[1600, 3000, 1600]"],
+        "4800,5400",
+    );
     assert_eq!(p["snapshots"], 3, "checkpoints 80, 85 and 90");
     let z: Vec<f64> = p["z"].as_array().unwrap().iter().map(f).collect();
     for (zi, w2) in z.iter().zip(p["w2"].as_array().unwrap().iter().map(f)) {
