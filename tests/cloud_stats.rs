@@ -341,6 +341,34 @@ fn a_real_run_reads_the_same_in_any_up_axis_and_scale() {
     for key in ["cloud_base", "cloud_top", "cover", "lwp", "lwc_in_cloud"] {
         close(f(&b["summary"][key]), f(&a["summary"][key]), 1e-6, key);
     }
+    // on columns twice the voxels' width (block means, as an LES cell): the same water, on a
+    // grid of half the columns; a width that is no multiple of the voxels is refused
+    let out = base.join("cloud_stats_y");
+    let dx = f(&a["grid"]["dx"]);
+    let c = stats(
+        &out,
+        "cloud_stats_y2",
+        &["--window", "0,40", "--columns", &format!("{}", 2.0 * dx)],
+    );
+    assert_eq!(f(&c["grid"]["dx"]), 2.0 * dx);
+    let cols = |r: &Value| r["grid"]["columns"][0].as_u64().unwrap();
+    assert_eq!(2 * cols(&c), cols(a));
+    close(
+        f(&c["summary"]["lwp"]),
+        f(&a["summary"]["lwp"]),
+        1e-5,
+        "LWP",
+    );
+    assert!(f(&c["summary"]["cover"]) > 0.0, "{}", c["summary"]);
+    let o = tool(&[
+        out.to_str().unwrap(),
+        "--window",
+        "0,40",
+        "--columns",
+        &format!("{}", 1.5 * dx),
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("--columns"), "{}", text(&o));
 }
 
 /// Runs `pipeline` into the test's temporary directory `name` with the `--set`s, then

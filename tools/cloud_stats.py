@@ -3,7 +3,8 @@
 
 Usage:
   /usr/bin/python3 tools/cloud_stats.py SOURCE [SOURCE...] [--window T0,T1] [--json OUT.json]
-      [--plot OUT.png] [--labels A,B,...] [--criteria] [--meta META.json] [thresholds...]
+      [--plot OUT.png] [--labels A,B,...] [--criteria] [--meta META.json] [--columns M]
+      [thresholds...]
 
 A SOURCE is one of
   - a nimbus run directory (manifest.json, stats.jsonl, vdb/*.vdb: the `density` grid is cloud
@@ -12,6 +13,8 @@ A SOURCE is one of
     for the reference air density; ql_path.xy.000.NNNNNNN cross-sections, when present, are
     checked against the liquid water path computed here);
   - a JSON file this tool wrote with --json (the statistics are refitted from what it holds).
+A nimbus run is measured on its export voxels, or with --columns M on columns M metres wide:
+the voxels' cloud water averaged over each block, level by level, as an LES cell holds its mean.
 
 Averaged over the snapshots with T0 <= time <= T1 (s; default hours 3-6, 10800,21600):
   cloudy cell        ql > --ql-threshold (kg/kg, default 1e-5)
@@ -215,7 +218,9 @@ def in_window(t, window):
     return window[0] - 1e-6 <= t <= window[1] + 1e-6
 
 
-def read_nimbus(path, window, ql_threshold):
+def read_nimbus(path, window, ql_threshold, column=None):
+    """column: analyse on columns of this width (m), block means of the voxels' cloud water, as
+    an LES cell holds its cell's mean (a multiple of the voxel size dividing the domain)."""
     vdb = need("pyopenvdb", "python3-openvdb")
 
     man = json.load(open(os.path.join(path, "manifest.json")))
@@ -235,7 +240,13 @@ def read_nimbus(path, window, ql_threshold):
         rec = json.loads(line)
         times[rec["frame"]] = float(rec["sim_time"])
     z = (np.arange(nlev) + 0.5) * vs
-    acc = Accumulator(z, np.full(nlev, vs), bomex_air_density(z), vs, vs, ql_threshold)
+    k = 1
+    if column is not None:
+        k = int(round(column / vs))
+        if k < 1 or abs(k * vs - column) > 1e-6 * column or nx % k or ny % k:
+            fail(f"--columns {column:g}: not a multiple of the voxel size {vs:g} m that divides "
+                 f"the domain's {nx} x {ny} voxels")
+    acc = Accumulator(z, np.full(nlev, vs), bomex_air_density(z), vs * k, vs * k, ql_threshold)
     frames = []
     for f in man["frames"]:
         t = times.get(f["frame"])
@@ -262,9 +273,11 @@ def read_nimbus(path, window, ql_threshold):
             if il.min() < 0 or il.max() >= nlev:
                 fail(f"{rel}: density voxels outside the domain's height 0-{size[1]:g} m")
             field[np.ix_(ix, iy, il)] = a
+        if k > 1:  # block means over k x k voxel columns, level by level
+            field = field.reshape(nx // k, k, ny // k, k, nlev).mean(axis=(1, 3))
         acc.add(t, field / dscale)
     source = {"kind": "nimbus", "path": os.path.abspath(path), "shot": man["shot"],
-              "spacing_m": vs, "domain_m": size, "frame_seconds": man["export"]["frame_seconds"],
+              "spacing_m": vs, "column_m": vs * k, "domain_m": size, "frame_seconds": man["export"]["frame_seconds"],
               "air_density": "hydrostatic BOMEX initial state, 1015 hPa (tools/cloud_stats.py)"}
     return acc, source
 
@@ -318,16 +331,16 @@ def read_microhh(path, window, ql_threshold):
     return acc, source
 
 
-def load(path, window, ql_threshold, meta):
+def load(path, window, ql_threshold, meta, column=None):
     try:
-        return read_source(path, window, ql_threshold, meta)
+        return read_source(path, window, ql_threshold, meta, column)
     except OSError as e:
         fail(f"{path}: {e}", 3)
     except (KeyError, ValueError, TypeError, IndexError) as e:
         fail(f"{path}: not a readable run or record ({type(e).__name__}: {e})")
 
 
-def read_source(path, window, ql_threshold, meta):
+def read_source(path, window, ql_threshold, meta, column=None):
     if os.path.isfile(path) and path.endswith(".json"):
         rec = json.load(open(path))
         if rec.get("schema") != SCHEMA:
@@ -341,7 +354,7 @@ def read_source(path, window, ql_threshold, meta):
                  "recompute it from the run")
         return rec
     if os.path.exists(os.path.join(path, "manifest.json")):
-        acc, source = read_nimbus(path, window, ql_threshold)
+        acc, source = read_nimbus(path, window, ql_threshold, column)
     elif os.path.exists(os.path.join(path, "grid.0000000")):
         acc, source = read_microhh(path, window, ql_threshold)
     else:
@@ -575,6 +588,9 @@ def main(argv=None):
     ap.add_argument("--max-cloud-size", type=float,
                     help="m: largest L = sqrt(A) of the size fit (default: no limit)")
     ap.add_argument("--min-bin-count", type=int, default=24)
+    ap.add_argument("--columns", type=float, metavar="M",
+                    help="m: analyse nimbus runs on columns this wide, block means of their "
+                         "voxels (as an LES grid's cells; default: the voxels)")
     ap.add_argument("--labels", help="comma-separated names of the sources")
     ap.add_argument("--json", help="write the first source's record and statistics here")
     ap.add_argument("--meta", help="JSON file of provenance to store in --json's record")
@@ -595,7 +611,7 @@ def main(argv=None):
     for s in a.sources:
         if not os.path.exists(s):
             fail(f"{s}: no such file or directory")
-    records = [load(s, window, a.ql_threshold, meta) for s in a.sources]
+    records = [load(s, window, a.ql_threshold, meta, a.columns) for s in a.sources]
     out = [summarize(r, a.cf_threshold, a.min_cloud_area, a.max_cloud_size, a.min_bin_count)
            for r in records]
     summaries, bins_list = [o[0] for o in out], [o[1] for o in out]
