@@ -369,6 +369,32 @@ fn a_real_run_reads_the_same_in_any_up_axis_and_scale() {
     ]);
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
     assert!(text(&o).contains("--columns"), "{}", text(&o));
+    // from the particles of the last checkpoint (frame 8) on cells of the spacing: the water the
+    // voxels of the same frame hold (the kernel sum loses a little at the walls)
+    let last = ["--window", "40,40"];
+    let v = stats(&out, "cloud_stats_v40", &last);
+    let p = stats(
+        &out,
+        "cloud_stats_p40",
+        &[&last[..], &["--particles"]].concat(),
+    );
+    assert_eq!(p["source"]["kind"], "nimbus particles");
+    assert_eq!(
+        (p["snapshots"].as_u64(), v["snapshots"].as_u64()),
+        (Some(1), Some(1))
+    );
+    assert_eq!(
+        f(&p["grid"]["dx"]),
+        50.0,
+        "cells of the tiny shot's spacing"
+    );
+    close(
+        f(&p["summary"]["lwp"]),
+        f(&v["summary"]["lwp"]),
+        0.05,
+        "LWP",
+    );
+    assert!(f(&p["summary"]["cover"]) > 0.05, "{}", p["summary"]);
 }
 
 /// Runs `pipeline` into the test's temporary directory `name` with the `--set`s, then

@@ -4,7 +4,7 @@
 Usage:
   /usr/bin/python3 tools/cloud_stats.py SOURCE [SOURCE...] [--window T0,T1] [--json OUT.json]
       [--plot OUT.png] [--labels A,B,...] [--criteria] [--meta META.json] [--columns M]
-      [thresholds...]
+      [--particles] [thresholds...]
 
 A SOURCE is one of
   - a nimbus run directory (manifest.json, stats.jsonl, vdb/*.vdb: the `density` grid is cloud
@@ -15,6 +15,9 @@ A SOURCE is one of
   - a JSON file this tool wrote with --json (the statistics are refitted from what it holds).
 A nimbus run is measured on its export voxels, or with --columns M on columns M metres wide:
 the voxels' cloud water averaged over each block, level by level, as an LES cell holds its mean.
+With --particles it is measured from its particles instead (the checkpoints in the window, on
+cells of the particle spacing, or columns of --columns M): each particle's water goes into the
+cell holding it, times its volume over the cell's, so no kernel widens the clouds.
 
 Averaged over the snapshots with T0 <= time <= T1 (s; default hours 3-6, 10800,21600):
   cloudy cell        ql > --ql-threshold (kg/kg, default 1e-5)
@@ -331,16 +334,55 @@ def read_microhh(path, window, ql_threshold):
     return acc, source
 
 
-def load(path, window, ql_threshold, meta, column=None):
+def load(path, window, ql_threshold, meta, column=None, particles=False):
     try:
-        return read_source(path, window, ql_threshold, meta, column)
+        return read_source(path, window, ql_threshold, meta, column, particles)
     except OSError as e:
         fail(f"{path}: {e}", 3)
     except (KeyError, ValueError, TypeError, IndexError) as e:
         fail(f"{path}: not a readable run or record ({type(e).__name__}: {e})")
 
 
-def read_source(path, window, ql_threshold, meta, column=None):
+def read_nimbus_particles(path, window, ql_threshold, column=None):
+    """A nimbus run's particles (its checkpoints in the window) deposited on cells of the particle
+    spacing (columns of `column` metres if given): each particle's water into the cell holding
+    it, times its volume over the cell's, so the water is kept and a cell is cloudy when a
+    particle in it is; the model's own state, without the export kernel's smoothing."""
+    from mean_profiles import read_checkpoint_sections  # mean_profiles imports this module
+
+    man = json.load(open(os.path.join(path, "manifest.json")))
+    cfg = man["config"]
+    size = [float(v) for v in cfg["domain"]["size"]]
+    sp = float(cfg["domain"]["spacing"])
+    c = float(column) if column is not None else sp
+    nx, ny, nlev = (int(round(size[0] / c)), int(round(size[2] / c)), int(round(size[1] / sp)))
+    if min(nx, ny) < 1 or abs(nx * c - size[0]) > 1e-6 * size[0] or abs(ny * c - size[2]) > 1e-6 * size[2]:
+        fail(f"--columns {c:g}: does not divide the domain's {size[0]:g} x {size[2]:g} m")
+    z = (np.arange(nlev) + 0.5) * size[1] / nlev
+    dz = size[1] / nlev
+    acc = Accumulator(z, np.full(nlev, dz), bomex_air_density(z), c, c, ql_threshold)
+    paths = sorted(glob.glob(os.path.join(path, "checkpoints", "*.nck")))
+    for cp in paths:
+        _frame, t, sec = read_checkpoint_sections(cp)
+        if not window[0] - 1.0 <= t <= window[1] + 1.0:  # a checkpoint's time drifts by ~1e-5 s
+            continue
+        pos = np.frombuffer(sec["pos"], "<f4").reshape(-1, 4).astype(float)
+        ql = np.frombuffer(sec["thermo"], "<f4").reshape(-1, 4)[:, 2].astype(float)
+        level = np.frombuffer(sec["info"], "<u4").reshape(-1, 2)[:, 1].astype(float)
+        vol = sp ** 3 * np.exp2(-level) / (c * c * dz)
+        i = np.floor(pos[:, 0] / c).astype(int) % nx
+        j = np.floor(pos[:, 2] / c).astype(int) % ny
+        k = np.clip(np.floor(pos[:, 1] / dz).astype(int), 0, nlev - 1)
+        field = np.zeros(nx * ny * nlev)
+        np.add.at(field, (i * ny + j) * nlev + k, ql * vol)
+        acc.add(t, field.reshape(nx, ny, nlev))
+    source = {"kind": "nimbus particles", "path": os.path.abspath(path), "shot": man["shot"],
+              "spacing_m": sp, "column_m": c, "domain_m": size, "checkpoints": len(paths),
+              "air_density": "hydrostatic BOMEX initial state, 1015 hPa (tools/cloud_stats.py)"}
+    return acc, source
+
+
+def read_source(path, window, ql_threshold, meta, column=None, particles=False):
     if os.path.isfile(path) and path.endswith(".json"):
         rec = json.load(open(path))
         if rec.get("schema") != SCHEMA:
@@ -353,7 +395,9 @@ def read_source(path, window, ql_threshold, meta, column=None):
                  f"{rec['definitions']['window'][1]:g} s, not {window[0]:g},{window[1]:g}; "
                  "recompute it from the run")
         return rec
-    if os.path.exists(os.path.join(path, "manifest.json")):
+    if os.path.exists(os.path.join(path, "manifest.json")) and particles:
+        acc, source = read_nimbus_particles(path, window, ql_threshold, column)
+    elif os.path.exists(os.path.join(path, "manifest.json")):
         acc, source = read_nimbus(path, window, ql_threshold, column)
     elif os.path.exists(os.path.join(path, "grid.0000000")):
         acc, source = read_microhh(path, window, ql_threshold)
@@ -591,6 +635,9 @@ def main(argv=None):
     ap.add_argument("--columns", type=float, metavar="M",
                     help="m: analyse nimbus runs on columns this wide, block means of their "
                          "voxels (as an LES grid's cells; default: the voxels)")
+    ap.add_argument("--particles", action="store_true",
+                    help="measure nimbus runs from their particles (the checkpoints in the "
+                         "window) on cells of the particle spacing, not from the exported voxels")
     ap.add_argument("--labels", help="comma-separated names of the sources")
     ap.add_argument("--json", help="write the first source's record and statistics here")
     ap.add_argument("--meta", help="JSON file of provenance to store in --json's record")
@@ -611,7 +658,7 @@ def main(argv=None):
     for s in a.sources:
         if not os.path.exists(s):
             fail(f"{s}: no such file or directory")
-    records = [load(s, window, a.ql_threshold, meta, a.columns) for s in a.sources]
+    records = [load(s, window, a.ql_threshold, meta, a.columns, a.particles) for s in a.sources]
     out = [summarize(r, a.cf_threshold, a.min_cloud_area, a.max_cloud_size, a.min_bin_count)
            for r in records]
     summaries, bins_list = [o[0] for o in out], [o[1] for o in out]

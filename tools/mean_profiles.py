@@ -60,13 +60,23 @@ from cloud_stats import bomex_initial  # noqa: E402
 
 def read_checkpoint(path):
     """(frame, sim time, pos, thermo, vel) of a nimbus checkpoint (src/io/checkpoint/format.rs)."""
+    frame, time, sec = read_checkpoint_sections(path)
     try:
-        return parse_checkpoint(path, open(path, "rb").read())
+        arr = lambda k: np.frombuffer(sec[k], "<f4").reshape(-1, 4).astype(float)
+        return frame, time, arr("pos"), arr("thermo"), arr("vel")
+    except (KeyError, ValueError) as e:
+        fail(f"{path}: not a readable nimbus checkpoint ({e})", 3)
+
+
+def read_checkpoint_sections(path):
+    """(frame, sim time, {section name: bytes}) of a nimbus checkpoint."""
+    try:
+        return checkpoint_sections(path, open(path, "rb").read())
     except (OSError, struct.error, KeyError, ValueError, UnicodeDecodeError) as e:
         fail(f"{path}: not a readable nimbus checkpoint ({e})", 3)
 
 
-def parse_checkpoint(path, b):
+def checkpoint_sections(path, b):
     if b[:8] != b"NIMBUSCK":
         fail(f"{path}: not a nimbus checkpoint")
     h = struct.unpack_from("<I", b, 12)[0]
@@ -84,8 +94,7 @@ def parse_checkpoint(path, b):
         size = struct.unpack_from("<Q", b, o)[0]
         sec[name] = b[o + 8:o + 8 + size]
         o += 8 + size + 4
-    arr = lambda k: np.frombuffer(sec[k], "<f4").reshape(-1, 4).astype(float)
-    return frame, time, arr("pos"), arr("thermo"), arr("vel")
+    return frame, time, sec
 
 
 def read_nimbus(run, window, dz):
