@@ -377,7 +377,7 @@ def read_nimbus_particles(path, window, ql_threshold, column=None):
         np.add.at(field, (i * ny + j) * nlev + k, ql * vol)
         acc.add(t, field.reshape(nx, ny, nlev))
     source = {"kind": "nimbus particles", "path": os.path.abspath(path), "shot": man["shot"],
-              "spacing_m": sp, "column_m": c, "domain_m": size, "checkpoints": len(paths),
+              "spacing_m": sp, "column_m": c, "domain_m": size,
               "air_density": "hydrostatic BOMEX initial state, 1015 hPa (tools/cloud_stats.py)"}
     return acc, source
 
