@@ -93,8 +93,8 @@ def bomex_initial(z):
     return ext(th), np.maximum(ext(qt), 0.0)
 
 
-def bomex_air_density(z, p_surface=101500.0):
-    """Hydrostatic air density (kg/m^3) at heights z (m) of the BOMEX initial state:
+def bomex_pressure(z, p_surface=101500.0):
+    """Hydrostatic pressure (Pa) at heights z (m) of the BOMEX initial state:
     dp/dz = -g p / (R_d T_v), T = theta_l (p/p00)^(R_d/c_p), T_v = T (1 + 0.608 q_t)."""
     z = np.asarray(z, float)
     top = max(float(z.max()) if z.size else 0.0, 0.0) + 10.0
@@ -111,9 +111,17 @@ def bomex_air_density(z, p_surface=101500.0):
         k1 = rhs(lnp[i], i)
         k2 = rhs(lnp[i] + k1, i + 1)
         lnp[i + 1] = lnp[i] + 0.5 * (k1 + k2)
-    p = np.exp(lnp)
+    return np.interp(z, zs, np.exp(lnp))
+
+
+def bomex_air_density(z, p_surface=101500.0):
+    """Hydrostatic air density (kg/m^3) at heights z (m) of the BOMEX initial state, p / (R_d T_v)
+    with the pressure of bomex_pressure."""
+    z = np.asarray(z, float)
+    p = bomex_pressure(z, p_surface)
+    th, qt = bomex_initial(z)
     tv = th * (p / P00) ** (RD / CP) * (1.0 + 0.608 * qt)
-    return np.interp(z, zs, p / (RD * tv))
+    return p / (RD * tv)
 
 
 # --- per-snapshot accumulation -----------------------------------------------------------------
@@ -348,7 +356,7 @@ def read_nimbus_particles(path, window, ql_threshold, column=None):
     spacing (columns of `column` metres if given): each particle's water into the cell holding
     it, times its volume over the cell's, so the water is kept and a cell is cloudy when a
     particle in it is; the model's own state, without the export kernel's smoothing."""
-    from mean_profiles import read_checkpoint_sections  # mean_profiles imports this module
+    from mean_profiles import read_checkpoint_sections, section_array  # it imports this module
 
     man = json.load(open(os.path.join(path, "manifest.json")))
     cfg = man["config"]
@@ -366,9 +374,9 @@ def read_nimbus_particles(path, window, ql_threshold, column=None):
         _frame, t, sec = read_checkpoint_sections(cp)
         if not window[0] - 1.0 <= t <= window[1] + 1.0:  # a checkpoint's time drifts by ~1e-5 s
             continue
-        pos = np.frombuffer(sec["pos"], "<f4").reshape(-1, 4).astype(float)
-        ql = np.frombuffer(sec["thermo"], "<f4").reshape(-1, 4)[:, 2].astype(float)
-        level = np.frombuffer(sec["info"], "<u4").reshape(-1, 2)[:, 1].astype(float)
+        pos = section_array(sec, "pos").astype(float)
+        ql = section_array(sec, "thermo")[:, 2].astype(float)
+        level = section_array(sec, "info", "<u4", 2)[:, 1].astype(float)
         vol = sp ** 3 * np.exp2(-level) / (c * c * dz)
         i = np.floor(pos[:, 0] / c).astype(int) % nx
         j = np.floor(pos[:, 2] / c).astype(int) % ny

@@ -62,10 +62,15 @@ def read_checkpoint(path):
     """(frame, sim time, pos, thermo, vel) of a nimbus checkpoint (src/io/checkpoint/format.rs)."""
     frame, time, sec = read_checkpoint_sections(path)
     try:
-        arr = lambda k: np.frombuffer(sec[k], "<f4").reshape(-1, 4).astype(float)
+        arr = lambda k: section_array(sec, k).astype(float)
         return frame, time, arr("pos"), arr("thermo"), arr("vel")
     except (KeyError, ValueError) as e:
         fail(f"{path}: not a readable nimbus checkpoint ({e})", 3)
+
+
+def section_array(sec, name, dtype="<f4", width=4):
+    """A checkpoint section as rows of `width` values (pos, vel, thermo: 4 f32; info: 2 u32)."""
+    return np.frombuffer(sec[name], dtype).reshape(-1, width)
 
 
 def read_checkpoint_sections(path):

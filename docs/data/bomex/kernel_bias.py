@@ -28,22 +28,7 @@ itot = jtot = 64
 ktot = 75
 gr = np.fromfile(os.path.join(run, "grid.0000000"), "<f8")
 z = gr[2 * itot + 2 * jtot:2 * itot + 2 * jtot + ktot]
-# hydrostatic pressure of the initial state from 1015 hPa (as cloud_stats's air density)
-zs = np.arange(0.0, 3011.0, 1.0)
-th0, qt0 = cs.bomex_initial(zs)
-lnp = np.empty_like(zs)
-lnp[0] = math.log(101500.0)
-
-
-def rhs(lp, i):
-    t = th0[i] * (math.exp(lp) / cs.P00) ** (cs.RD / cs.CP)
-    return -cs.G / (cs.RD * t * (1.0 + 0.608 * qt0[i]))
-
-
-for i in range(len(zs) - 1):
-    k1 = rhs(lnp[i], i)
-    lnp[i + 1] = lnp[i] + 0.5 * (k1 + rhs(lnp[i] + k1, i + 1))
-p = np.interp(z, zs, np.exp(lnp))
+p = cs.bomex_pressure(z)  # the initial state's, from 1015 hPa, as the tool's air density
 exner = (p / cs.P00) ** (cs.RD / cs.CP)
 LV, EP = 2.5e6, cs.RD / 461.5
 
