@@ -416,6 +416,12 @@ pub struct PhysicsConfig {
     /// unset, so the hashes of shots without it are unchanged.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub forcing: Option<ForcingConfig>,
+    /// Fractional entrainment rate epsilon (1/m): once a frame each cloudy particle mixes with
+    /// the clear air of its height a fraction 1 - exp(-epsilon |w| dt) of the way, and the clear
+    /// air there takes what the clouds give up (`sim::forces::entrainment`); 0 = none. Left out
+    /// of the serialisation when 0, so the hashes of shots without it are unchanged.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub entrainment: f64,
 }
 /// `true`/`false`, or the words `on`/`off` (YAML 1.2 reads those as strings).
 fn on_off<'de, D: serde::Deserializer<'de>>(d: D) -> Result<bool, D::Error> {
@@ -468,6 +474,7 @@ impl Default for PhysicsConfig {
             smoothing: SmoothingConfig::default(),
             wind: None,
             forcing: None,
+            entrainment: 0.0,
         }
     }
 }

@@ -145,6 +145,7 @@ pub const FLOAT_RANGES: &[FloatRange] = &[
     closed("physics.buoyancy", 0.0, 100.0),
     closed("physics.cloud_weight", 0.0, 100.0),
     closed("physics.phase_rate", 0.0, 100.0),
+    closed("physics.entrainment", 0.0, 0.1),
     closed("physics.surface_pressure", 1.0e4, 2.0e5),
     above("physics.saturation_a", 0.0, 1.0e8),
     closed("physics.saturation_b", -1.0e5, 1.0e5),
@@ -275,6 +276,7 @@ pub fn float_values(c: &ShotConfig) -> Vec<(String, &'static str, f64)> {
         ("physics.buoyancy", ph.buoyancy),
         ("physics.cloud_weight", ph.cloud_weight),
         ("physics.phase_rate", ph.phase_rate),
+        ("physics.entrainment", ph.entrainment),
         ("physics.saturation_a", ph.saturation_a),
         ("physics.saturation_b", ph.saturation_b),
         ("physics.saturation_c", ph.saturation_c),
@@ -1417,6 +1419,7 @@ mod tests {
         c.output.preroll = 8.0;
         c.export.optics.effective_radius = 12.0;
         c.export.optics.air_density = 1.0;
+        c.physics.entrainment = 1.0e-3;
         assert_eq!(issues(&c), vec![]);
         let mut want = Vec::new();
         floats(&serde_json::to_value(&c).unwrap(), "", &mut want);

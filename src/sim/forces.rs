@@ -17,6 +17,7 @@
 //! its external forces), in list order, timed under `Phase::Forces` (stats.jsonl
 //! `phase_ms.forces`, absent while none runs).
 pub mod coriolis;
+pub mod entrainment;
 pub mod forcing;
 
 use crate::error::Result;
@@ -153,6 +154,13 @@ pub const FORCES: &[Force] = &[
             uniform: "P.control_pull",
         },
     },
+    // first of the forces of their own: its host table is of the state read back, which the
+    // pass must find unchanged for the clear air to take exactly what the clouds give up
+    Force::own(
+        "entrainment (the clouds mixing with the clear air)",
+        &["physics.entrainment"],
+        entrainment::stage,
+    ),
     Force::own("large-scale forcing", &["physics.forcing"], forcing::stage),
     Force::own(
         "Coriolis force and surface stress",

@@ -11,6 +11,7 @@ pub mod adaptive_split;
 pub mod adaptive_stats;
 pub mod common;
 pub mod coriolis;
+pub mod entrainment;
 pub mod forcing;
 pub mod grid;
 pub mod pbf;
