@@ -19,6 +19,16 @@ fn shot() -> ShotConfig {
     .unwrap()
 }
 
+/// A random position in the box of [`shot`].
+fn random_position(rng: &mut ChaCha8Rng) -> [f32; 4] {
+    [
+        rng.random_range(0.0..1000.0),
+        rng.random_range(0.0..3000.0),
+        rng.random_range(0.0..1000.0),
+        0.0,
+    ]
+}
+
 /// Random particles over the whole box: a third cloudy, rising and sinking at up to 3 m/s, a
 /// fifth of half mass; with `dry`, every tenth clear one with almost no vapor and the clouds
 /// drier than the clear air.
@@ -27,12 +37,7 @@ fn random_state(seed: u64, dry: bool) -> ParticleState {
     let n = 3000;
     let mut st = ParticleState::default();
     for k in 0..n {
-        st.pos.push([
-            rng.random_range(0.0..1000.0),
-            rng.random_range(0.0..3000.0),
-            rng.random_range(0.0..1000.0),
-            0.0,
-        ]);
+        st.pos.push(random_position(&mut rng));
         st.vel.push([0.0, rng.random_range(-3.0..3.0), 0.0, 0.0]);
         let cloudy = k % 3 == 0;
         // with `dry`, clouds drier than the clear air, which then gives them vapor: the
@@ -165,12 +170,7 @@ fn a_gain_below_an_ulp_is_kept_on_average() {
     let n = 20_000;
     let mut st = ParticleState::default();
     for k in 0..n {
-        st.pos.push([
-            rng.random_range(0.0..1000.0),
-            rng.random_range(0.0..3000.0),
-            rng.random_range(0.0..1000.0),
-            0.0,
-        ]);
+        st.pos.push(random_position(&mut rng));
         st.vel.push([0.0; 4]);
         st.thermo.push([300.5, 0.015, 0.0, 0.0]);
         st.info.push([k as u32, 0]);

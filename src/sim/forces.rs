@@ -43,13 +43,28 @@ pub fn surface_layer_factor(
     let nominal = s[0] * s[2] * depth / (d * d * d);
     let below: f64 = (0..state.len())
         .filter(|&i| (state.pos[i][1] as f64) < depth)
-        .map(|i| (-(state.info[i][1].min(crate::ground::levels::MAX_LEVEL) as f64)).exp2())
+        .map(|i| relative_mass(state, i))
         .sum();
     if below > 0.0 {
         nominal / below
     } else {
         0.0
     }
+}
+
+/// Mass of particle i relative to a level-0 particle's (2^-level; a level past the deepest
+/// counts as the deepest).
+pub(crate) fn relative_mass(state: &crate::ground::ParticleState, i: usize) -> f64 {
+    (-(state.info[i][1].min(crate::ground::levels::MAX_LEVEL) as f64)).exp2()
+}
+
+/// The horizontal layers of the per-frame tables (forcing, entrainment): as many as fit a
+/// kernel radius each into the height, 1 to [`forcing::MAX_FORCING_LAYERS`]; (count, height m).
+pub(crate) fn frame_layers(cfg: &crate::config::ShotConfig) -> (usize, f64) {
+    let height = cfg.domain.size[1];
+    let n = ((height / cfg.domain.kernel_radius()).floor() as usize)
+        .clamp(1, forcing::MAX_FORCING_LAYERS);
+    (n, height / n as f64)
 }
 
 /// A force and where it acts.

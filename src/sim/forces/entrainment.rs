@@ -28,6 +28,7 @@ use crate::gpu::live::LiveBuffer;
 use crate::gpu::program::{entry_points, Dispatch, Program};
 use crate::ground::ParticleState;
 use crate::sim::forces::forcing::MAX_FORCING_LAYERS;
+use crate::sim::forces::relative_mass;
 use crate::sim::phase::{Phase, Recorder};
 use crate::sim::stage::{Setup, Stage, Substep};
 use crate::sim::thermo::layer_weights;
@@ -73,11 +74,6 @@ pub struct EntrainmentTable {
     pub given: [f64; 2],
 }
 
-/// Mass of particle i relative to m0 (2^-level).
-fn relative_mass(state: &ParticleState, i: usize) -> f64 {
-    (-(state.info[i][1].min(crate::ground::levels::MAX_LEVEL) as f64)).exp2()
-}
-
 /// The weights a cloudy particle at height y reads the clear air with: those of its two layer
 /// centres that hold clear air, normalised; `None` when neither does.
 fn cloud_weights(env: &[Option<[f64; 2]>], y: f64, layer_height: f64) -> Option<[(usize, f64); 2]> {
@@ -90,10 +86,7 @@ fn cloud_weights(env: &[Option<[f64; 2]>], y: f64, layer_height: f64) -> Option<
 impl EntrainmentTable {
     /// The table of a frame of `seconds` starting from `state`.
     pub fn of_state(cfg: &ShotConfig, state: &ParticleState, seconds: f64) -> Self {
-        let height = cfg.domain.size[1];
-        let n =
-            ((height / cfg.domain.kernel_radius()).floor() as usize).clamp(1, MAX_FORCING_LAYERS);
-        let layer_height = height / n as f64;
+        let (n, layer_height) = crate::sim::forces::frame_layers(cfg);
         let p = &cfg.physics;
         let rate = p.entrainment;
         let conserved = |i: usize| {

@@ -29,6 +29,7 @@ use crate::gpu::buffers::ParamSlots;
 use crate::gpu::live::LiveBuffer;
 use crate::gpu::program::{entry_points, Dispatch, Program};
 use crate::ground::ParticleState;
+use crate::sim::forces::relative_mass;
 use crate::sim::phase::{Phase, Recorder};
 use crate::sim::stage::{Setup, Stage, Substep};
 
@@ -80,18 +81,11 @@ fn profile_at(levels: &[ForcingLevel], y: f64, field: fn(&ForcingLevel) -> f64) 
     crate::config::piecewise_linear(levels, y, |l| l.height, field)
 }
 
-/// Mass of particle i relative to m0 (2^-level).
-fn relative_mass(state: &ParticleState, i: usize) -> f64 {
-    (-(state.info[i][1].min(crate::ground::levels::MAX_LEVEL) as f64)).exp2()
-}
-
 impl ForcingTable {
     /// The table of a frame starting from `state`.
     pub fn of_state(cfg: &ShotConfig, f: &ForcingConfig, state: &ParticleState) -> Self {
-        let height = cfg.domain.size[1];
         let h0 = cfg.domain.kernel_radius();
-        let n = ((height / h0).floor() as usize).clamp(1, MAX_FORCING_LAYERS);
-        let layer_height = height / n as f64;
+        let (n, layer_height) = crate::sim::forces::frame_layers(cfg);
         let p = &cfg.physics;
         // mass-weighted layer means of s_l and q_t, each particle shared by the two nearest
         // centres (the weights the shader reads the table back with)
