@@ -10,7 +10,8 @@
 //!
 //! A new force is a stage of its own (`sim::stage::Stage`): its WGSL (`shaders/<force>.wgsl`),
 //! its f64 mirror (`sim/reference/<force>.rs`), its module (`sim/forces/<force>.rs`: parameters,
-//! program, `Stage`, and a `pub fn stage(&Setup) -> Result<Option<Box<dyn Stage>>>` giving
+//! a [`pass::ParticlePass`] that runs the WGSL, `Stage` (a once-a-frame force records with
+//! [`pass::record_once_a_frame`]), and a `pub fn stage(&Setup) -> Result<Option<Box<dyn Stage>>>` giving
 //! `None` when the shot leaves it off), and one line in [`FORCES`],
 //! `Force::own("drag", &["physics.drag"], drag::stage),` (with the module's `mod` line).
 //! Forces of their own run first in the substep, before the PBF prediction (where PBF takes
@@ -19,6 +20,7 @@
 pub mod coriolis;
 pub mod entrainment;
 pub mod forcing;
+pub mod pass;
 
 use crate::error::Result;
 use crate::gpu::program::Entry;

@@ -18,9 +18,9 @@
 //!   an LES's prescribed u*, per particle).
 use crate::config::ShotConfig;
 use crate::error::Result;
-use crate::gpu::buffers::ParamSlots;
 use crate::gpu::live::LiveBuffer;
-use crate::gpu::program::{entry_points, Dispatch, Program};
+use crate::gpu::program::entry_points;
+use crate::sim::forces::pass::ParticlePass;
 use crate::sim::phase::{Phase, Recorder};
 use crate::sim::stage::{Setup, Stage, Substep};
 use crate::sim::wind::MAX_WIND_LEVELS;
@@ -82,9 +82,7 @@ impl CoriolisParams {
 
 /// The Coriolis and surface-stress stage: one pass at the start of each substep.
 pub struct CoriolisStage {
-    program: Program<CoriolisEntry>,
-    params: ParamSlots<CoriolisParams>,
-    bind: wgpu::BindGroup,
+    pass: ParticlePass<CoriolisEntry, CoriolisParams>,
     cfg: ShotConfig,
     /// The frame's `surface_layer_factor` (1 without a surface stress).
     factor: f64,
@@ -108,30 +106,16 @@ impl CoriolisStage {
         live: &LiveBuffer,
         params: &CoriolisParams,
     ) -> Result<()> {
-        self.params.write(rec.ctx(), 0, params);
-        self.program.dispatch(
-            &mut rec.pass(),
-            CoriolisEntry::Apply,
-            &[(&self.bind, 0)],
-            Dispatch::Live(live),
-        );
-        Ok(())
+        self.pass.record(rec, live, params)
     }
 }
 
 impl Stage for CoriolisStage {
     fn from_setup(setup: &Setup) -> Result<Self> {
-        let ctx = setup.ctx;
         let cfg = setup.shot.config().clone();
-        let program = Program::new(ctx)?;
         let first = CoriolisParams::new(&cfg, 0.0, 1.0);
-        let params = ParamSlots::single(ctx, "coriolis params", &first);
-        let own = [("C", params.slot(0))];
-        let bind = program.bind(ctx, &[&own, setup.buffers])?;
         Ok(Self {
-            program,
-            params,
-            bind,
+            pass: ParticlePass::new(setup, CoriolisEntry::Apply, "C", "coriolis params", &first)?,
             cfg,
             factor: 1.0,
         })
@@ -148,7 +132,7 @@ impl Stage for CoriolisStage {
     }
 
     fn device_bytes(&self) -> u64 {
-        self.params.size()
+        self.pass.device_bytes()
     }
 
     /// The stress needs the air below the surface layer at the frame's start.

@@ -23,11 +23,10 @@
 //! `entrainment_water` (kg), the total water the clouds gave to the clear air in the frame.
 use crate::config::ShotConfig;
 use crate::error::Result;
-use crate::gpu::buffers::ParamSlots;
-use crate::gpu::live::LiveBuffer;
-use crate::gpu::program::{entry_points, Dispatch, Program};
+use crate::gpu::program::entry_points;
 use crate::ground::ParticleState;
 use crate::sim::forces::forcing::MAX_FORCING_LAYERS;
+use crate::sim::forces::pass::{record_once_a_frame, ParticlePass};
 use crate::sim::forces::relative_mass;
 use crate::sim::phase::{Phase, Recorder};
 use crate::sim::stage::{Setup, Stage, Substep};
@@ -180,9 +179,7 @@ impl EntrainmentTable {
 
 /// The entrainment stage: one pass at the start of each frame.
 pub struct EntrainmentStage {
-    program: Program<EntrainmentEntry>,
-    params: ParamSlots<EntrainmentParams>,
-    bind: wgpu::BindGroup,
+    pass: ParticlePass<EntrainmentEntry, EntrainmentParams>,
     cfg: ShotConfig,
     /// The uniform of the frame being simulated, and the total water its clouds give up (kg).
     frame: EntrainmentParams,
@@ -198,23 +195,6 @@ pub fn stage(setup: &Setup) -> Result<Option<Box<dyn Stage>>> {
 }
 
 impl EntrainmentStage {
-    /// Records the pass with explicit parameters (the tests share them with the mirror).
-    pub(crate) fn apply_params(
-        &self,
-        rec: &mut Recorder,
-        live: &LiveBuffer,
-        params: &EntrainmentParams,
-    ) -> Result<()> {
-        self.params.write(rec.ctx(), 0, params);
-        self.program.dispatch(
-            &mut rec.pass(),
-            EntrainmentEntry::Apply,
-            &[(&self.bind, 0)],
-            Dispatch::Live(live),
-        );
-        Ok(())
-    }
-
     fn table(&self, state: &ParticleState) -> EntrainmentTable {
         EntrainmentTable::of_state(&self.cfg, state, self.cfg.output.frame_seconds)
     }
@@ -222,18 +202,12 @@ impl EntrainmentStage {
 
 impl Stage for EntrainmentStage {
     fn from_setup(setup: &Setup) -> Result<Self> {
-        let ctx = setup.ctx;
         let cfg = setup.shot.config().clone();
         let lapse = cfg.physics.adiabatic_lapse_rate;
         let frame = EntrainmentTable::of_state(&cfg, &ParticleState::default(), 0.0).params(lapse);
-        let program = Program::new(ctx)?;
-        let params = ParamSlots::single(ctx, "entrainment params", &frame);
-        let own = [("E", params.slot(0))];
-        let bind = program.bind(ctx, &[&own, setup.buffers])?;
+        let entry = EntrainmentEntry::Apply;
         Ok(Self {
-            program,
-            params,
-            bind,
+            pass: ParticlePass::new(setup, entry, "E", "entrainment params", &frame)?,
             cfg,
             frame,
             water: 0.0,
@@ -241,15 +215,11 @@ impl Stage for EntrainmentStage {
     }
 
     fn record(&self, phase: Phase, rec: &mut Recorder, sub: &Substep) -> Result<()> {
-        match phase {
-            Phase::Forces if sub.first => self.apply_params(rec, sub.live, &self.frame),
-            Phase::Forces => Ok(()),
-            other => Err(crate::sim::stage::not_recorded("entrainment", other)),
-        }
+        record_once_a_frame("entrainment", &self.pass, &self.frame, phase, rec, sub)
     }
 
     fn device_bytes(&self) -> u64 {
-        self.params.size()
+        self.pass.device_bytes()
     }
 
     fn reads_state(&self) -> bool {
@@ -273,10 +243,10 @@ impl EntrainmentStage {
     pub fn apply_with(
         &self,
         rec: &mut Recorder,
-        live: &LiveBuffer,
+        live: &crate::gpu::live::LiveBuffer,
         params: &EntrainmentParams,
     ) -> Result<()> {
-        self.apply_params(rec, live, params)
+        self.pass.record(rec, live, params)
     }
 }
 

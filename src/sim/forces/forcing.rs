@@ -25,10 +25,9 @@
 //! set against the rise of `total_water` (docs/PHYSICS.md "Forcing").
 use crate::config::{ForcingConfig, ForcingLevel, ShotConfig};
 use crate::error::Result;
-use crate::gpu::buffers::ParamSlots;
-use crate::gpu::live::LiveBuffer;
-use crate::gpu::program::{entry_points, Dispatch, Program};
+use crate::gpu::program::entry_points;
 use crate::ground::ParticleState;
+use crate::sim::forces::pass::{record_once_a_frame, ParticlePass};
 use crate::sim::forces::relative_mass;
 use crate::sim::phase::{Phase, Recorder};
 use crate::sim::stage::{Setup, Stage, Substep};
@@ -198,9 +197,7 @@ pub fn frame_input(params: &ForcingParams, state: &ParticleState, m0: f64) -> [f
 
 /// The forcing stage: one pass at the start of each frame.
 pub struct ForcingStage {
-    program: Program<ForcingEntry>,
-    params: ParamSlots<ForcingParams>,
-    bind: wgpu::BindGroup,
+    pass: ParticlePass<ForcingEntry, ForcingParams>,
     cfg: ShotConfig,
     forcing: ForcingConfig,
     /// The uniform of the frame being simulated, and what it puts in (mean K, kg).
@@ -220,40 +217,16 @@ impl ForcingStage {
     fn m0(&self) -> f64 {
         self.cfg.cell_mass()
     }
-
-    /// Records the pass with explicit parameters (the tests share them with the mirror).
-    pub(crate) fn apply_params(
-        &self,
-        rec: &mut Recorder,
-        live: &LiveBuffer,
-        params: &ForcingParams,
-    ) -> Result<()> {
-        self.params.write(rec.ctx(), 0, params);
-        self.program.dispatch(
-            &mut rec.pass(),
-            ForcingEntry::Apply,
-            &[(&self.bind, 0)],
-            Dispatch::Live(live),
-        );
-        Ok(())
-    }
 }
 
 impl Stage for ForcingStage {
     fn from_setup(setup: &Setup) -> Result<Self> {
-        let ctx = setup.ctx;
         let cfg = setup.shot.config().clone();
         let forcing = cfg.physics.forcing.clone().unwrap_or_default();
         let empty = ForcingTable::of_state(&cfg, &forcing, &ParticleState::default());
         let frame = empty.params(cfg.output.frame_seconds);
-        let program = Program::new(ctx)?;
-        let params = ParamSlots::single(ctx, "forcing params", &frame);
-        let own = [("F", params.slot(0))];
-        let bind = program.bind(ctx, &[&own, setup.buffers])?;
         Ok(Self {
-            program,
-            params,
-            bind,
+            pass: ParticlePass::new(setup, ForcingEntry::Apply, "F", "forcing params", &frame)?,
             cfg,
             forcing,
             frame,
@@ -262,15 +235,11 @@ impl Stage for ForcingStage {
     }
 
     fn record(&self, phase: Phase, rec: &mut Recorder, sub: &Substep) -> Result<()> {
-        match phase {
-            Phase::Forces if sub.first => self.apply_params(rec, sub.live, &self.frame),
-            Phase::Forces => Ok(()),
-            other => Err(crate::sim::stage::not_recorded("forcing", other)),
-        }
+        record_once_a_frame("forcing", &self.pass, &self.frame, phase, rec, sub)
     }
 
     fn device_bytes(&self) -> u64 {
-        self.params.size()
+        self.pass.device_bytes()
     }
 
     fn reads_state(&self) -> bool {
@@ -295,10 +264,10 @@ impl ForcingStage {
     pub fn apply_with(
         &self,
         rec: &mut Recorder,
-        live: &LiveBuffer,
+        live: &crate::gpu::live::LiveBuffer,
         params: &ForcingParams,
     ) -> Result<()> {
-        self.apply_params(rec, live, params)
+        self.pass.record(rec, live, params)
     }
 }
 
