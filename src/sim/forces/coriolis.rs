@@ -18,7 +18,6 @@
 //!   an LES's prescribed u*, per particle).
 use crate::config::ShotConfig;
 use crate::error::Result;
-use crate::gpu::live::LiveBuffer;
 use crate::gpu::program::entry_points;
 use crate::sim::forces::pass::ParticlePass;
 use crate::sim::phase::{Phase, Recorder};
@@ -98,18 +97,6 @@ pub fn stage(setup: &Setup) -> Result<Option<Box<dyn Stage>>> {
     })
 }
 
-impl CoriolisStage {
-    /// Records the pass with explicit parameters (the tests share them with the mirror).
-    pub(crate) fn apply_params(
-        &self,
-        rec: &mut Recorder,
-        live: &LiveBuffer,
-        params: &CoriolisParams,
-    ) -> Result<()> {
-        self.pass.record(rec, live, params)
-    }
-}
-
 impl Stage for CoriolisStage {
     fn from_setup(setup: &Setup) -> Result<Self> {
         let cfg = setup.shot.config().clone();
@@ -125,7 +112,7 @@ impl Stage for CoriolisStage {
         match phase {
             Phase::Forces => {
                 let params = CoriolisParams::new(&self.cfg, sub.dt, self.factor);
-                self.apply_params(rec, sub.live, &params)
+                self.pass.record(rec, sub.live, &params)
             }
             other => Err(crate::sim::stage::not_recorded("coriolis", other)),
         }
@@ -158,10 +145,10 @@ impl CoriolisStage {
     pub fn apply_with(
         &self,
         rec: &mut Recorder,
-        live: &LiveBuffer,
+        live: &crate::gpu::live::LiveBuffer,
         params: &CoriolisParams,
     ) -> Result<()> {
-        self.apply_params(rec, live, params)
+        self.pass.record(rec, live, params)
     }
 }
 
