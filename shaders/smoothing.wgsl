@@ -25,7 +25,7 @@
 //   v*_i = v_i + vapor_rate sum_j e_ij min(l_i, l_j) a_ij (v_i - v_j)
 // (vapor_rate = 2 D dt / iterations): an explicit step of dv/dt = D lap v over the fluid pairs of
 // which at least one holds cloud water (e_ij = 1; clear air, and the stable inversion over it,
-// does not diffuse); no vapor crosses a wall. m_i e_ij a_ij = e_ij m_i V_j g_ij / (r^2 + eps) is
+// does not diffuse), or over every fluid pair with S.mix_everywhere; no vapor crosses a wall. m_i e_ij a_ij = e_ij m_i V_j g_ij / (r^2 + eps) is
 // symmetric in i and j, so the pair terms cancel in sum_i m_i v_i: mixing moves vapor, it
 // creates none. The limiter l_i = min(1, 0.5 / (vapor_rate sum_j e_ij |a_ij|)) of the entry
 // `vapor_limit` (run first) keeps every step convex however close particles come (a_ij grows
@@ -43,6 +43,11 @@ struct SmoothParams {
     vapor_rate: f32,
     // 1: the conservative (pair-flux) form of eq. 17b
     conservative: u32,
+    // 1: vapor mixes between every pair of fluid neighbours (e_ij = 1); 0: at cloud edges
+    mix_everywhere: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> grid: GridParams;
@@ -124,14 +129,15 @@ struct Dm {
     p: vec3<f32>,
     hi: f32,
     fi: f32,
-    cloudy: bool,
+    // i mixes with every neighbour: it holds cloud water, or S.mix_everywhere
+    mixes_all: bool,
     pc: Pc,
 }
 fn demand_pair(sum: ptr<function, f32>, me: Dm, j: u32) {
     let pc = me.pc;
     let xij = min_image_by_reciprocal(me.p - pos[j].xyz, pc.image);
     let r2 = dot(xij, xij);
-    if (j == me.i || r2 >= pc.h02 || !(me.cloudy || thermo_in[j].z > 0.0)) { return; }
+    if (j == me.i || r2 >= pc.h02 || !(me.mixes_all || thermo_in[j].z > 0.0)) { return; }
     let lvj = level_row(pc, info[j].y);
     let hm = max(me.hi, lvj.x);
     if (r2 >= hm * hm) { return; }
@@ -142,7 +148,7 @@ fn vapor_demand(i: u32) -> f32 {
     let xi = pos[i].xyz;
     let pc = pair_consts();
     let lvi = level_row(pc, info[i].y);
-    let me = Dm(i, xi, lvi.x, lvi.y, thermo_in[i].z > 0.0, pc);
+    let me = Dm(i, xi, lvi.x, lvi.y, S.mix_everywhere != 0u || thermo_in[i].z > 0.0, pc);
     var sum = 0.0;
     demand_scan(&sum, me);
     return sum;
@@ -165,7 +171,8 @@ struct Sm {
     fi: f32,
     ti: f32,
     vi: f32,
-    cloudy: bool,
+    // i mixes with every neighbour: it holds cloud water, or S.mix_everywhere
+    mixes_all: bool,
     mixing: bool,
     limit: f32,
     // k_i of the conservative form (0 otherwise)
@@ -198,7 +205,7 @@ fn smooth_pair(a: ptr<function, SmAcc>, me: Sm, j: u32) {
         let ds = me.ti - tj.x + S.lapse * xij.y;
         (*a).flux += 0.5 * (me.ki + smooth_factor_of[j]) * aij * ds;
     }
-    if (me.mixing && (me.cloudy || tj.z > 0.0)) {
+    if (me.mixing && (me.mixes_all || tj.z > 0.0)) {
         (*a).cv += min(me.limit, vapor_limit_of[j]) * aij * (me.vi - tj.y);
     }
 }
@@ -226,7 +233,7 @@ fn smooth_sums(i: u32, ki: f32) -> SmAcc {
     let mixing = S.vapor_rate > 0.0;
     var limit_i = 1.0;
     if (mixing) { limit_i = vapor_limit_of[i]; }
-    let me = Sm(i, pos[i].xyz, lvi.x, lvi.y, th.x, th.y, th.z > 0.0, mixing, limit_i, ki, pc);
+    let me = Sm(i, pos[i].xyz, lvi.x, lvi.y, th.x, th.y, S.mix_everywhere != 0u || th.z > 0.0, mixing, limit_i, ki, pc);
     var acc = SmAcc(0.0, 0.0, 0.0, 0.0, 0.0);
     smooth_scan(&acc, me);
     return acc;

@@ -612,6 +612,10 @@ fn smooth_params(kappa: f32) -> SmoothParams {
         fixed_walls: 1,
         vapor_rate: 0.0,
         conservative: 0,
+        mix_everywhere: 0,
+        _pad0: 0,
+        _pad1: 0,
+        _pad2: 0,
     }
 }
 
@@ -787,11 +791,23 @@ fn smooth_temperature_matches_mirror() {
 /// relative in f32 (tolerance 1e-6, the total-water budget).
 #[test]
 fn gpu_vapor_mixing_matches_mirror_and_conserves() {
+    vapor_mixing_against_mirror(0);
+}
+
+/// The same with `vapor_mixing: everywhere`: clear pairs mix too (the test fails if the
+/// shader skips them: the mirror then moves the clear particles and the GPU does not).
+#[test]
+fn gpu_vapor_mixing_everywhere_matches_mirror_and_conserves() {
+    vapor_mixing_against_mirror(1);
+}
+
+fn vapor_mixing_against_mirror(mix_everywhere: u32) {
     let ctx = context();
     let s = scene(21);
     let mut p = smooth_params(0.1);
     let h_min = p.h0 as f64 * (-2.0f64 / 3.0).exp2();
     p.vapor_rate = (10.0 * 2.0 * h_min * h_min / 40.0) as f32;
+    p.mix_everywhere = mix_everywhere;
     let mut rng = ChaCha8Rng::seed_from_u64(22);
     let thermo: Vec<[f32; 4]> = s
         .temp
@@ -829,9 +845,17 @@ fn gpu_vapor_mixing_matches_mirror_and_conserves() {
     }
     let m0 = mass(&mut thermo.iter().map(|x| x[1] as f64));
     let m1 = mass(&mut gpu.iter().map(|x| x[1] as f64));
-    println!("vapor: worst GPU-mirror {worst:.2e}, largest change {moved:.2e}, mass {m0} -> {m1} ({:.2e})", (m1 - m0) / m0);
+    println!("vapor (everywhere {mix_everywhere}): worst GPU-mirror {worst:.2e}, largest change {moved:.2e}, mass {m0} -> {m1} ({:.2e})", (m1 - m0) / m0);
     assert!(moved > 1e-3, "the test must mix something: {moved}");
     assert!(((m1 - m0) / m0).abs() < 1e-6);
+    // with everywhere, particles with no cloudy neighbour move too
+    let clear_moved = (0..s.pos.len())
+        .filter(|&i| cloud[i] <= 0.0)
+        .map(|i| (v[i] - thermo[i][1] as f64).abs())
+        .fold(0.0f64, f64::max);
+    if mix_everywhere != 0 {
+        assert!(clear_moved > 1e-3, "clear air must mix: {clear_moved}");
+    }
 }
 
 /// On the GPU too: sum (lap T)^2 drops every iteration, and a run is bit-reproducible.

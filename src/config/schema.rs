@@ -765,6 +765,25 @@ pub enum WallHeat {
     Fixed,
 }
 
+/// `physics.smoothing.vapor_mixing`: the pairs of neighbours between which vapor diffuses.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VaporMixing {
+    /// Only pairs of which one particle holds cloud water: clear air (and the inversion over
+    /// it) keeps its vapor, and mixing is the entrainment at a cloud's edge.
+    #[default]
+    CloudEdges,
+    /// Every pair of fluid neighbours, as an LES's subgrid diffusion mixes its scalars
+    /// everywhere: the moist air the surface flux makes mixes with the air around it as it
+    /// rises, where with `cloud_edges` it keeps its vapor up to its condensation level.
+    Everywhere,
+}
+impl VaporMixing {
+    pub fn is_cloud_edges(&self) -> bool {
+        *self == VaporMixing::CloudEdges
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SmoothingConfig {
@@ -781,6 +800,10 @@ pub struct SmoothingConfig {
     /// Diffusivity D (m^2/s) of the vapor mixing between neighbouring particles that the same
     /// pass applies (entrainment at cloud edges); 0 = none, as in the paper.
     pub vapor_diffusivity: f64,
+    /// Which pairs the vapor mixing acts on. Left out of the serialisation at its default, so
+    /// earlier hashes are unchanged.
+    #[serde(skip_serializing_if = "VaporMixing::is_cloud_edges")]
+    pub vapor_mixing: VaporMixing,
     /// Eq. 17b as fluxes between pairs, which keep the heat (the paper's per-particle step
     /// does not). Left out of the serialisation when false, so earlier hashes are unchanged.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
@@ -795,6 +818,7 @@ impl Default for SmoothingConfig {
             epsilon: 1.0e-2,
             iterations: 1,
             vapor_diffusivity: 0.0,
+            vapor_mixing: VaporMixing::CloudEdges,
             conservative: false,
         }
     }

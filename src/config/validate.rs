@@ -909,6 +909,12 @@ fn check_physics(k: &mut Checks, p: &PhysicsConfig, c: &ShotConfig) {
     }
     let sm = &p.smoothing;
     k.uint_within("physics.smoothing.iterations", sm.iterations, 1, 100);
+    if sm.vapor_mixing == crate::config::VaporMixing::Everywhere && sm.vapor_diffusivity == 0.0 {
+        k.fail(
+            &["physics.smoothing.vapor_mixing"],
+            "says which pairs the vapor mixing acts on, and physics.smoothing.vapor_diffusivity is 0: set it too".to_string(),
+        );
+    }
 
     // The environment must stay above absolute zero and above -C (eq. 10 divides by T + C).
     let height = c.domain.size[1];
@@ -1157,6 +1163,10 @@ mod tests {
             (
                 |c| c.physics.environment.humidity_above = Some(0.3),
                 "physics.environment.humidity_above",
+            ),
+            (
+                |c| c.physics.smoothing.vapor_mixing = crate::config::VaporMixing::Everywhere,
+                "physics.smoothing.vapor_mixing",
             ),
             (|c| c.physics.bowen_ratio = Some(0.0), "physics.bowen_ratio"),
             (

@@ -6,7 +6,8 @@
 //! smoothed ones into a scratch buffer owned by the stage, which is then copied back into
 //! `thermo`; `physics.smoothing.iterations` such iterations run per substep, none when
 //! `physics.smoothing.enabled` is false and `physics.smoothing.vapor_diffusivity` is 0 (the same
-//! pass mixes vapor between neighbours, docs/PHYSICS.md "Vapor mixing"). Neighbours come from
+//! pass mixes vapor between neighbours, at cloud edges or, with `physics.smoothing.vapor_mixing:
+//! everywhere`, between every pair; docs/PHYSICS.md "The substep, in order" and "BOMEX"). Neighbours come from
 //! the cell table (27 cells, minimum-image displacement); with `physics.smoothing.walls: fixed` the boundary particles take
 //! part with their fixed temperature, by default (insulated) they are left out.
 //!
@@ -56,6 +57,12 @@ pub struct SmoothParams {
     pub vapor_rate: f32,
     /// 1: the conservative (pair-flux) form of eq. 17b (`physics.smoothing.conservative`).
     pub conservative: u32,
+    /// 1: vapor mixes between every pair of fluid neighbours; 0: only where one of the pair
+    /// holds cloud water (`physics.smoothing.vapor_mixing`).
+    pub mix_everywhere: u32,
+    pub _pad0: u32,
+    pub _pad1: u32,
+    pub _pad2: u32,
 }
 
 impl SmoothParams {
@@ -85,6 +92,10 @@ impl SmoothParams {
             fixed_walls: (s.walls == crate::config::WallHeat::Fixed) as u32,
             vapor_rate: (2.0 * s.vapor_diffusivity * dt / iterations) as f32,
             conservative: s.conservative as u32,
+            mix_everywhere: (s.vapor_mixing == crate::config::VaporMixing::Everywhere) as u32,
+            _pad0: 0,
+            _pad1: 0,
+            _pad2: 0,
         }
     }
 }
@@ -220,6 +231,6 @@ pub fn rate_share(c: f64, share: f64) -> f64 {
 mod tests {
     #[test]
     fn params_layout_matches_wgsl() {
-        assert_eq!(std::mem::size_of::<super::SmoothParams>(), 32);
+        assert_eq!(std::mem::size_of::<super::SmoothParams>(), 48);
     }
 }

@@ -151,13 +151,14 @@ pub fn smooth_temperature(input: &SmoothInput) -> Vec<f64> {
 }
 
 /// `(j, a_ij)` of every vapor-mixing pair of particle i: fluid neighbours j != i for which i or
-/// j holds cloud water (`cloud` > 0).
+/// j holds cloud water (`cloud` > 0), or every one with `mix_everywhere`.
 fn mixing_pairs(input: &SmoothInput, cloud: &[f64], i: usize, mut f: impl FnMut(usize, f64)) {
     let p = input.params;
     let xi = input.pos[i];
     let hi = radius_of_level(p, input.level[i]);
+    let everywhere = p.mix_everywhere != 0;
     for_each_neighbor(input.grid, input.cell_start, input.pos, xi, |j, xij| {
-        if j == i || (cloud[i] <= 0.0 && cloud[j] <= 0.0) {
+        if j == i || !(everywhere || cloud[i] > 0.0 || cloud[j] > 0.0) {
             return;
         }
         let lj = input.level[j];
@@ -287,6 +288,10 @@ mod tests {
             fixed_walls: 1,
             vapor_rate: 0.0,
             conservative: 0,
+            mix_everywhere: 0,
+            _pad0: 0,
+            _pad1: 0,
+            _pad2: 0,
         }
     }
 
@@ -474,5 +479,55 @@ mod tests {
         // rate 0 leaves the field exactly as it was
         p.vapor_rate = 0.0;
         assert_eq!(mix_vapor(&input(&s, &p, &t), &v0, &cloud), v0);
+    }
+
+    /// `vapor_mixing: everywhere`: clear air mixes too, and still creates no vapor and keeps
+    /// every value in the initial range at 100 times the explicit rate; a step mixes every pair
+    /// the cloud-edge mode mixes and more, so it flattens the field further.
+    #[test]
+    fn vapor_mixing_everywhere_mixes_clear_air_and_conserves() {
+        let s = scene(11, true, 295.0, 295.0);
+        let mut p = params(0.0);
+        let h_min = 2.0 * (-2.0f64 / 3.0).exp2();
+        p.vapor_rate = (100.0 * 2.0 * h_min * h_min / 40.0) as f32;
+        p.mix_everywhere = 1;
+        let mut rng = ChaCha8Rng::seed_from_u64(13);
+        let v0: Vec<f64> = (0..s.pos.len())
+            .map(|_| rng.random_range(0.0..0.02))
+            .collect();
+        let mass = |v: &[f64]| -> f64 {
+            v.iter()
+                .zip(&s.level)
+                .map(|(v, &l)| v * (-(l as f64)).exp2())
+                .sum()
+        };
+        let t = vec![295.0; s.pos.len()];
+        let clear = vec![0.0; s.pos.len()];
+        let once = mix_vapor(&input(&s, &p, &t), &v0, &clear);
+        assert_ne!(once, v0, "clear air must mix");
+        let mut v = v0.clone();
+        for _ in 0..50 {
+            v = mix_vapor(&input(&s, &p, &t), &v, &clear);
+            let (lo, hi) = v
+                .iter()
+                .fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+            assert!(lo >= 0.0 && hi <= 0.02, "range {lo}..{hi}");
+        }
+        let (m0, m1) = (mass(&v0), mass(&v));
+        assert!(((m1 - m0) / m0).abs() < 1e-12, "{m0} -> {m1}");
+        assert!(spread(&v) < 0.3 * spread(&v0));
+        // every pair mixes, so one step flattens more than at cloud edges alone
+        let cloud: Vec<f64> = (0..s.pos.len())
+            .map(|i| if i % 2 == 0 { 1e-3 } else { 0.0 })
+            .collect();
+        let mut edges = p;
+        edges.mix_everywhere = 0;
+        let at_edges = mix_vapor(&input(&s, &edges, &t), &v0, &cloud);
+        assert!(
+            spread(&once) < spread(&at_edges),
+            "{} vs {}",
+            spread(&once),
+            spread(&at_edges)
+        );
     }
 }
