@@ -433,21 +433,31 @@ mod tests {
         assert!(out.iter().all(|&v| (v - 291.0).abs() < 1e-9));
     }
 
-    /// Vapor mixing moves vapor and creates none: sum m_i v_i (m_i = 2^-l_i) is kept to
-    /// rounding over 50 iterations with mixed levels and every other particle cloudy, the field
-    /// flattens, and at 100 times the rate a lattice could take explicitly (2 h_min^2 / 40 x
-    /// 100) the limiter keeps every value in the initial range. Clear air does not mix, and rate
-    /// 0 changes nothing.
-    #[test]
-    fn vapor_mixing_conserves_and_stays_in_range() {
-        let s = scene(11, true, 295.0, 295.0);
+    /// Vapor values in [0, 0.02), one per particle.
+    fn random_vapor(n: usize, seed: u64) -> Vec<f64> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        (0..n).map(|_| rng.random_range(0.0..0.02)).collect()
+    }
+
+    /// Cloud water on every other particle.
+    fn every_other_cloudy(n: usize) -> Vec<f64> {
+        (0..n)
+            .map(|i| if i % 2 == 0 { 1e-3 } else { 0.0 })
+            .collect()
+    }
+
+    /// Mixing at 100 times the rate a lattice could take explicitly (2 h_min^2 / 40 x 100).
+    fn fast_mixing_params(mix_everywhere: u32) -> SmoothParams {
         let mut p = params(0.0);
         let h_min = 2.0 * (-2.0f64 / 3.0).exp2();
         p.vapor_rate = (100.0 * 2.0 * h_min * h_min / 40.0) as f32;
-        let mut rng = ChaCha8Rng::seed_from_u64(12);
-        let v0: Vec<f64> = (0..s.pos.len())
-            .map(|_| rng.random_range(0.0..0.02))
-            .collect();
+        p.mix_everywhere = mix_everywhere;
+        p
+    }
+
+    /// 50 mixing iterations from `v0`: the limiter keeps every value in the initial range,
+    /// sum m_i v_i (m_i = 2^-l_i) is kept to rounding, and the field flattens. Returns it.
+    fn mix_50_conserving(s: &Scene, p: &SmoothParams, v0: &[f64], cloud: &[f64]) -> Vec<f64> {
         let mass = |v: &[f64]| -> f64 {
             v.iter()
                 .zip(&s.level)
@@ -455,27 +465,38 @@ mod tests {
                 .sum()
         };
         let t = vec![295.0; s.pos.len()];
-        let cloud: Vec<f64> = (0..s.pos.len())
-            .map(|i| if i % 2 == 0 { 1e-3 } else { 0.0 })
-            .collect();
-        let clear = vec![0.0; s.pos.len()];
-        assert_eq!(mix_vapor(&input(&s, &p, &t), &v0, &clear), v0);
-        let mut v = v0.clone();
+        let mut v = v0.to_vec();
         for _ in 0..50 {
-            v = mix_vapor(&input(&s, &p, &t), &v, &cloud);
+            v = mix_vapor(&input(s, p, &t), &v, cloud);
             let (lo, hi) = v
                 .iter()
                 .fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
             assert!(lo >= 0.0 && hi <= 0.02, "range {lo}..{hi}");
         }
-        let (m0, m1) = (mass(&v0), mass(&v));
+        let (m0, m1) = (mass(v0), mass(&v));
         println!(
             "vapor mass {m0:.12} -> {m1:.12}; spread {} -> {}",
-            spread(&v0),
+            spread(v0),
             spread(&v)
         );
         assert!(((m1 - m0) / m0).abs() < 1e-12, "{m0} -> {m1}");
-        assert!(spread(&v) < 0.3 * spread(&v0));
+        assert!(spread(&v) < 0.3 * spread(v0));
+        v
+    }
+
+    /// Vapor mixing moves vapor and creates none, with mixed levels and every other particle
+    /// cloudy, and the limiter holds it at 100 times the explicit rate (`mix_50_conserving`).
+    /// Clear air does not mix, and rate 0 changes nothing.
+    #[test]
+    fn vapor_mixing_conserves_and_stays_in_range() {
+        let s = scene(11, true, 295.0, 295.0);
+        let mut p = fast_mixing_params(0);
+        let v0 = random_vapor(s.pos.len(), 12);
+        let t = vec![295.0; s.pos.len()];
+        let cloud = every_other_cloudy(s.pos.len());
+        let clear = vec![0.0; s.pos.len()];
+        assert_eq!(mix_vapor(&input(&s, &p, &t), &v0, &clear), v0);
+        mix_50_conserving(&s, &p, &v0, &cloud);
         // rate 0 leaves the field exactly as it was
         p.vapor_rate = 0.0;
         assert_eq!(mix_vapor(&input(&s, &p, &t), &v0, &cloud), v0);
@@ -487,42 +508,20 @@ mod tests {
     #[test]
     fn vapor_mixing_everywhere_mixes_clear_air_and_conserves() {
         let s = scene(11, true, 295.0, 295.0);
-        let mut p = params(0.0);
-        let h_min = 2.0 * (-2.0f64 / 3.0).exp2();
-        p.vapor_rate = (100.0 * 2.0 * h_min * h_min / 40.0) as f32;
-        p.mix_everywhere = 1;
-        let mut rng = ChaCha8Rng::seed_from_u64(13);
-        let v0: Vec<f64> = (0..s.pos.len())
-            .map(|_| rng.random_range(0.0..0.02))
-            .collect();
-        let mass = |v: &[f64]| -> f64 {
-            v.iter()
-                .zip(&s.level)
-                .map(|(v, &l)| v * (-(l as f64)).exp2())
-                .sum()
-        };
+        let p = fast_mixing_params(1);
+        let v0 = random_vapor(s.pos.len(), 13);
         let t = vec![295.0; s.pos.len()];
         let clear = vec![0.0; s.pos.len()];
         let once = mix_vapor(&input(&s, &p, &t), &v0, &clear);
         assert_ne!(once, v0, "clear air must mix");
-        let mut v = v0.clone();
-        for _ in 0..50 {
-            v = mix_vapor(&input(&s, &p, &t), &v, &clear);
-            let (lo, hi) = v
-                .iter()
-                .fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
-            assert!(lo >= 0.0 && hi <= 0.02, "range {lo}..{hi}");
-        }
-        let (m0, m1) = (mass(&v0), mass(&v));
-        assert!(((m1 - m0) / m0).abs() < 1e-12, "{m0} -> {m1}");
-        assert!(spread(&v) < 0.3 * spread(&v0));
+        mix_50_conserving(&s, &p, &v0, &clear);
         // every pair mixes, so one step flattens more than at cloud edges alone
-        let cloud: Vec<f64> = (0..s.pos.len())
-            .map(|i| if i % 2 == 0 { 1e-3 } else { 0.0 })
-            .collect();
-        let mut edges = p;
-        edges.mix_everywhere = 0;
-        let at_edges = mix_vapor(&input(&s, &edges, &t), &v0, &cloud);
+        let edges = fast_mixing_params(0);
+        let at_edges = mix_vapor(
+            &input(&s, &edges, &t),
+            &v0,
+            &every_other_cloudy(s.pos.len()),
+        );
         assert!(
             spread(&once) < spread(&at_edges),
             "{} vs {}",
