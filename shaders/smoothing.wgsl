@@ -25,7 +25,8 @@
 //   v*_i = v_i + vapor_rate sum_j e_ij min(l_i, l_j) a_ij (v_i - v_j)
 // (vapor_rate = 2 D dt / iterations): an explicit step of dv/dt = D lap v over the fluid pairs of
 // which at least one holds cloud water (e_ij = 1; clear air, and the stable inversion over it,
-// does not diffuse), or over every fluid pair with S.mix_everywhere; no vapor crosses a wall. m_i e_ij a_ij = e_ij m_i V_j g_ij / (r^2 + eps) is
+// does not diffuse), or over every fluid pair with S.mix_everywhere; no vapor crosses a wall.
+// m_i e_ij a_ij = e_ij m_i V_j g_ij / (r^2 + eps) is
 // symmetric in i and j, so the pair terms cancel in sum_i m_i v_i: mixing moves vapor, it
 // creates none. The limiter l_i = min(1, 0.5 / (vapor_rate sum_j e_ij |a_ij|)) of the entry
 // `vapor_limit` (run first) keeps every step convex however close particles come (a_ij grows
