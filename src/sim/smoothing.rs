@@ -60,9 +60,7 @@ pub struct SmoothParams {
     /// 1: vapor mixes between every pair of fluid neighbours; 0: only where one of the pair
     /// holds cloud water (`physics.smoothing.vapor_mixing`).
     pub mix_everywhere: u32,
-    pub _pad0: u32,
-    pub _pad1: u32,
-    pub _pad2: u32,
+    pub _pad: [u32; 3],
 }
 
 impl SmoothParams {
@@ -93,9 +91,7 @@ impl SmoothParams {
             vapor_rate: (2.0 * s.vapor_diffusivity * dt / iterations) as f32,
             conservative: s.conservative as u32,
             mix_everywhere: (s.vapor_mixing == crate::config::VaporMixing::Everywhere) as u32,
-            _pad0: 0,
-            _pad1: 0,
-            _pad2: 0,
+            _pad: [0; 3],
         }
     }
 }

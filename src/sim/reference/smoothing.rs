@@ -289,9 +289,7 @@ mod tests {
             vapor_rate: 0.0,
             conservative: 0,
             mix_everywhere: 0,
-            _pad0: 0,
-            _pad1: 0,
-            _pad2: 0,
+            _pad: [0; 3],
         }
     }
 
