@@ -3,7 +3,7 @@
 
     /usr/bin/python3 tools/mean_profiles.py SOURCE [SOURCE...] [--window T0,T1] [--dz M]
         [--labels A,B] [--json OUT] [--meta META.json] [--plot PNG] [--nimbus-frame-u U]
-        [--dynamics]
+        [--dynamics] [--convective FLUX]
 
 A SOURCE is one of:
 - a nimbus run directory (thermodynamics: atmospheric): its checkpoints (checkpoints/*.nck)
@@ -23,6 +23,15 @@ file's w_2, qt_flux and thl_flux (resolved plus subgrid), moved from its half le
 levels by linear interpolation. A JSON file written before these keys existed has none.
 --plot draws theta_l, q_t, q_l and the wind, and w'^2 on a log axis for the sources that have
 it.
+
+With --convective FLUX (the surface buoyancy flux w'theta_v' in K m/s) it also scales each
+nimbus source as a convective boundary layer (Deardorff 1970): z_i is the lowest height where
+d theta_v/dz between two layers reaches half the mean gradient of the column's upper third (the
+free atmosphere above the capping inversion), w* = (g / theta_v FLUX z_i)^(1/3) with theta_v
+the mean below z_i, and w'^2 / w*^2 of each layer is printed against the fit of Lenschow et
+al. (1980, J. Atmos. Sci. 37, 1313) to aircraft measurements of convective boundary layers,
+1.8 (z/z_i)^(2/3) (1 - 0.8 z/z_i)^2 (at most 0.46, at z/z_i = 0.33). Needs --dynamics's w'^2;
+--json writes the scaling as the record's "convective".
 
 Window default 10800-21600 s (hours 3-6 of BOMEX). Prints the profiles side by side at the
 heights of the first source, with the BOMEX initial state. --json writes the first source's
@@ -120,7 +129,7 @@ def read_nimbus(run, window, dz):
     height = cfg["domain"]["size"][1]
     top = t_s / gamma
     n = int(math.ceil(height / dz))
-    acc = np.zeros((n, 5))
+    acc = np.zeros((n, 6))
     count = np.zeros(n)
     # w'^2, w'q_t', w'theta_l' of each snapshot's layers, summed over the snapshots
     dyn = np.zeros((n, 3))
@@ -132,10 +141,12 @@ def read_nimbus(run, window, dz):
         times.append(t)
         y = pos[:, 1]
         p = p_s * (1.0 - y / top) ** CP_OVER_RD
-        theta_l = (th[:, 0] - q * th[:, 2]) * (P00 / p) ** (1.0 / CP_OVER_RD)
+        exner = (P00 / p) ** (1.0 / CP_OVER_RD)
+        theta_l = (th[:, 0] - q * th[:, 2]) * exner
+        theta_v = th[:, 0] * exner * (1.0 + 0.608 * th[:, 1] - th[:, 2])
         k = np.clip((y // dz).astype(int), 0, n - 1)
         q_t = th[:, 1] + th[:, 2]
-        for j, f in enumerate([theta_l, q_t, th[:, 2], vel[:, 0], -vel[:, 2]]):
+        for j, f in enumerate([theta_l, q_t, th[:, 2], vel[:, 0], -vel[:, 2], theta_v]):
             acc[:, j] += np.bincount(k, f, n)
         here = np.bincount(k, None, n)
         count += here
@@ -151,7 +162,7 @@ def read_nimbus(run, window, dz):
     return {"kind": "nimbus", "path": os.path.abspath(run), "snapshots": len(times),
             "times": times, "z": z.tolist(), "thl": m[:, 0].tolist(), "qt": m[:, 1].tolist(),
             "ql": m[:, 2].tolist(), "u": m[:, 3].tolist(), "v": m[:, 4].tolist(),
-            "w2": d[:, 0].tolist(), "wqt": d[:, 1].tolist(), "wthl": d[:, 2].tolist(),
+            "thv": m[:, 5].tolist(), "count": count.tolist(), "w2": d[:, 0].tolist(), "wqt": d[:, 1].tolist(), "wthl": d[:, 2].tolist(),
             "note": f"checkpoints; layers of {dz:g} m; u, v in the simulation's frame (x, -z)"}
 
 
@@ -216,6 +227,44 @@ def print_dynamics(recs, labels, z):
         print(row)
 
 
+def lenschow(x):
+    """w'^2 / w*^2 at z / z_i: Lenschow, Wyngaard & Pennell (1980)'s fit to aircraft data."""
+    return 1.8 * x ** (2.0 / 3.0) * (1.0 - 0.8 * x) ** 2 if 0.0 <= x <= 1.25 else 0.0
+
+
+def convective_scaling(rec, flux, label):
+    """z_i, w* and w'^2 / w*^2 of a nimbus source (--convective's definitions, above)."""
+    if "thv" not in rec or "count" not in rec or "w2" not in rec:
+        fail(f"{label}: --convective needs a nimbus run (its theta_v and w'^2)")
+    held = np.asarray(rec["count"]) > 0  # a layer above the domain's top holds no particle
+    z, thv, w2 = (np.asarray(rec[k], float)[held] for k in ("z", "thv", "w2"))
+    grad = np.diff(thv) / np.diff(z)
+    mid = 0.5 * (z[1:] + z[:-1])
+    upper = z >= z[-1] - (z[-1] - z[0]) / 3.0
+    free = (thv[upper][-1] - thv[upper][0]) / (z[upper][-1] - z[upper][0])
+    if not (free > 0 and (grad >= 0.5 * free).any()):
+        fail(f"{label}: --convective needs a stable free atmosphere above the boundary layer")
+    j = int(np.argmax(grad >= 0.5 * free))
+    zi = mid[0] if j == 0 else np.interp(0.5 * free, [grad[j - 1], grad[j]], [mid[j - 1], mid[j]])
+    th0 = thv[z < zi].mean() if (z < zi).any() else thv[0]
+    ws = (9.81 / th0 * flux * zi) ** (1.0 / 3.0)
+    rows = [{"z": float(a), "z_zi": float(a / zi), "w2": float(b), "w2_ws2": float(b / ws ** 2),
+             "lenschow": lenschow(a / zi)} for a, b in zip(z, w2)]
+    return {"flux": flux, "zi": float(zi), "free_gradient": float(free), "theta_v": float(th0),
+            "wstar": float(ws), "max_w2_ws2": float(w2.max() / ws ** 2),
+            "at_z_zi": float(z[np.argmax(w2)] / zi), "layers": rows}
+
+
+def print_convective(c, label):
+    print(f"\n{label}: z_i {c['zi']:.0f} m (d theta_v/dz reaches half of the upper third's "
+          f"{1e3 * c['free_gradient']:.2f} K/km), w* {c['wstar']:.3f} m/s from {c['flux']:g} K m/s")
+    print("  z (m)   z/z_i   w'^2   w'^2/w*^2   Lenschow 1980")
+    for r in c["layers"]:
+        if r["z_zi"] <= 1.5:
+            print(f"{r['z']:7.0f}  {r['z_zi']:6.2f}  {r['w2']:6.3f}  {r['w2_ws2']:9.3f}  {r['lenschow']:9.3f}")
+    print(f"  most w'^2/w*^2: {c['max_w2_ws2']:.3f} at z/z_i {c['at_z_zi']:.2f} (Lenschow 1980: 0.46 at 0.33)")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("sources", nargs="+")
@@ -227,6 +276,8 @@ def main(argv=None):
     ap.add_argument("--plot")
     ap.add_argument("--dynamics", action="store_true",
                     help="also print w'^2, w'q_t' and w'theta_l' of each source")
+    ap.add_argument("--convective", type=float, metavar="FLUX",
+                    help="scale each nimbus source as a convective boundary layer with this surface buoyancy flux (K m/s)")
     ap.add_argument("--nimbus-frame-u", type=float, default=0.0,
                     help="speed (m/s, along x) of the frame a nimbus run's wind is given in; added to its u in the plot (BOMEX: -8)")
     a = ap.parse_args(argv)
@@ -237,6 +288,8 @@ def main(argv=None):
         fail("--window wants T0,T1 with T0 <= T1")
     if not a.dz > 0:
         fail("--dz must be > 0")
+    if a.convective is not None and not (a.convective > 0 and a.dynamics):
+        fail("--convective wants a surface buoyancy flux > 0 (K m/s) and --dynamics")
     frame_u = a.nimbus_frame_u
     recs = [load(s, window, a.dz) for s in a.sources]
     labels = a.labels.split(",") if a.labels else [os.path.basename(s.rstrip("/")) for s in a.sources]
@@ -254,8 +307,13 @@ def main(argv=None):
         print(row + f"{th0[i]:16.2f}{1e3 * qt0[i]:10.2f}")
     if a.dynamics:
         print_dynamics(recs, labels, z)
+    scaling = [convective_scaling(r, a.convective, l) for r, l in zip(recs, labels)] if a.convective else []
+    for c, l in zip(scaling, labels):
+        print_convective(c, l)
     if a.json:
         rec = {"schema": "nimbus.mean_profiles/1", "window": window, "profiles": recs[0]}
+        if scaling:
+            rec["convective"] = scaling[0]
         if a.meta:
             rec["meta"] = json.load(open(a.meta))
         with open(a.json, "w") as out:
