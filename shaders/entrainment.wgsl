@@ -6,7 +6,7 @@
 // next substep then evaporates what the mixture cannot hold. A clear particle takes the
 // clouds' loss of its layers, per unit mass, from the host's table, so that the pass keeps the
 // mass-weighted sums of s_l and q_t (the vapor floor aside), on average also where the gain is
-// below an f32 ulp (`add_unbiased`).
+// below an f32 ulp (`add_unbiased`, shared/common.wgsl).
 // f64 mirror: src/sim/reference/entrainment.rs (`apply_entrainment`). No neighbours are read.
 //!include shared/common.wgsl
 
@@ -36,22 +36,6 @@ struct EntrainmentParams {
 @group(0) @binding(2) var<storage, read> vel: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> thermo: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read> live: Live;
-
-// x + g in f32 without the bias of rounding: a clear particle's gain is often below half an
-// ulp of its T (3e-5 K at 300 K), which a plain sum would drop every frame. A gain of fewer
-// than 64 ulps of x is added as a whole number of ulps, rounded up with the probability of its
-// fraction, drawn from `key` (a hash of the state, so a run and its resume agree). It works on
-// the bits, not by recovering the rounding error with float sums, which a driver may simplify
-// away (lavapipe does). Positive x only. Mirror: the exact sum.
-fn add_unbiased(x: f32, g: f32, key: u32) -> f32 {
-    let bits = bitcast<u32>(x);
-    let ulp = bitcast<f32>(bits + 1u) - x;
-    let q = g / ulp;
-    if (x <= 0.0 || !(abs(q) < 64.0)) { return x + g; }
-    let u = f32(pcg_hash(key) >> 8u) * (1.0 / 16777216.0);
-    let n = i32(floor(q + u));
-    return bitcast<f32>(u32(max(i32(bits) + n, 0)));
-}
 
 @compute @workgroup_size(WG_PARTICLES)
 fn apply_entrainment(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {

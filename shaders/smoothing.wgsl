@@ -15,7 +15,8 @@
 // T_i - k_i C_i; with k symmetrised per pair, m_i a_ij (s_i - s_j) (k_i + k_j) / 2 is
 // antisymmetric in i and j, so sum_i m_i T_i is kept exactly: the smoothing moves heat, it
 // creates or destroys none (the paper's per-particle projection does not, docs/PHYSICS.md
-// "Heat budget"). Mixing evens out s, not T: a well-mixed layer has one potential
+// "Heat budget"). In f32 it is kept on average: T_i takes its flux with `add_unbiased`
+// (shared/common.wgsl), as a flux below half an ulp would otherwise be dropped. Mixing evens out s, not T: a well-mixed layer has one potential
 // temperature and T falling at Gamma_d, which smoothing T would turn stable.
 // Walls: insulated (S.fixed_walls = 0: the boundary particles are left out, no heat crosses the
 // floor or the ceiling) or fixed-temperature (neighbours with their own temperature boundary.w,
@@ -268,7 +269,15 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
     var out = th;
     let g = sum_a * sum_a + sum_a2;
     if (S.conservative != 0u) {
-        out.x = ti - acc.flux;
+        // the flux of a substep is often below half an ulp of T where s is nearly even: a
+        // plain sum drops it, and the drops do not cancel (a warm particle's large loss is kept,
+        // the small gains of its neighbours are not; docs/PHYSICS.md "Heat budget")
+        // keyed on the flux too: the iterations of a substep see the same position, and a key
+        // that did not change with them would round a particle's steady small gain the same
+        // way every time (down, for most of them)
+        let pb = bitcast<vec3<u32>>(pos[i].xyz);
+        let key = pcg_hash(pb.x ^ pcg_hash(pb.y ^ pcg_hash(pb.z ^ pcg_hash(bitcast<u32>(ti) ^ pcg_hash(bitcast<u32>(acc.flux))))));
+        out.x = add_unbiased(ti, -acc.flux, key);
     } else if (g > 0.0) {
         // T* = T + kappa lambda S with lambda = -C / g.
         out.x = ti - S.kappa * c * sum_a / g;

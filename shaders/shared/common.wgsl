@@ -22,6 +22,24 @@ fn pcg_hash(v: u32) -> u32 {
     return (word >> 22u) ^ word;
 }
 
+// x + g in f32 without the bias of rounding: an increment below half an ulp of x (3e-5 K at
+// 300 K) is dropped by a plain sum, every time, and where such increments share a sign the
+// drops add up (the entrainment's gain of a clear particle; the conservative smoothing's flux
+// into a particle whose neighbours differ little from it). A g of fewer
+// than 64 ulps of x is added as a whole number of ulps, rounded up with the probability of its
+// fraction, drawn from `key` (a hash of the state, so a run and its resume agree). It works on
+// the bits, not by recovering the rounding error with float sums, which a driver may simplify
+// away (lavapipe does). Positive x only. Mirror: the exact sum.
+fn add_unbiased(x: f32, g: f32, key: u32) -> f32 {
+    let bits = bitcast<u32>(x);
+    let ulp = bitcast<f32>(bits + 1u) - x;
+    let q = g / ulp;
+    if (x <= 0.0 || !(abs(q) < 64.0)) { return x + g; }
+    let u = f32(pcg_hash(key) >> 8u) * (1.0 / 16777216.0);
+    let n = i32(floor(q + u));
+    return bitcast<f32>(u32(max(i32(bits) + n, 0)));
+}
+
 // Uniform grid over the domain; x and z may be periodic (minimum image), y is walled.
 struct GridParams {
     domain_min: vec3<f32>,

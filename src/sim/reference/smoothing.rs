@@ -76,7 +76,8 @@ pub fn constraint_terms(input: &SmoothInput, i: usize) -> (f64, f64, f64) {
 /// One Jacobi iteration of the conservative form (`physics.smoothing.conservative`), of the
 /// dry static temperature s = T + Gamma_d y (Gamma_d = `lapse`):
 /// T*_i = T_i - sum_j (k_i + k_j) / 2 a_ij (s_i - s_j) - sum_walls k_i a_ik (s_i - s_k) with
-/// k_i = kappa S_i / (S_i^2 + sum_k a_ik^2), the walls only when they are fixed.
+/// k_i = kappa S_i / (S_i^2 + sum_k a_ik^2), the walls only when they are fixed. Exact here; the
+/// GPU adds each T_i's flux with stochastic rounding (`add_unbiased`), equal on average.
 pub fn smooth_temperature_conservative(input: &SmoothInput) -> Vec<f64> {
     let p = input.params;
     let kappa = p.kappa as f64;
