@@ -22,22 +22,27 @@ fn pcg_hash(v: u32) -> u32 {
     return (word >> 22u) ^ word;
 }
 
-// x + g in f32 without the bias of rounding: an increment below half an ulp of x (3e-5 K at
-// 300 K) is dropped by a plain sum, every time, and where such increments share a sign the
-// drops add up (the entrainment's gain of a clear particle; the conservative smoothing's flux
-// into a particle whose neighbours differ little from it). A g of fewer
-// than 64 ulps of x is added as a whole number of ulps, rounded up with the probability of its
-// fraction, drawn from `key` (a hash of the state, so a run and its resume agree). It works on
-// the bits, not by recovering the rounding error with float sums, which a driver may simplify
-// away (lavapipe does). Positive x only. Mirror: the exact sum.
+// x + g in f32 without the bias of rounding. x + g rounds by the fraction of an ulp that g
+// leaves, which is the same for every x of one binade: an increment below half an ulp of x (3e-5
+// K at 300 K) is dropped, every time, and one increment given to many particles is rounded the
+// same way for all of them. Either adds up (the entrainment's gain of a clear particle; the
+// conservative smoothing's flux into a particle whose neighbours differ little from it; the
+// forcing's heating of the surface layer, docs/PHYSICS.md "Heat budget"). A g of fewer than
+// 65536 ulps of x (the fraction then keeps 8 bits) is added as a whole number of ulps, rounded
+// up with the probability of its fraction, drawn from `key` (a hash of the state, so a run and
+// its resume agree); a sum that would leave the binade is a plain one. It works on the bits,
+// not by recovering the rounding error with float sums, which a driver may simplify away
+// (lavapipe does). Positive x only. Mirror: the exact sum.
 fn add_unbiased(x: f32, g: f32, key: u32) -> f32 {
     let bits = bitcast<u32>(x);
     let ulp = bitcast<f32>(bits + 1u) - x;
     let q = g / ulp;
-    if (x <= 0.0 || !(abs(q) < 64.0)) { return x + g; }
+    if (x <= 0.0 || !(abs(q) < 65536.0)) { return x + g; }
     let u = f32(pcg_hash(key) >> 8u) * (1.0 / 16777216.0);
-    let n = i32(floor(q + u));
-    return bitcast<f32>(u32(max(i32(bits) + n, 0)));
+    let r = u32(max(i32(bits) + i32(floor(q + u)), 0));
+    // across a power of two the ulp changes: a plain sum there
+    if ((r >> 23u) != (bits >> 23u)) { return x + g; }
+    return bitcast<f32>(r);
 }
 
 // Uniform grid over the domain; x and z may be periodic (minimum image), y is walled.
