@@ -16,8 +16,9 @@
 // antisymmetric in i and j, so sum_i m_i T_i is kept exactly: the smoothing moves heat, it
 // creates or destroys none (the paper's per-particle projection does not, docs/PHYSICS.md
 // "Heat budget"). In f32 it is kept on average: T_i takes its flux with `add_unbiased`
-// (shared/common.wgsl), as a flux below half an ulp would otherwise be dropped. Mixing evens out s, not T: a well-mixed layer has one potential
-// temperature and T falling at Gamma_d, which smoothing T would turn stable.
+// (shared/common.wgsl), as a flux below half an ulp would otherwise be dropped. Mixing evens
+// out s, not T: a well-mixed layer has one potential temperature and T falling at Gamma_d,
+// which smoothing T would turn stable.
 // Walls: insulated (S.fixed_walls = 0: the boundary particles are left out, no heat crosses the
 // floor or the ceiling) or fixed-temperature (neighbours with their own temperature boundary.w,
 // level 0). kappa is the per-iteration share of the configured rate (SmoothParams::new).

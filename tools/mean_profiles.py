@@ -49,6 +49,7 @@ import sys
 P00 = 100000.0
 CP_OVER_RD = 3.4978  # c_p / R_d as sim::thermo::CP_OVER_RD
 Q = 2500.0  # L / c_p (K per kg/kg), as nimbus's latent_heat default
+VIRTUAL_FACTOR = 0.608  # R_v / R_d - 1, as sim::thermo::VIRTUAL_FACTOR
 
 
 def fail(msg, code=2):
@@ -143,7 +144,7 @@ def read_nimbus(run, window, dz):
         p = p_s * (1.0 - y / top) ** CP_OVER_RD
         exner = (P00 / p) ** (1.0 / CP_OVER_RD)
         theta_l = (th[:, 0] - q * th[:, 2]) * exner
-        theta_v = th[:, 0] * exner * (1.0 + 0.608 * th[:, 1] - th[:, 2])
+        theta_v = th[:, 0] * exner * (1.0 + VIRTUAL_FACTOR * th[:, 1] - th[:, 2])
         k = np.clip((y // dz).astype(int), 0, n - 1)
         q_t = th[:, 1] + th[:, 2]
         for j, f in enumerate([theta_l, q_t, th[:, 2], vel[:, 0], -vel[:, 2], theta_v]):
@@ -162,7 +163,8 @@ def read_nimbus(run, window, dz):
     return {"kind": "nimbus", "path": os.path.abspath(run), "snapshots": len(times),
             "times": times, "z": z.tolist(), "thl": m[:, 0].tolist(), "qt": m[:, 1].tolist(),
             "ql": m[:, 2].tolist(), "u": m[:, 3].tolist(), "v": m[:, 4].tolist(),
-            "thv": m[:, 5].tolist(), "count": count.tolist(), "w2": d[:, 0].tolist(), "wqt": d[:, 1].tolist(), "wthl": d[:, 2].tolist(),
+            "thv": m[:, 5].tolist(), "count": count.tolist(),
+            "w2": d[:, 0].tolist(), "wqt": d[:, 1].tolist(), "wthl": d[:, 2].tolist(),
             "note": f"checkpoints; layers of {dz:g} m; u, v in the simulation's frame (x, -z)"}
 
 

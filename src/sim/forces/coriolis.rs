@@ -18,7 +18,6 @@
 //!   an LES's prescribed u*, per particle).
 use crate::config::ShotConfig;
 use crate::error::Result;
-use crate::gpu::live::LiveBuffer;
 use crate::gpu::program::entry_points;
 use crate::sim::forces::pass::ParticlePass;
 use crate::sim::phase::{Phase, Recorder};
@@ -146,7 +145,7 @@ impl CoriolisStage {
     pub fn apply_with(
         &self,
         rec: &mut Recorder,
-        live: &LiveBuffer,
+        live: &crate::gpu::live::LiveBuffer,
         params: &CoriolisParams,
     ) -> Result<()> {
         self.pass.record(rec, live, params)
