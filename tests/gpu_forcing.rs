@@ -23,17 +23,22 @@ const FORCING: &str = "{surface_heat_flux: 0.06, surface_moisture_flux: 2.0e-4, 
     {height: 2100, radiation: -0.8, moisture: 0, subsidence: 0},\
     {height: 2500, radiation: 0, moisture: 0, subsidence: 0}]}";
 
+/// One frame of a minute in a 1 x 3 x 1 km box at 50 m under `FORCING`: the single passes'.
+fn one_frame_shot() -> ShotConfig {
+    shot(&format!(
+        "shot: f\noutput: {{frames: {{start: 1, end: 2}}, frame_seconds: 60, substeps: 4}}\n\
+         domain: {{size: [1000.0, 3000.0, 1000.0], spacing: 50.0}}\n\
+         physics: {{forcing: {FORCING}}}\n"
+    ))
+}
+
 /// One pass over random particles (heights over the whole box, some with too little vapor for
 /// the drying) against `apply_forcing`: T to 1e-4 K (an f32 ulp at 300 K is 3e-5 K); v to four
 /// f32 ulps of what the pass adds up, v before plus dt times the table's rates, with the height's
 /// rounding (a relative eps times the layer index) carried through the table's interpolation.
 #[test]
 fn apply_forcing_matches_the_mirror() {
-    let cfg = shot(&format!(
-        "shot: f\noutput: {{frames: {{start: 1, end: 2}}, frame_seconds: 60, substeps: 4}}\n\
-         domain: {{size: [1000.0, 3000.0, 1000.0], spacing: 50.0}}\n\
-         physics: {{forcing: {FORCING}}}\n"
-    ));
+    let cfg = one_frame_shot();
     let seed = harness::fresh_seed();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let n = 3000;
@@ -115,11 +120,7 @@ fn apply_forcing_matches_the_mirror() {
 /// (`add_unbiased`): the mean increment of 20 000 particles is kept to 5e-4 (a plain sum: 3e-3).
 #[test]
 fn a_frames_increment_is_kept_on_average() {
-    let cfg = shot(&format!(
-        "shot: f\noutput: {{frames: {{start: 1, end: 2}}, frame_seconds: 60, substeps: 4}}\n\
-         domain: {{size: [1000.0, 3000.0, 1000.0], spacing: 50.0}}\n\
-         physics: {{forcing: {FORCING}}}\n"
-    ));
+    let cfg = one_frame_shot();
     let seed = harness::fresh_seed();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let n = 20_000;
