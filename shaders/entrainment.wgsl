@@ -58,8 +58,7 @@ fn apply_entrainment(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num
         thermo[i] = vec4<f32>(th.x - r * (th.x - t_env), th.y - r * (th.y - env.y), th.z - r * th.z, th.w);
     } else {
         let g = mix(E.gain[k0].xy, E.gain[k1].xy, f);
-        let p = bitcast<vec3<u32>>(pos[i].xyz);
-        let key = pcg_hash(p.x ^ pcg_hash(p.y ^ pcg_hash(p.z)));
+        let key = state_key(pos[i].xyz, 0u);
         let t_new = add_unbiased(th.x, g.x, key);
         let v_new = max(add_unbiased(th.y, g.y, pcg_hash(key)), 0.0);
         thermo[i] = vec4<f32>(t_new, v_new, th.z, th.w);

@@ -52,8 +52,7 @@ fn apply_forcing(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
     // the vapor cannot go below zero (a drying larger than what is there takes what is there)
     // every particle of the surface layer takes nearly the same increment, which a plain f32
     // sum rounds the same way for all of them (0.9% of the BOMEX shot's heat budget)
-    let p = bitcast<vec3<u32>>(pos[i].xyz);
-    let key = pcg_hash(p.x ^ pcg_hash(p.y ^ pcg_hash(p.z ^ pcg_hash(bitcast<u32>(th.x)))));
+    let key = state_key(pos[i].xyz, pcg_hash(bitcast<u32>(th.x)));
     let t_new = add_unbiased(th.x, F.dt * rate.x, key);
     let v_new = max(add_unbiased(th.y, F.dt * rate.y, pcg_hash(key)), 0.0);
     thermo[i] = vec4<f32>(t_new, v_new, th.z, th.w);

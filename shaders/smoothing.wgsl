@@ -270,14 +270,13 @@ fn smooth_temperature(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(nu
     var out = th;
     let g = sum_a * sum_a + sum_a2;
     if (S.conservative != 0u) {
-        // the flux of a substep is often below half an ulp of T where s is nearly even: a
+        // The flux of a substep is often below half an ulp of T where s is nearly even: a
         // plain sum drops it, and the drops do not cancel (a warm particle's large loss is kept,
-        // the small gains of its neighbours are not; docs/PHYSICS.md "Heat budget")
-        // keyed on the flux too: the iterations of a substep see the same position, and a key
-        // that did not change with them would round a particle's steady small gain the same
-        // way every time (down, for most of them)
-        let pb = bitcast<vec3<u32>>(pos[i].xyz);
-        let key = pcg_hash(pb.x ^ pcg_hash(pb.y ^ pcg_hash(pb.z ^ pcg_hash(bitcast<u32>(ti) ^ pcg_hash(bitcast<u32>(acc.flux))))));
+        // the small gains of its neighbours are not; docs/PHYSICS.md "Heat budget"). Keyed on
+        // the flux too: the iterations of a substep see the same position, and a key that did
+        // not change with them would round a steady small gain the same way every time.
+        let salt = pcg_hash(bitcast<u32>(ti) ^ pcg_hash(bitcast<u32>(acc.flux)));
+        let key = state_key(pos[i].xyz, salt);
         out.x = add_unbiased(ti, -acc.flux, key);
     } else if (g > 0.0) {
         // T* = T + kappa lambda S with lambda = -C / g.

@@ -45,6 +45,13 @@ fn add_unbiased(x: f32, g: f32, key: u32) -> f32 {
     return bitcast<f32>(r);
 }
 
+// The key of `add_unbiased` for a particle at p: a hash of its position's bits and `salt` (0,
+// or a hash of the values it adds to), so a run and its resume draw the same.
+fn state_key(p: vec3<f32>, salt: u32) -> u32 {
+    let b = bitcast<vec3<u32>>(p);
+    return pcg_hash(b.x ^ pcg_hash(b.y ^ pcg_hash(b.z ^ salt)));
+}
+
 // Uniform grid over the domain; x and z may be periodic (minimum image), y is walled.
 struct GridParams {
     domain_min: vec3<f32>,
