@@ -682,10 +682,18 @@ impl LeafCtx<'_> {
                                     }
                                     cov[n] += w;
                                     dens[n] += w * s.cloud;
-                                    vap[n] += w * s.vapor;
-                                    tnum[n] += w * s.temp;
-                                    for (acc, u) in vnum[n].iter_mut().zip(s.vel) {
-                                        *acc += w * u;
+                                    // only the grids written: with the detail every clear
+                                    // particle near a cloud is a source of the density alone
+                                    if f.vapor {
+                                        vap[n] += w * s.vapor;
+                                    }
+                                    if f.temperature {
+                                        tnum[n] += w * s.temp;
+                                    }
+                                    if f.velocity {
+                                        for (acc, u) in vnum[n].iter_mut().zip(s.vel) {
+                                            *acc += w * u;
+                                        }
                                     }
                                 }
                             }
