@@ -522,4 +522,43 @@ mod detail {
         );
         assert!(with.rest.is_none());
     }
+
+    /// At amplitude 0 the detail only sharpens: the rest positions are not read, so a
+    /// scrambled rest frame and other blend weights give the same bytes (at 0.6 they do not);
+    /// the mass is kept and the edge is cut to fewer voxels than the kernel's fade.
+    #[test]
+    fn sharpening_alone_reads_no_rest_positions() {
+        let st = ball([0.0; 3]);
+        let scrambled: RestFrame = rest().into_iter().rev().collect();
+        let other = |p: &SplatParams| {
+            let input = RestInput {
+                rest: &scrambled,
+                codec: codec(),
+                weights: [0.9, 0.1],
+                dual: false,
+            };
+            splat_with_rest(&st, p, Some(input))
+                .unwrap()
+                .density
+                .unwrap()
+        };
+        let mut p = params(Some(NoiseSpace::Rest));
+        p.fields.rest = false;
+        let displaced = run(&st, &rest(), &p).density.unwrap();
+        assert_ne!(grid_bytes(&displaced), grid_bytes(&other(&p)));
+
+        p.detail.as_mut().unwrap().amplitude = 0.0;
+        let sharp = run(&st, &rest(), &p).density.unwrap();
+        assert_eq!(grid_bytes(&sharp), grid_bytes(&other(&p)));
+        let mut plain = p.clone();
+        plain.detail = None;
+        let plain = run(&st, &rest(), &plain).density.unwrap();
+        assert!((sum(&sharp) / sum(&plain) - 1.0).abs() < 1e-3);
+        assert!(
+            sharp.active_voxel_count() * 10 < plain.active_voxel_count() * 9,
+            "{} active voxels sharpened, {} plain",
+            sharp.active_voxel_count(),
+            plain.active_voxel_count()
+        );
+    }
 }

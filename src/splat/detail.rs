@@ -159,6 +159,9 @@ pub struct DetailNoise {
     /// Means of one octave's billowy and wispy values over space, taken out so that the
     /// displacement neither erodes nor grows the cloud on average.
     means: [f64; 2],
+    /// Some octave moves the surface (amplitude above 0): only then are the rest coordinates
+    /// read.
+    displaces: bool,
 }
 
 impl DetailNoise {
@@ -189,7 +192,6 @@ impl DetailNoise {
             });
         }
         Self {
-            octaves,
             character: p.character,
             space: p.space,
             weights,
@@ -197,7 +199,15 @@ impl DetailNoise {
             soft: SOFT_VOXELS * voxel,
             edge_water: EDGE_WATER * cloud_scale,
             means: octave_means(),
+            displaces: octaves.iter().any(|o| o.reach > 0.0),
+            octaves,
         }
+    }
+
+    /// Whether the noise moves the surface; without it the boundary is only sharpened and the
+    /// rest coordinates are not needed.
+    pub fn displaces(&self) -> bool {
+        self.displaces
     }
 
     /// Octaves in use (0: the voxels are too coarse for any: the boundary is still sharpened,
@@ -265,8 +275,12 @@ impl DetailNoise {
         // about 0.2): the displacement fades out where the cloud fraction does; and it stays
         // within 60% of the kernel radius (a soft limit), so that no crease reaches the core
         let reach = 0.6 * h;
-        let d =
-            reach * (self.displacement(x, rest, omega) / reach).tanh() * smoothstep(0.02, 0.3, c);
+        let d = if self.displaces {
+            reach * (self.displacement(x, rest, omega) / reach).tanh() * smoothstep(0.02, 0.3, c)
+        } else {
+            // the same +0 the octaves of zero reach sum to, without evaluating them
+            0.0
+        };
         let w = self.sharp + omega * (self.soft - self.sharp);
         let value = q_in * smoothstep(-w, w, phi + d);
         let m = 1.0 - smoothstep(0.0, h, phi);

@@ -297,7 +297,18 @@ pub fn splat_with_rest(
         }
         _ => {}
     }
-    let rest = if wants_rest { rest } else { None };
+    let f = params.fields;
+    let t = params.transform;
+    let v = t.voxel_size;
+    let noise = params.detail.as_ref().map(|d| {
+        // the blend weights matter only where the noise displaces, and then rest is given
+        let weights = rest.map_or([1.0, 0.0], |r| r.weights);
+        detail::DetailNoise::new(d, params.domain_size, v, weights, params.cloud_scale)
+    });
+    // The rest positions are read for the rest grids and for a displacing detail; a detail at
+    // amplitude 0 only sharpens, from the kernel sums alone.
+    let rest_used = f.rest || noise.as_ref().is_some_and(|n| n.displaces());
+    let rest = if rest_used { rest } else { None };
     let need_vel = params.fields.velocity;
     if state.thermo.len() != n
         || state.info.len() != n
@@ -312,13 +323,10 @@ pub fn splat_with_rest(
             state.density.len()
         )));
     }
-    let f = params.fields;
-    let t = params.transform;
-    let v = t.voxel_size;
     let (lo, hi, period) = params.index_range();
     // Particles with zero cloud and vapor add nothing to those grids: skip them unless a
-    // normalised field needs every particle.
-    let all = f.temperature || f.velocity || rest.is_some();
+    // normalised field or the detail's cloud fraction needs every particle.
+    let all = f.temperature || f.velocity || rest.is_some() || noise.is_some();
     let rho_min = MIN_DENSITY_RATIO * params.rest_density;
 
     let mut per_particle: Vec<Vec<Source>> = (0..n)
@@ -474,16 +482,6 @@ pub fn splat_with_rest(
     let max_r = sources.iter().map(|s| s.r).fold(0.0f64, f64::max);
     let reach = (max_r / LEAF_DIM as f64).ceil() as i32;
 
-    let noise = match (&params.detail, &rest) {
-        (Some(d), Some(r)) => Some(detail::DetailNoise::new(
-            d,
-            params.domain_size,
-            v,
-            r.weights,
-            params.cloud_scale,
-        )),
-        _ => None,
-    };
     let ctx = LeafCtx {
         sources: &sources,
         bin_keys: &bin_keys,
@@ -719,7 +717,10 @@ impl LeafCtx<'_> {
         let rest_of = |n: usize| {
             let x = centre(n);
             let c = cov[n];
-            let d = &dnum[n];
+            let Some(d) = dnum.get(n) else {
+                // no rest positions read: the detail only sharpens and ignores them
+                return (x, [x, x]);
+            };
             let r = |k: usize| [0, 1, 2].map(|a| if c > 0.0 { x[a] - d[k + a] / c } else { x[a] });
             (x, [r(0), r(3)])
         };
