@@ -342,8 +342,11 @@ pub fn plane_fraction(u: f64) -> f64 {
 }
 
 /// The signed distance u (kernel radii, -1 to 1) from a plane boundary at which the cloud
-/// fraction is `c`: `plane_fraction`'s inverse, by bisection (the fraction rises
-/// monotonically); exactly 1 where the fraction is 1 (the core) and -1 where it is 0.
+/// fraction is `c`: `plane_fraction`'s inverse; exactly 1 where the fraction is 1 (the core)
+/// and -1 where it is 0. Newton's method on the fraction, whose slope is 315/256 (1 - u^2)^4,
+/// kept inside a bracket that bisects wherever a step would leave it: 1 to 6 evaluations (4 on
+/// average over c) to 1e-13 or to the fraction's rounding, where a plain bisection took 44 (it
+/// was most of the splat's time with the detail).
 pub fn distance_of_fraction(c: f64) -> f64 {
     if c >= 1.0 {
         return 1.0;
@@ -352,15 +355,45 @@ pub fn distance_of_fraction(c: f64) -> f64 {
         return -1.0;
     }
     let (mut lo, mut hi) = (-1.0f64, 1.0f64);
-    for _ in 0..44 {
-        let mid = 0.5 * (lo + hi);
-        if plane_fraction(mid) < c {
-            lo = mid;
-        } else {
-            hi = mid;
+    let mut u = fraction_guess(c);
+    for _ in 0..64 {
+        let f = plane_fraction(u) - c;
+        if f.abs() <= 2.0 * f64::EPSILON {
+            // the fraction is c to its rounding: in the flat tails no u does better
+            return u;
         }
+        if f < 0.0 {
+            lo = u;
+        } else {
+            hi = u;
+        }
+        let slope = 315.0 / 256.0 * (1.0 - u * u).powi(4);
+        let newton = u - f / slope;
+        let next = if (lo..=hi).contains(&newton) {
+            newton
+        } else {
+            0.5 * (lo + hi)
+        };
+        if (next - u).abs() <= 1e-13 {
+            return next;
+        }
+        u = next;
     }
-    0.5 * (lo + hi)
+    u
+}
+
+/// A first guess at `plane_fraction`'s inverse: near the middle its Taylor inverse, in the
+/// tails (a fraction e from 0 or 1) the leading term e = 315/256 16/5 (1 - |u|)^5.
+fn fraction_guess(c: f64) -> f64 {
+    let y = (c - 0.5) * 256.0 / 315.0;
+    let e = c.min(1.0 - c);
+    if e > 0.12 {
+        // P(u) = u - 4u^3/3 + ... = y, inverted to third order
+        y + 4.0 / 3.0 * y * y * y
+    } else {
+        let s = (e / (315.0 / 256.0 * 16.0 / 5.0)).powf(0.2);
+        (1.0 - s).copysign(y)
+    }
 }
 
 #[cfg(test)]
@@ -395,6 +428,39 @@ mod tests {
         }
         assert_eq!(distance_of_fraction(1.0), 1.0);
         assert_eq!(distance_of_fraction(0.0), -1.0);
+    }
+
+    /// The inverse by bisection to the last bit: what `distance_of_fraction` replaces.
+    fn bisected(c: f64) -> f64 {
+        let (mut lo, mut hi) = (-1.0f64, 1.0f64);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if plane_fraction(mid) < c {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        0.5 * (lo + hi)
+    }
+
+    #[test]
+    fn newton_inverse_matches_bisection_across_the_fraction_and_its_tails() {
+        let mut worst = 0.0f64;
+        let tails = (1..=15).flat_map(|k| {
+            let e = 10f64.powi(-k);
+            [e, 1.0 - e, 3.0 * e, 1.0 - 3.0 * e]
+        });
+        for c in (1..20000).map(|i| i as f64 / 20000.0).chain(tails) {
+            let (u, b) = (distance_of_fraction(c), bisected(c));
+            // in the tails the fraction is flat to the last bit over a span of u: compare
+            // there by the fraction each gives
+            let du = (u - b).abs();
+            let dc = (plane_fraction(u) - c).abs();
+            assert!(du < 1e-10 || dc < 4.0 * f64::EPSILON, "c {c}: {u} vs {b}");
+            worst = worst.max(du.min(dc));
+        }
+        eprintln!("worst {worst:e}");
     }
 
     #[test]
