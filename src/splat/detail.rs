@@ -343,10 +343,10 @@ pub fn plane_fraction(u: f64) -> f64 {
 
 /// The signed distance u (kernel radii, -1 to 1) from a plane boundary at which the cloud
 /// fraction is `c`: `plane_fraction`'s inverse; exactly 1 where the fraction is 1 (the core)
-/// and -1 where it is 0 (or not a number). Newton's method on the fraction, whose slope is 315/256 (1 - u^2)^4,
-/// kept inside a bracket that bisects wherever a step would leave it: 1 to 6 evaluations (4 on
-/// average over c) to 1e-13 or to the fraction's rounding, where a plain bisection took 44 (it
-/// was most of the splat's time with the detail).
+/// and -1 where it is 0 (or not a number). Newton's method on the fraction, whose slope is
+/// 315/256 (1 - u^2)^4, kept inside a bracket that bisects wherever a step would leave it: 1 to
+/// 6 evaluations (4 on average over c) to 1e-13 or to the fraction's rounding, where a plain
+/// bisection took 44 (it was most of the splat's time with the detail).
 pub fn distance_of_fraction(c: f64) -> f64 {
     if c >= 1.0 {
         return 1.0;
